@@ -1,0 +1,1 @@
+"""Speed measurements of jaxanom against its peers (PyTorch, scikit-learn); see RESULTS.md."""

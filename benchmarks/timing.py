@@ -1,0 +1,66 @@
+"""Shared timing and environment helpers for every benchmark script.
+
+A benchmark row is a dict: ``{"benchmark", "case", "impl", "median_ms", ...}``; extra keys
+(``peak_mb``, ``pixels``, ``note``) are allowed. ``markdown_table`` prints rows as a table.
+"""
+from __future__ import annotations
+
+import platform
+import statistics
+import time
+from typing import Any, Callable, Iterable
+
+
+def _block(result: Any) -> Any:
+    """Wait for asynchronous JAX / CUDA work in ``result`` to finish."""
+    if type(result).__module__.startswith("torch"):
+        import torch
+
+        if result.is_cuda:
+            torch.cuda.synchronize()
+        return result
+    import jax
+
+    return jax.block_until_ready(result)
+
+
+def median_ms(fn: Callable[[], Any], *, repeats: int = 7, warmup: int = 2) -> float:
+    """Median wall time of ``fn()`` in milliseconds, after ``warmup`` untimed calls."""
+    for _ in range(warmup):
+        _block(fn())
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        _block(fn())
+        times.append((time.perf_counter() - start) * 1e3)
+    return statistics.median(times)
+
+
+def environment() -> dict[str, str]:
+    """Device and library versions, for the header of a results table."""
+    import jax
+
+    env = {
+        "python": platform.python_version(),
+        "jax": jax.__version__,
+        "device": f"{jax.devices()[0].platform}: {jax.devices()[0].device_kind}",
+        "cpu": platform.processor() or platform.machine(),
+    }
+    for name in ("flax", "numpy", "sklearn", "torch"):
+        try:
+            env[name] = __import__(name).__version__
+        except ImportError:
+            pass
+    return env
+
+
+def markdown_table(rows: Iterable[dict], columns: list[str] | None = None) -> str:
+    """Rows (dicts) as a markdown table; columns default to the keys of the first row."""
+    rows = list(rows)
+    if not rows:
+        return ""
+    columns = columns or list(rows[0])
+    fmt = lambda v: f"{v:.3g}" if isinstance(v, float) else str(v)  # noqa: E731
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(fmt(r.get(c, "")) for c in columns) + " |" for r in rows]
+    return "\n".join(lines)
