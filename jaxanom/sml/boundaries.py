@@ -61,10 +61,10 @@ def find_boundaries(prediction, border: str = "geodesic") -> jax.Array:
     """Boundary mask bool ``(H, W)`` of an integer prediction map ``(H, W)``."""
     check_prediction(prediction)
     check_border(border)
-    return _find_boundaries(jnp.asarray(prediction), border)
+    return _find_boundaries_jit(jnp.asarray(prediction), border)
 
 
-def boundary_distance(boundaries: jax.Array, max_radius: int) -> jax.Array:
+def boundary_distance(boundaries, max_radius: int) -> jax.Array:
     """L1 (diamond) distance int32 ``(H, W)`` of every pixel to the nearest boundary pixel.
 
     Exact up to ``max_radius``; farther pixels (and every pixel of a map without boundary)
@@ -72,6 +72,13 @@ def boundary_distance(boundaries: jax.Array, max_radius: int) -> jax.Array:
     diamond of radius r (the original ``expand_boundaries``), for any traced r <= max_radius.
     The L1 distance separates into a row pass and a column pass.
     """
+    check_rank("boundaries", boundaries, 2, "(H, W)")
+    if not (isinstance(max_radius, (int, np.integer)) and max_radius >= 0):
+        raise ValueError(f"max_radius must be an int >= 0, got {max_radius!r}")
+    return _boundary_distance_jit(jnp.asarray(boundaries, bool), int(max_radius))
+
+
+def _boundary_distance(boundaries: jax.Array, max_radius: int) -> jax.Array:
     far = max_radius + 1
     d = jnp.where(boundaries, 0, far).astype(jnp.int32)
     for axis in (1, 0):
@@ -80,3 +87,7 @@ def boundary_distance(boundaries: jax.Array, max_radius: int) -> jax.Array:
         shifted = (abs(k - max_radius) + jax.lax.slice_in_dim(p, k, k + size, axis=axis) for k in range(2 * max_radius + 1))
         d = jnp.minimum(far, functools.reduce(jnp.minimum, shifted))
     return d
+
+
+_find_boundaries_jit = jax.jit(_find_boundaries, static_argnames="border")
+_boundary_distance_jit = jax.jit(_boundary_distance, static_argnames="max_radius")

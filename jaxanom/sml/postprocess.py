@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxanom._validate import check_finite, check_rank
-from jaxanom.sml.boundaries import _find_boundaries, boundary_distance, check_border, check_prediction
+from jaxanom.sml.boundaries import _boundary_distance, _find_boundaries, check_border, check_prediction
 
 
 def _box3_sum(x: jax.Array) -> jax.Array:
@@ -24,7 +24,7 @@ def _box3_sum(x: jax.Array) -> jax.Array:
 def _suppress(score, prediction, width: int = 4, iterations: int = 4, border: str = "geodesic"):
     step = width // iterations
     max_radius = width - 1 if (iterations > 1 and width > 0) else 0
-    distance = boundary_distance(_find_boundaries(prediction, border), max_radius)
+    distance = _boundary_distance(_find_boundaries(prediction, border), max_radius)
 
     def one_iteration(i, out):
         # radius W - i*(W/n) - 1, and 0 for the last iteration (3, 2, 1, 0 by default)
@@ -63,9 +63,9 @@ _smooth_jit = jax.jit(_smooth, static_argnames=("kernel_size", "sigma", "dilatio
 
 
 def check_suppression(width: int, iterations: int, border: str) -> None:
-    if not (isinstance(iterations, int) and iterations >= 1):
+    if not (isinstance(iterations, (int, np.integer)) and iterations >= 1):
         raise ValueError(f"iterations must be an int >= 1, got {iterations!r}")
-    if not (isinstance(width, int) and width >= 0):
+    if not (isinstance(width, (int, np.integer)) and width >= 0):
         raise ValueError(f"width must be an int >= 0, got {width!r}")
     if width % iterations:
         raise ValueError(f"width must be a multiple of iterations, got width={width}, iterations={iterations}")
@@ -73,11 +73,11 @@ def check_suppression(width: int, iterations: int, border: str) -> None:
 
 
 def check_smoothing(kernel_size: int, sigma: float, dilation: int) -> None:
-    if not (isinstance(kernel_size, int) and kernel_size >= 1 and kernel_size % 2 == 1):
+    if not (isinstance(kernel_size, (int, np.integer)) and kernel_size >= 1 and kernel_size % 2 == 1):
         raise ValueError(f"kernel_size must be an odd int >= 1, got {kernel_size!r}")
     if not sigma > 0:
         raise ValueError(f"sigma must be > 0, got {sigma!r}")
-    if not (isinstance(dilation, int) and dilation >= 1):
+    if not (isinstance(dilation, (int, np.integer)) and dilation >= 1):
         raise ValueError(f"dilation must be an int >= 1, got {dilation!r}")
 
 
