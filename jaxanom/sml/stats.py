@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+import zipfile
 from typing import Iterable, NamedTuple
 
 import jax
@@ -172,7 +173,7 @@ def save_stats(path, mean, std, counts) -> None:
         raise ValueError(f"mean, std and counts must all have shape (C,), got {shapes}")
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
-        raise ValueError(f"path must be in an existing folder, got {path!r}")
+        raise ValueError(f"path must be in an existing folder, got {str(path)!r}")
     fd, tmp = tempfile.mkstemp(dir=folder, suffix=".npz.tmp")
     try:
         with os.fdopen(fd, "wb") as f:
@@ -186,9 +187,13 @@ def save_stats(path, mean, std, counts) -> None:
 def load_stats(path) -> tuple[jax.Array, jax.Array, np.ndarray]:
     """Read ``(mean, std, counts)`` written by ``save_stats``; mean/std float32 ``(C,)``, counts int64."""
     if not os.path.isfile(path):
-        raise ValueError(f"path must be an existing .npz statistics file, got {path!r}")
-    with np.load(path, allow_pickle=False) as data:
-        absent = {"mean", "std", "counts"} - set(data.files)
-        if absent:
-            raise ValueError(f"{path!r} must hold arrays mean, std, counts; missing {sorted(absent)}")
-        return jnp.asarray(data["mean"]), jnp.asarray(data["std"]), data["counts"]
+        raise ValueError(f"path must be an existing .npz statistics file, got {str(path)!r}")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {name: data[name] for name in data.files}
+    except (OSError, ValueError, zipfile.BadZipFile) as error:
+        raise ValueError(f"path {str(path)!r} is not a readable .npz file: {error}") from error
+    absent = {"mean", "std", "counts"} - set(arrays)
+    if absent:
+        raise ValueError(f"{str(path)!r} must hold arrays mean, std, counts; missing {sorted(absent)}")
+    return jnp.asarray(arrays["mean"]), jnp.asarray(arrays["std"]), arrays["counts"]
