@@ -32,9 +32,12 @@ def _check_temperature(temperature) -> None:
 
 
 def _msp(logits: jax.Array) -> jax.Array:
-    # 1 - max_c p_c written as -expm1(max logit - logsumexp): keeps its precision on confident
-    # pixels, where 1 - p would round to 0 and tie them all.
-    return -jnp.expm1(jnp.max(logits, axis=-1) - jax.nn.logsumexp(logits, axis=-1))
+    # 1 - p_max = s / (1 + s) with s = sum over the other classes of exp(F_c - F_max): keeps
+    # its precision on confident pixels, where 1 - p_max would round to 0 and tie them all.
+    top = jnp.argmax(logits, axis=-1)[..., None]
+    others = jnp.where(jnp.arange(logits.shape[-1]) == top, 0.0, jnp.exp(logits - jnp.max(logits, axis=-1, keepdims=True)))
+    s = jnp.sum(others, axis=-1)
+    return s / (1.0 + s)
 
 
 def _max_logit(logits: jax.Array) -> jax.Array:
@@ -56,14 +59,27 @@ def _softmax_distance(logits: jax.Array) -> jax.Array:
     return 1.0 - top2[..., 0] + top2[..., 1]
 
 
+# Built once at import: single images, and jax.jit(jax.vmap(...)) over a leading batch axis.
+_msp_jit = jax.jit(_msp)
+_max_logit_jit = jax.jit(_max_logit)
+_entropy_jit = jax.jit(_entropy, static_argnums=1)
+_energy_jit = jax.jit(_energy)
+_softmax_distance_jit = jax.jit(_softmax_distance)
+_msp_batch = jax.jit(jax.vmap(_msp))
+_max_logit_batch = jax.jit(jax.vmap(_max_logit))
+_entropy_batch = jax.jit(jax.vmap(_entropy, in_axes=(0, None)), static_argnums=1)
+_energy_batch = jax.jit(jax.vmap(_energy, in_axes=(0, None)))
+_softmax_distance_batch = jax.jit(jax.vmap(_softmax_distance))
+
+
 def msp(logits) -> jax.Array:
     """Maximum softmax probability as an anomaly score, ``1 - max_c p_c``: ``(H, W, C) -> (H, W)`` in [0, 1)."""
-    return _msp(_checked(logits))
+    return _msp_jit(_checked(logits))
 
 
 def max_logit(logits) -> jax.Array:
     """Negative max logit ``-max_c F_c`` (SML paper's baseline): ``(H, W, C) -> (H, W)``."""
-    return _max_logit(_checked(logits))
+    return _max_logit_jit(_checked(logits))
 
 
 def entropy(logits, normalize: bool = False) -> jax.Array:
@@ -72,13 +88,13 @@ def entropy(logits, normalize: bool = False) -> jax.Array:
     ``normalize=True`` divides by ``log C`` (needs C >= 2), giving [0, 1]: MMF Eq. 1 normalised
     to [0, 1] as the MMF paper asks (the logarithm's base cancels).
     """
-    return _entropy(_checked(logits, min_classes=2 if normalize else 1), normalize)
+    return _entropy_jit(_checked(logits, min_classes=2 if normalize else 1), normalize)
 
 
 def energy(logits, temperature: float = 1.0) -> jax.Array:
     """Free energy ``-T logsumexp(F / T)`` (Liu et al. 2020), T > 0: ``(H, W, C) -> (H, W)``."""
     _check_temperature(temperature)
-    return _energy(_checked(logits), temperature)
+    return _energy_jit(_checked(logits), jnp.float32(temperature))
 
 
 def softmax_distance(logits) -> jax.Array:
@@ -87,14 +103,7 @@ def softmax_distance(logits) -> jax.Array:
     D already lies in [0, 1] (0: one certain class, 1: two classes tied), so it needs no
     further normalisation.
     """
-    return _softmax_distance(_checked(logits, min_classes=2))
-
-
-_msp_batch = jax.jit(jax.vmap(_msp))
-_max_logit_batch = jax.jit(jax.vmap(_max_logit))
-_entropy_batch = jax.jit(jax.vmap(_entropy, in_axes=(0, None)), static_argnums=1)
-_energy_batch = jax.jit(jax.vmap(_energy, in_axes=(0, None)))
-_softmax_distance_batch = jax.jit(jax.vmap(_softmax_distance))
+    return _softmax_distance_jit(_checked(logits, min_classes=2))
 
 
 def msp_batch(logits) -> jax.Array:
