@@ -3,7 +3,7 @@
 ``confusion_matrix`` counts on the device (jit); the rest are float64 NumPy functions of the
 (small) matrix, so matrices summed over a dataset (as int64) give the dataset's numbers. A
 class that never occurs and is never predicted has NaN IoU / recall / precision and is left
-out of the means (``nanmean``), as Cityscapes' evaluation does.
+out of the means, as Cityscapes' evaluation does.
 """
 from __future__ import annotations
 
@@ -62,6 +62,11 @@ def _ratio(numerator, denominator):
         return np.where(denominator > 0, numerator / np.where(denominator > 0, denominator, 1), np.nan)
 
 
+def _mean_present(values) -> float:
+    present = values[~np.isnan(values)]
+    return float(present.mean()) if present.size else float("nan")
+
+
 def per_class_iou(matrix) -> np.ndarray:
     """(C,) TP / (TP + FP + FN) per class; NaN where the class neither occurs nor is predicted."""
     tp, actual, predicted, _ = _parts(matrix)
@@ -70,7 +75,7 @@ def per_class_iou(matrix) -> np.ndarray:
 
 def miou(matrix) -> float:
     """Mean IoU over classes that occur or are predicted."""
-    return float(np.nanmean(per_class_iou(matrix)))
+    return _mean_present(per_class_iou(matrix))
 
 
 def pixel_accuracy(matrix) -> float:
@@ -87,7 +92,7 @@ def recall(matrix) -> np.ndarray:
 
 def class_accuracy(matrix) -> float:
     """Mean per-class recall over classes that occur."""
-    return float(np.nanmean(recall(matrix)))
+    return _mean_present(recall(matrix))
 
 
 def precision(matrix) -> np.ndarray:
