@@ -1,0 +1,91 @@
+"""Exact summaries of the ROC and precision-recall curves from score-sorted counts (METHODS.md §6).
+
+Input: entries sorted by ``keys`` ascending (= score descending), each carrying a number of
+positive and negative pixels (one pixel per entry, or run-length / histogram counts). Entries
+with equal keys are one threshold (ties as scikit-learn); entries with no pixel are skipped.
+Counts are exact integers; every rate and sum is float64. Call inside ``jax.enable_x64(True)``.
+
+With thresholds k = 1..K from high to low, TP_k / FP_k the pixels at or above threshold k,
+R_k = TP_k / P, Prec_k = TP_k / (TP_k + FP_k), TPR_k = R_k, FPR_k = FP_k / N and point 0 the
+origin (TP_0 = FP_0 = 0):
+- AP "step"  = sum_k (R_k - R_{k-1}) Prec_k                      (scikit-learn, Fishyscapes)
+- AP "trapz" = sum_{k>=2} (R_k - R_{k-1}) (Prec_k + Prec_{k-1}) / 2   (np.trapz over the
+  curve's points, no artificial (0, 1) start: SMIYC before Aug 2023)
+- AUROC      = sum_k (FPR_k - FPR_{k-1}) (TPR_k + TPR_{k-1}) / 2
+- FPR at TPR t, four conventions (METHODS.md §6), see ``curve_summary``.
+"""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+
+def curve_points(keys, pos, neg):
+    """Cumulative counts at every entry and where a threshold ends.
+
+    keys (M,) uint sorted ascending; pos, neg (M,) int. An entry with no pixel (void, empty
+    bin) must not share its key with an entry that has one. Returns tp, fp (M,) cumulative
+    counts; end (M,) bool, the last entry of each threshold; tp_prev, fp_prev (M,), the counts
+    at the previous threshold (0 before the first).
+    """
+    index = jnp.arange(keys.shape[0])
+    tp, fp = jnp.cumsum(pos), jnp.cumsum(neg)
+    next_keys = jnp.concatenate([keys[1:], keys[-1:]])
+    end = ((keys != next_keys) | (index == keys.shape[0] - 1)) & (pos + neg > 0)
+    prev = jnp.concatenate([jnp.full((1,), -1), lax.cummax(jnp.where(end, index, -1))[:-1]])
+    safe = jnp.maximum(prev, 0)
+    tp_prev = jnp.where(prev >= 0, tp[safe], 0)
+    fp_prev = jnp.where(prev >= 0, fp[safe], 0)
+    return tp, fp, end, tp_prev, fp_prev
+
+
+@jax.jit
+def curve_summary(keys, pos, neg, tpr):
+    """AP, AUROC, FPR at TPR ``tpr`` (every convention) and best F1, as float64 / int scalars.
+
+    keys, pos, neg as in ``curve_points``; tpr a float64 scalar in (0, 1]. FPR at TPR t:
+    - "first":   FPR of the first point with TPR >= t (Fishyscapes, SMIYC);
+    - "interp":  linear between the last point with TPR < t (the origin at worst) and the first
+      with TPR >= t; a point with TPR == t exactly is taken as is (SML, Mask2Anomaly);
+    - "nearest": the point whose |TPR - t| is least, ties to the largest FPR, candidates the
+      origin and the points up to the first with TPR = 1 (PEBAL's fpr_and_fdr_at_recall);
+    - "strict":  FPR of the first point with TPR > t (RbA); NaN when there is none (t = 1).
+    ``first_key`` / ``best_f1_key`` are the keys of the "first" point and of the point of
+    highest pixel F1 (the highest such threshold on ties).
+    """
+    tp, fp, end, tp_prev, fp_prev = curve_points(keys, pos, neg)
+    size = keys.shape[0]
+    index = jnp.arange(size)
+    f64 = jnp.float64
+    p, n = tp[-1].astype(f64), fp[-1].astype(f64)
+    tpf, fpf, tpp, fpp = (x.astype(f64) for x in (tp, fp, tp_prev, fp_prev))
+    precision = tpf / jnp.maximum(tpf + fpf, 1.0)
+    precision_prev = tpp / jnp.maximum(tpp + fpp, 1.0)
+    d_recall = (tpf - tpp) / p
+    ap_step = jnp.sum(jnp.where(end, d_recall * precision, 0.0))
+    has_prev = end & (tpp + fpp > 0)
+    ap_trapz = jnp.sum(jnp.where(has_prev, d_recall * (precision + precision_prev) / 2, 0.0))
+    auroc = jnp.sum(jnp.where(end, (fpf - fpp) * (tpf + tpp), 0.0)) / (2.0 * p * n)
+
+    tpr_k, fpr_k, tpr_prev, fpr_prev = tpf / p, fpf / n, tpp / p, fpp / n
+    first = jnp.min(jnp.where(end & (tpr_k >= tpr), index, size - 1))
+    strict = jnp.min(jnp.where(end & (tpr_k > tpr), index, size))
+    fpr_strict = jnp.where(strict < size, fpr_k[jnp.minimum(strict, size - 1)], jnp.nan)
+    t1, f1, t0, f0 = tpr_k[first], fpr_k[first], tpr_prev[first], fpr_prev[first]
+    fpr_interp = jnp.where(t1 == tpr, f1, f0 + (tpr - t0) * (f1 - f0) / (t1 - t0))
+    full_recall = jnp.min(jnp.where(end & (tp == tp[-1]), index, size - 1))
+    distance = jnp.where(end & (index <= full_recall), jnp.abs(tpr_k - tpr), jnp.inf)
+    nearest_distance = jnp.min(distance)
+    nearest = jnp.max(jnp.where(distance == nearest_distance, index, 0))
+    fpr_nearest = jnp.where(tpr < nearest_distance, 0.0, fpr_k[nearest])
+
+    f1_score = jnp.where(end, 2.0 * tpf / (tpf + fpf + p), -1.0)
+    best = jnp.argmax(f1_score)
+    return {
+        "ap_step": ap_step, "ap_trapz": ap_trapz, "auroc": auroc,
+        "fpr_first": fpr_k[first], "fpr_interp": fpr_interp,
+        "fpr_nearest": fpr_nearest, "fpr_strict": fpr_strict,
+        "first_key": keys[first], "best_f1": f1_score[best], "best_f1_key": keys[best],
+        "num_positives": tp[-1], "num_negatives": fp[-1], "num_thresholds": jnp.sum(end),
+    }
