@@ -36,9 +36,10 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from jaxanom.models.resnet import RESNETS, ResNet, ResNetSpec, stage_dilations
+from jaxanom.models.resnet import RESNETS, ResNet, ResNetSpec
 from jaxanom.nn.cudam import CuDAMAttention
 from jaxanom.nn.layers import ConvBN, Dtype, resize_bilinear
+from jaxanom.nn.msaam import MSAAM
 
 ATTENTIONS = (None, "cudam", "msaam")
 CUDAM_POSITIONS = ("deep", "surface")
@@ -118,7 +119,8 @@ class DeepLabV3Plus(nn.Module):
         feats = ResNet(spec, self.output_stride, dtype=self.dtype, name="backbone")(images, train)
         x = feats["layer4"]
         if self.attention == "msaam":
-            raise NotImplementedError("MSAAM: coming in the next commit")
+            x, msaam_outputs = MSAAM(dtype=self.dtype, name="msaam")(x)
+            out.update(msaam_outputs)
 
         rate = 16 // self.output_stride
         x = ASPP(self.aspp_channels, (6 * rate, 12 * rate, 18 * rate), self.dtype, name="aspp")(x, train)
