@@ -1,0 +1,41 @@
+"""CuDAM's attention upsampling ``up(.)`` (Eqs. 4, 10) and its ensemble anomaly score (Eq. 10).
+
+Attention values are about 1 / (h * w) (the map sums to 1 per image), hence the large sigma;
+the arithmetic stays in float32.
+"""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+
+def upsample_attention(attention, size: tuple[int, int]) -> jax.Array:
+    """Bilinear upsampling of attention maps ``(..., h, w)`` to ``(..., H, W)``, float32.
+
+    Half-pixel centres (PyTorch's ``align_corners=False``). Values are not renormalised: an
+    upsampled map keeps the per-pixel magnitude ~1 / (h * w) that tau and sigma were tuned for.
+    """
+    attention = jnp.asarray(attention, jnp.float32)
+    if attention.ndim < 2 or len(size) != 2:
+        raise ValueError(f"attention: expected shape (..., h, w) and size (H, W), got {attention.shape} and {size}")
+    return jax.image.resize(attention, attention.shape[:-2] + tuple(size), method="bilinear")
+
+
+def cudam_score(anomaly_score, attention_up, sigma: float = 2e4) -> jax.Array:
+    """CuDAM ensemble (Eq. 10): ``P_ano = K + sigma * up(M_att)``, float32, higher = more anomalous.
+
+    ``anomaly_score`` K (any score: SML, MSP, max logit) and ``attention_up`` share one shape,
+    ``(H, W)`` for an image or ``(B, H, W)`` for a batch (the sum is elementwise).
+    """
+    anomaly_score = jnp.asarray(anomaly_score, jnp.float32)
+    attention_up = jnp.asarray(attention_up, jnp.float32)
+    if anomaly_score.shape != attention_up.shape:
+        raise ValueError(
+            f"attention_up: expected the anomaly_score's shape {anomaly_score.shape} "
+            f"(upsample with upsample_attention first), got {attention_up.shape}")
+    return _ensemble(anomaly_score, attention_up, jnp.float32(sigma))
+
+
+@jax.jit
+def _ensemble(anomaly_score, attention_up, sigma):
+    return anomaly_score + sigma * attention_up

@@ -1,0 +1,92 @@
+"""Checkpoints: orbax's ``CheckpointManager`` behind a small API (its own API moves between versions).
+
+A checkpoint of step t holds the full ``TrainState`` and, as JSON, the input iterator's position
+after t batches (``None`` when the input cannot report one). orbax writes each step into a
+temporary folder and renames it when complete, so a run killed while saving leaves the previous
+checkpoints intact.
+"""
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import jax
+import orbax.checkpoint as ocp
+
+
+def _abstract(tree):
+    return jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding), tree)
+
+
+class Checkpointer:
+    """Saves every ``save_every`` steps (and when forced), keeps the last ``keep``, restores.
+
+    ``directory`` is created if missing. Use as a context manager, or call ``close()``:
+    saves are asynchronous and ``close`` waits for them.
+    """
+
+    def __init__(self, directory: str | os.PathLike, save_every: int = 1000, keep: int = 3):
+        if save_every < 1 or keep < 1:
+            raise ValueError(f"save_every, keep: expected >= 1, got {save_every}, {keep}")
+        self.directory = os.path.abspath(directory)
+        options = ocp.CheckpointManagerOptions(
+            save_interval_steps=save_every, max_to_keep=keep, create=True, cleanup_tmp_directories=True)
+        self._manager = ocp.CheckpointManager(self.directory, options=options)
+
+    def latest_step(self) -> int | None:
+        """The newest complete checkpoint's step, or None."""
+        return self._manager.latest_step()
+
+    def should_save(self, step: int) -> bool:
+        """Whether ``step`` is on the ``save_every`` grid (and not saved yet)."""
+        return self._manager.should_save(step)
+
+    def save(self, step: int, state: Any, data_state: Any = None, force: bool = False) -> bool:
+        """Save ``state`` (a pytree of arrays) and ``data_state`` (JSON-able) as step ``step``.
+
+        Returns whether a checkpoint was started (steps off the ``save_every`` grid are skipped
+        unless ``force``). The arrays are copied to host before it returns, so ``state`` may be
+        donated to the next step; the files are written in the background.
+        """
+        args = ocp.args.Composite(state=ocp.args.StandardSave(state),
+                                  data=ocp.args.JsonSave({"iterator": data_state}))
+        return self._manager.save(step, args=args, force=force)
+
+    def restore(self, template: Any, step: int | None = None) -> tuple[Any, Any]:
+        """``(state, data_state)`` of ``step`` (default: the latest), shaped and sharded like ``template``.
+
+        Raises ValueError naming the folder when there is no checkpoint or it cannot be read.
+        """
+        step = self.latest_step() if step is None else step
+        if step is None:
+            raise ValueError(f"checkpoint directory {self.directory}: expected at least one saved step, found none")
+        args = ocp.args.Composite(state=ocp.args.StandardRestore(_abstract(template)), data=ocp.args.JsonRestore())
+        try:
+            restored = self._manager.restore(step, args=args)
+        except Exception as error:  # orbax raises many types for damaged files; name the step instead
+            raise ValueError(
+                f"checkpoint directory {self.directory}: step {step} cannot be read "
+                f"({type(error).__name__}: {error}); delete that step's folder to fall back to an "
+                f"earlier one") from error
+        return restored["state"], restored["data"]["iterator"]
+
+    def wait(self) -> None:
+        """Block until pending asynchronous saves are on disk."""
+        self._manager.wait_until_finished()
+
+    def close(self) -> None:
+        self._manager.close()
+
+    def __enter__(self) -> "Checkpointer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def restore_checkpoint(directory: str | os.PathLike, template: Any, step: int | None = None) -> tuple[Any, Any]:
+    """Restore from an existing checkpoint folder; ValueError if it is missing, empty or damaged."""
+    if not os.path.isdir(directory):
+        raise ValueError(f"checkpoint directory: expected an existing folder, got {os.fspath(directory)!r}")
+    with Checkpointer(directory) as checkpointer:
+        return checkpointer.restore(template, step)

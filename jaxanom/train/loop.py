@@ -1,0 +1,180 @@
+"""The training driver: config, state set-up or resume, the step loop, logging, evaluation, checkpoints.
+
+``train(config, model, train_data, val_data)`` runs ``config.steps`` train steps. ``train_data``
+is any iterable of batches ``{"image": (B, H, W, 3) float32, "label": (B, H, W) int32}`` (this
+process's share of the global batch). When its iterator has ``get_state`` / ``set_state``
+(grain's ``DatasetIterator`` has them), the position is saved with each checkpoint as JSON and
+restored on resume; otherwise a resumed run skips as many batches as were already used, which
+is right for any deterministic input. A run folder that already holds checkpoints is resumed
+from the newest one; a damaged newest checkpoint stops the run with a ValueError (nothing is
+silently restarted).
+
+On CPU a run that is killed and resumed ends with parameters bitwise equal to an uninterrupted
+run (tests/test_train_resume.py); on GPUs this holds as far as their kernels are deterministic.
+"""
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+import os
+import time
+from typing import Any, Iterable
+
+import jax
+import numpy as np
+
+from jaxanom.train.checkpoint import Checkpointer
+from jaxanom.train.optim import OptimConfig, make_optimizer
+from jaxanom.train.runlog import RunLog
+from jaxanom.train.sharding import global_batch, initialize_distributed, make_mesh, replicated
+from jaxanom.train.state import TrainState
+from jaxanom.train.step import LossConfig, make_steps
+
+
+class NonFiniteLossError(FloatingPointError):
+    """The loss or the gradient became NaN or infinite; the run stopped before saving it."""
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """A training run. ``loss`` and ``optim`` default to the papers' settings (SGD, lr 0.01,
+    momentum 0.9, weight decay 5e-4, poly 0.9; CuDAM tau 5e4, p 0.5, beta 0.5). The papers do not
+    state the number of steps; 40k is a common DeepLabV3+ Cityscapes schedule.
+
+    ``eval_every`` / ``save_every``: every that many steps and at the end. ``keep``: newest
+    checkpoints kept. ``distributed``: call ``jax.distributed.initialize`` (multi-host runs).
+    """
+
+    run_dir: str
+    steps: int = 40_000
+    seed: int = 0
+    loss: LossConfig = dataclasses.field(default_factory=LossConfig)
+    optim: OptimConfig = dataclasses.field(default_factory=OptimConfig)
+    eval_every: int = 2000
+    save_every: int = 1000
+    keep: int = 3
+    progress: bool = True
+    distributed: bool = False
+
+    def __post_init__(self):
+        for name in ("steps", "eval_every", "save_every", "keep"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}: expected >= 1, got {getattr(self, name)}")
+
+
+def mean_iou(confusion: np.ndarray) -> float:
+    """Mean over classes present in labels or predictions of TP / (TP + FP + FN); NaN if none."""
+    confusion = np.asarray(confusion, np.float64)
+    true_positive = np.diag(confusion)
+    union = confusion.sum(0) + confusion.sum(1) - true_positive
+    present = union > 0
+    return float(np.mean(true_positive[present] / union[present])) if present.any() else math.nan
+
+
+def pad_batch(batch: dict, multiple: int, ignore: int) -> dict:
+    """Pad a batch's leading axis to a multiple of ``multiple``: zero images, all-void labels."""
+    size = len(batch["label"])
+    extra = -size % multiple
+    if not extra:
+        return batch
+    fill = {"label": ignore}
+    return {name: np.concatenate([value, np.full((extra,) + value.shape[1:], fill.get(name, 0), value.dtype)])
+            for name, value in ((n, np.asarray(v)) for n, v in batch.items())}
+
+
+def evaluate(eval_step, variables, batches: Iterable[dict], mesh, ignore: int) -> dict[str, float]:
+    """mIoU and pixel accuracy of ``variables`` over ``batches`` (summed confusion matrix)."""
+    total = None
+    for batch in batches:
+        batch = global_batch(pad_batch(batch, len(mesh.local_devices), ignore), mesh)
+        confusion = eval_step(variables, batch)
+        total = confusion if total is None else total + confusion
+    if total is None:
+        raise ValueError("val_data: expected at least one batch, got none")
+    confusion = np.asarray(jax.device_get(total))
+    return {"val/miou": mean_iou(confusion), "val/pixel_accuracy": float(np.trace(confusion) / max(confusion.sum(), 1))}
+
+
+def _data_state(batches) -> Any:
+    state = batches.get_state()
+    return state.decode() if isinstance(state, bytes) else state
+
+
+def _set_data_state(batches, state: Any) -> None:
+    batches.set_state(state.encode() if isinstance(state, str) else state)
+
+
+def train(config: TrainConfig, model, train_data: Iterable[dict], val_data: Iterable[dict] | None = None) -> TrainState:
+    """Train ``model`` (the jaxanom.models contract) and return the final state.
+
+    ``val_data`` must be re-iterable (a list, a grain dataset); it is evaluated every
+    ``config.eval_every`` steps. Raises NonFiniteLossError when the loss or gradient stops being
+    finite, leaving the last good checkpoint in ``run_dir/checkpoints``.
+    """
+    if config.distributed:
+        initialize_distributed()
+    mesh = make_mesh()
+    with jax.set_mesh(mesh):
+        return _run(config, model, train_data, val_data, mesh)
+
+
+def _run(config: TrainConfig, model, train_data, val_data, mesh) -> TrainState:
+    os.makedirs(config.run_dir, exist_ok=True)
+    source = iter(train_data)
+    resumable = hasattr(source, "get_state") and hasattr(source, "set_state")
+    first = next(source)
+
+    tx, lr_at = make_optimizer(config.optim, config.steps)
+    init_key, state_key = jax.random.split(jax.random.key(config.seed))
+    variables = jax.jit(model.init, static_argnames="train", out_shardings=replicated(mesh))(
+        init_key, np.asarray(first["image"][:1]), train=False)
+    state = jax.device_put(TrainState.create(variables, tx, state_key), replicated(mesh))
+    train_step, eval_step = make_steps(model, tx, config.loss, mesh)
+
+    checkpointer = Checkpointer(os.path.join(config.run_dir, "checkpoints"), config.save_every, config.keep)
+    pending = [first]
+    if checkpointer.latest_step() is not None:
+        state, data_state = checkpointer.restore(state)
+        pending = []
+        if resumable and data_state is not None:
+            _set_data_state(source, data_state)
+        else:
+            for _ in range(int(state.step) - 1):
+                next(source)
+    batches = itertools.chain(pending, source)
+
+    is_main = jax.process_index() == 0
+    log = RunLog(config.run_dir, enabled=is_main)
+    start = int(state.step)
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=config.steps, initial=start, disable=not (config.progress and is_main), dynamic_ncols=True)
+    try:
+        for step in range(start + 1, config.steps + 1):
+            tick = time.perf_counter()
+            batch = global_batch(next(batches), mesh)
+            images = batch["image"].shape[0]
+            state, metrics = train_step(state, batch)
+            metrics = {name: float(value) for name, value in jax.device_get(metrics).items()}
+            if not (math.isfinite(metrics["loss"]) and math.isfinite(metrics["grad_norm"])):
+                checkpointer.wait()
+                raise NonFiniteLossError(
+                    f"loss {metrics['loss']}, gradient norm {metrics['grad_norm']} at step {step}: training "
+                    f"stopped; last good checkpoint: step {checkpointer.latest_step()} in {checkpointer.directory}")
+            metrics["lr"] = float(lr_at(step - 1))
+            metrics["images_per_s"] = images / (time.perf_counter() - tick)
+            bar.update(1)
+            bar.set_postfix(loss=f"{metrics['loss']:.4f}", lr=f"{metrics['lr']:.2e}",
+                            img_s=f"{metrics['images_per_s']:.1f}")
+            log.scalars(step, {f"train/{name}": value for name, value in metrics.items()})
+            if val_data is not None and (step % config.eval_every == 0 or step == config.steps):
+                log.scalars(step, evaluate(eval_step, state.variables, val_data, mesh, config.loss.ignore))
+            if step == config.steps or checkpointer.should_save(step):
+                checkpointer.save(step, state, _data_state(source) if resumable else None, force=True)
+        checkpointer.wait()
+    finally:
+        bar.close()
+        log.close()
+        checkpointer.close()
+    return state

@@ -1,0 +1,46 @@
+"""The training state: one pytree holding everything a step reads and writes."""
+from __future__ import annotations
+
+from typing import Any
+
+import flax.struct
+import jax
+import jax.numpy as jnp
+import optax
+
+
+@flax.struct.dataclass
+class TrainState:
+    """Parameters, BatchNorm statistics, optimizer state, step counter and PRNG key data.
+
+    ``rng`` holds raw key data (uint32, from ``jax.random.key_data``) so that checkpoints store a
+    plain array; the key for step t is ``fold_in(key(rng), t)``, so a resumed run draws the same
+    numbers as an uninterrupted one.
+    """
+
+    params: Any
+    batch_stats: Any
+    opt_state: Any
+    step: jax.Array
+    rng: jax.Array
+
+    @classmethod
+    def create(cls, variables: dict, tx: optax.GradientTransformation, key: jax.Array) -> "TrainState":
+        """A step-0 state from ``model.init``'s variables and a typed PRNG key."""
+        params = variables["params"]
+        return cls(
+            params=params,
+            batch_stats=variables.get("batch_stats", {}),
+            opt_state=tx.init(params),
+            step=jnp.zeros((), jnp.int32),
+            rng=jax.random.key_data(key),
+        )
+
+    @property
+    def variables(self) -> dict:
+        """``{"params", "batch_stats"}`` as ``model.apply`` wants them."""
+        return {"params": self.params, "batch_stats": self.batch_stats}
+
+    def step_key(self) -> jax.Array:
+        """The typed PRNG key of the current step."""
+        return jax.random.fold_in(jax.random.wrap_key_data(self.rng), self.step)

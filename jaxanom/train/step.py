@@ -1,0 +1,146 @@
+"""Pure train and eval steps, and their jitted, data-parallel forms.
+
+The model contract (``jaxanom.models``): ``model.apply(variables, images, train=...)`` returns a
+dict with ``"logits"`` (B, H, W, C) at input size, plus ``"attention"`` (B, h, w) for CuDAM or
+``"branch_weights"`` (B, 3) for MSAAM; with ``train=True, mutable=["batch_stats"]`` it also
+returns the updated BatchNorm statistics. A batch is ``{"image": (B, H, W, 3) float32,
+"label": (B, H, W) int32}`` with 255 on void pixels.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from jaxanom import losses
+from jaxanom.cudam_score import upsample_attention
+from jaxanom.train.sharding import batch_sharding, replicated
+from jaxanom.train.state import TrainState
+
+METHODS = ("plain", "cudam", "msaam")
+COMPUTE_DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
+
+
+@dataclasses.dataclass(frozen=True)
+class LossConfig:
+    """What a train step minimises; defaults are the papers' (CuDAM §IV, METHODS.md §2-§3).
+
+    ``method``: ``"plain"`` (cross-entropy), ``"cudam"`` (Eq. 8: reward Eq. 4 in study
+    iterations + lambda (Eq. 9) * attention loss Eq. 7) or ``"msaam"`` (MSAAM Eq. 7;
+    ``msaam_lambda`` is not given in the paper). ``compute_dtype="bfloat16"`` runs the forward
+    pass with bfloat16 parameters and images; master weights, losses and updates stay float32.
+    """
+
+    method: str = "plain"
+    ignore: int = losses.IGNORE
+    class_weights: tuple[float, ...] | None = None
+    tau: float = 5e4
+    reward_prob: float = 0.5
+    beta: float = 0.5
+    attention_literal: bool = False
+    msaam_lambda: float = 0.1
+    msaam_literal: bool = False
+    compute_dtype: str = "float32"
+
+    def __post_init__(self):
+        if self.method not in METHODS:
+            raise ValueError(f"method: expected one of {METHODS}, got {self.method!r}")
+        if self.compute_dtype not in COMPUTE_DTYPES:
+            raise ValueError(f"compute_dtype: expected one of {tuple(COMPUTE_DTYPES)}, got {self.compute_dtype!r}")
+        if not 0.0 <= self.reward_prob <= 1.0:
+            raise ValueError(f"reward_prob: expected a probability in [0, 1], got {self.reward_prob}")
+
+
+def _cast(tree, dtype):
+    return jax.tree.map(lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) else x, tree)
+
+
+def _forward(model, variables, images, cfg: LossConfig, **kwargs):
+    dtype = COMPUTE_DTYPES[cfg.compute_dtype]
+    variables = dict(variables, params=_cast(variables["params"], dtype))
+    return model.apply(variables, images.astype(dtype), **kwargs)
+
+
+def training_anomaly_score(logits) -> jax.Array:
+    """k of the attention loss during training: 1 - max softmax probability of ``P_a``, (B, H, W).
+
+    SML needs class statistics that do not exist while training, so CuDAM's ``e^k`` weight uses
+    MSP here (bounded: e^k in [1, e)); stop-gradient.
+    """
+    return jax.lax.stop_gradient(1.0 - jnp.max(jax.nn.softmax(logits, axis=-1), axis=-1))
+
+
+def objective(out: dict, labels, key, cfg: LossConfig) -> tuple[jax.Array, dict]:
+    """The loss of one step from the model's outputs; ``(loss, aux metrics)``."""
+    logits = out["logits"].astype(jnp.float32)
+    if cfg.method == "plain":
+        return losses.cross_entropy(logits, labels, cfg.ignore, cfg.class_weights), {}
+    if cfg.method == "msaam":
+        loss = losses.msaam_loss(logits, labels, out["branch_weights"], cfg.msaam_lambda,
+                                 cfg.msaam_literal, cfg.ignore, cfg.class_weights)
+        return loss, {}
+    attention_up = upsample_attention(out["attention"], labels.shape[1:])
+    rewarded, study = losses.study_logits(key, logits, attention_up, labels, cfg.tau, cfg.reward_prob, cfg.ignore)
+    seg = losses.cross_entropy(rewarded, labels, cfg.ignore, cfg.class_weights)
+    att = losses.attention_loss(attention_up, logits, labels, training_anomaly_score(logits),
+                                cfg.beta, cfg.attention_literal, cfg.ignore)
+    lam = losses.self_regulated_lambda(logits, labels, cfg.ignore)
+    return seg + lam * att, {"seg_loss": seg, "attention_loss": att, "lambda": lam, "study": study}
+
+
+def train_step(state: TrainState, batch: dict, *, model, tx: optax.GradientTransformation,
+               cfg: LossConfig) -> tuple[TrainState, dict]:
+    """One optimisation step; returns the new state and float32 scalar metrics (``"loss"``, ...)."""
+    study_key, dropout_key = jax.random.split(state.step_key())
+
+    def loss_fn(params):
+        variables = {"params": params, "batch_stats": state.batch_stats}
+        out, updated = _forward(model, variables, batch["image"], cfg, train=True,
+                                mutable=["batch_stats"], rngs={"dropout": dropout_key})
+        loss, aux = objective(out, batch["label"], study_key, cfg)
+        return loss, (updated.get("batch_stats", {}), aux)
+
+    (loss, (batch_stats, aux)), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params)
+    updates, opt_state = tx.update(grads, state.opt_state, state.params)
+    new_state = state.replace(
+        params=optax.apply_updates(state.params, updates),
+        batch_stats=_cast(batch_stats, jnp.float32),
+        opt_state=opt_state,
+        step=state.step + 1,
+    )
+    metrics = {"loss": loss, "grad_norm": optax.global_norm(grads), **aux}
+    return new_state, jax.tree.map(lambda x: x.astype(jnp.float32), metrics)
+
+
+def confusion_matrix(labels, prediction, num_classes: int, ignore: int = losses.IGNORE) -> jax.Array:
+    """(C, C) int32 counts, rows = ground truth, columns = prediction, over labels in [0, C)."""
+    valid = (labels != ignore) & (labels >= 0) & (labels < num_classes)
+    index = jnp.where(valid, labels * num_classes + prediction, 0).reshape(-1)
+    counts = jnp.bincount(index, weights=valid.reshape(-1).astype(jnp.int32), length=num_classes**2)
+    return counts.astype(jnp.int32).reshape(num_classes, num_classes)
+
+
+def eval_step(variables: dict, batch: dict, *, model, cfg: LossConfig) -> jax.Array:
+    """Confusion matrix (C, C) of one batch, no reward, BatchNorm in inference mode."""
+    out = _forward(model, variables, batch["image"], cfg, train=False)
+    logits = out["logits"]
+    return confusion_matrix(batch["label"], jnp.argmax(logits, axis=-1), logits.shape[-1], cfg.ignore)
+
+
+def jit_train_step(fn: Callable, mesh: jax.sharding.Mesh) -> Callable:
+    """``fn(state, batch)`` jitted: state replicated and donated, batch split along "data"."""
+    rep = replicated(mesh)
+    return jax.jit(fn, in_shardings=(rep, batch_sharding(mesh)), out_shardings=(rep, rep), donate_argnums=0)
+
+
+def make_steps(model, tx, cfg: LossConfig, mesh: jax.sharding.Mesh) -> tuple[Callable, Callable]:
+    """``(train_step(state, batch), eval_step(variables, batch))``, each jitted once for ``mesh``."""
+    train = jit_train_step(functools.partial(train_step, model=model, tx=tx, cfg=cfg), mesh)
+    rep = replicated(mesh)
+    evaluate = jax.jit(functools.partial(eval_step, model=model, cfg=cfg),
+                       in_shardings=(rep, batch_sharding(mesh)), out_shardings=rep)
+    return train, evaluate
