@@ -126,8 +126,10 @@ class _Painter:
 # standing on the ground at local x = 0, listed back to front.
 
 def _tone(rng: np.random.Generator, cls: int, spread: float = 35.0, scale: float = 1.0):
-    base = CLASS_COLORS[cls].astype(np.float32) * scale
-    return np.clip(base + rng.uniform(-spread, spread, 3), 0, 255)
+    """The class's official colour, faded toward a random grey and jittered per instance."""
+    fade = rng.uniform(0.0, 0.5)
+    base = (1 - fade) * CLASS_COLORS[cls].astype(np.float32) + fade * rng.uniform(60, 160)
+    return np.clip(base * scale + rng.uniform(-spread, spread, 3), 0, 255)
 
 
 def _rect(x0, y0, x1, y1):
