@@ -35,7 +35,7 @@ def training_batches(
     ``source``: random access (``len`` and ``[i]``), e.g. a reader or ``SyntheticScenes``.
     ``num_epochs=None`` repeats forever. ``process_index`` / ``process_count`` default to
     ``jax.process_index()`` / ``jax.process_count()``. ``num_threads > 0`` reads ahead with
-    that many threads (same batches, same order).
+    that many threads (same batches, same order); 0 reads in the calling thread.
     """
     if batch_size < 1:
         raise ValueError(f"batch_size: expected >= 1, got {batch_size}")
@@ -58,6 +58,6 @@ def training_batches(
     # Every process gets the same number of batches, so collective steps never wait on one.
     usable = len(dataset) if num_epochs is None else len(dataset) - len(dataset) % process_count
     dataset = dataset[process_index:usable:process_count]
-    if num_threads:
-        return iter(dataset.to_iter_dataset(grain.ReadOptions(num_threads=num_threads, prefetch_buffer_size=2 * num_threads)))
-    return iter(dataset)
+    # grain's default read-ahead (16 threads, 500 records) would hog a small machine: ask explicitly.
+    options = grain.ReadOptions(num_threads=num_threads, prefetch_buffer_size=2 * num_threads)
+    return iter(dataset.to_iter_dataset(options))
