@@ -64,6 +64,8 @@ class _Camera:
 
 def _clip_near(xyz: np.ndarray) -> np.ndarray:
     """Clip a closed 3-D polygon (N, 3) to the half-space z >= _Z_NEAR (Sutherland-Hodgman)."""
+    if xyz[:, 2].min() >= _Z_NEAR:
+        return xyz
     out = []
     for a, b in zip(xyz, np.roll(xyz, -1, axis=0)):
         a_in, b_in = a[2] >= _Z_NEAR, b[2] >= _Z_NEAR
@@ -348,28 +350,35 @@ def _render(painter: _Painter, rng: np.random.Generator) -> tuple[np.ndarray, np
     """Surface-id map -> (image uint8 (H, W, 3), classes uint8 (H, W), depth float32 (H, W))."""
     cam, ids = painter.cam, painter.ids
     height, width = ids.shape
-    cls = np.array(painter.cls, np.uint8)[ids]
-    kind = np.array(painter.kind, np.int8)[ids]
-    param = np.array(painter.param, np.float32)[ids]
+    cls = np.take(np.array(painter.cls, np.uint8), ids)
+    kind = np.take(np.array(painter.kind, np.int8), ids)
+    param = np.take(np.array(painter.param, np.float32), ids)
     v = np.arange(height, dtype=np.float32)[:, None] + 0.5
-    u = np.arange(width, dtype=np.float32)[None, :] + 0.5
-    ground_z = cam.f * cam.h / np.maximum(v - cam.cy, 1e-3)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        side_z = param * (cam.f / (u - cam.cx))
+    u = np.arange(width, dtype=np.float32)[None, :] + 0.5  # never equal to the random cx
+    ground_z = np.float32(cam.f * cam.h) / np.maximum(v - np.float32(cam.cy), np.float32(1e-3))
+    side_z = param * (np.float32(cam.f) / (u - np.float32(cam.cx)))
     depth = np.where(kind == _GROUND, ground_z, np.where(kind == _SIDE, side_z, param))
-    depth = np.clip(np.nan_to_num(depth, nan=SKY_DEPTH, posinf=SKY_DEPTH), 0.1, SKY_DEPTH).astype(np.float32)
+    np.clip(depth, 0.1, SKY_DEPTH, out=depth)
 
+    # Per-pixel gain: texture noise (fine + coarse), light level and a vertical light gradient,
+    # then haze toward a bright sky tone with distance (the sky itself keeps its own colour).
     coarse = cv2.resize(rng.standard_normal((height // 16 + 2, width // 16 + 2), dtype=np.float32),
                         (width, height), interpolation=cv2.INTER_CUBIC)
-    fine = rng.standard_normal((height, width), dtype=np.float32)
-    shade = 1.0 + _TEXTURE[cls] * (0.6 * fine + 0.8 * coarse)
-    shade *= (rng.uniform(0.65, 1.25) * (1.0 + rng.uniform(-0.25, 0.25) * (v / height - 0.5)))
-    image = np.array(painter.color, np.float32)[ids] * shade[..., None]
-    image *= rng.uniform(0.9, 1.1, 3).astype(np.float32)  # colour cast of the light
-    haze = np.exp(-np.minimum(depth, 400.0) / rng.uniform(150.0, 600.0))[..., None]
+    fine = (rng.random((height, width), dtype=np.float32) - 0.5) * np.float32(np.sqrt(12.0))  # unit variance
+    light = np.float32(rng.uniform(0.65, 1.25)) * (1 + np.float32(rng.uniform(-0.25, 0.25)) * (v / height - 0.5))
+    gain = (1 + _TEXTURE[cls] * (0.6 * fine + 0.8 * coarse)) * light
+    haze = np.exp(np.minimum(depth, 400.0) / np.float32(-rng.uniform(150.0, 600.0)))
+    haze[kind == _SKY] = 1.0
+    cast = rng.uniform(0.9, 1.1, 3)  # colour of the light
     haze_color = np.clip(CLASS_COLORS[SKY] + 60 + rng.uniform(-20, 20, 3), 0, 255).astype(np.float32)
-    image = np.where((cls == SKY)[..., None], image, image * haze + haze_color * (1 - haze))
-    return np.clip(image, 0, 255).astype(np.uint8), cls, depth
+    colors = (np.array(painter.color, np.float32) * cast).astype(np.float32)
+    gain *= haze
+    haze = 1 - haze
+    channels = []
+    for c in range(3):  # per channel planes: far cheaper than (H, W, 3) broadcasting
+        plane = np.take(colors[:, c], ids) * gain + haze * haze_color[c]
+        channels.append(np.clip(plane, 0, 255, out=plane).astype(np.uint8))
+    return np.stack(channels, axis=-1), cls, depth
 
 
 def generate(split: str, index: int, seed: int = 0, *, height: int = 256, width: int = 512,
