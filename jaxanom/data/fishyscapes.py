@@ -56,7 +56,8 @@ def _pair(masks, images: dict[str, Path], what: str, image_root: Path) -> list[t
     frames = []
     for fsid, image_id, mask in masks:
         if image_id not in images:
-            raise FileNotFoundError(f"{what}: image {image_id}{_IMAGE_SUFFIX} for mask {mask} not found under {image_root}")
+            raise FileNotFoundError(
+                f"{what}: image {image_id}{_IMAGE_SUFFIX} for mask {mask} not found under {image_root}")
         frames.append((fsid, images[image_id], mask))
     return frames
 

@@ -10,9 +10,10 @@ noise, a vertical light gradient, scene brightness / colour cast and distance ha
 colour of a pixel an uncertain cue for its class.
 
 Splits (``SPLITS``): ``"train"`` and ``"val"`` hold in-distribution content only. ``"anomaly"``,
-``"anomaly_small"`` (small objects 25-80 m away) and ``"anomaly_large"`` (large objects 5-20 m
-away) add 1-3 objects no training frame has (rocks, boxes, cones in odd colours, animal-like
-blobs with spots) standing on the road. Their ``"label"`` is Fishyscapes-style: 0 in-distribution,
+``"anomaly_small"`` (small objects 25-80 m away, brought nearer where they would be under ~4
+pixels tall) and ``"anomaly_large"`` (large objects 5-20 m away) add 1-3 objects no training
+frame has (``scene_objects.anomaly_object``: rocks, boxes, cones in odd colours, animal-like
+blobs with spots) standing on the road; ``"anomaly"`` mixes both sizes. Their ``"label"`` is Fishyscapes-style: 0 in-distribution,
 1 anomaly, 255 void. Void is a band of ``void_band`` pixels around each anomaly (annotations are
 uncertain at object borders, as in Fishyscapes); with ``off_road_void=True`` every pixel that is
 neither road nor anomaly is void as well (as in SegmentMeIfYouCan RoadObstacle21).
@@ -29,14 +30,14 @@ import cv2
 import numpy as np
 
 from jaxanom.data.cityscapes_labels import CLASS_COLORS, IGNORE_INDEX
+from jaxanom.data.scene_objects import (
+    ANOMALY, BICYCLE, BUILDING, BUS, CAR, FENCE, LIGHT, MOTORCYCLE, POLE, ROAD, SIDEWALK, SIGN, SKY,
+    TERRAIN, TRAIN, TRUCK, VEGETATION, WALL, anomaly_object, person, pole, tone, tree, two_wheeler, vehicle)
 
 SPLITS = {"train": 0, "val": 1, "anomaly": 2, "anomaly_small": 3, "anomaly_large": 4}
 ANOMALY_SPLITS = ("anomaly", "anomaly_small", "anomaly_large")
 SKY_DEPTH = 1000.0
 
-(ROAD, SIDEWALK, BUILDING, WALL, FENCE, POLE, LIGHT, SIGN, VEGETATION, TERRAIN, SKY, PERSON,
- RIDER, CAR, TRUCK, BUS, TRAIN, MOTORCYCLE, BICYCLE) = range(19)
-_ANOMALY = 19  # internal class code of anomaly surfaces; 255 in the semantic map
 
 # Texture strength (relative luminance noise) of each class, then of anomalies.
 _TEXTURE = np.array([0.06, 0.06, 0.09, 0.08, 0.10, 0.05, 0.05, 0.04, 0.28, 0.16, 0.02, 0.09,
@@ -123,157 +124,21 @@ class _Painter:
             self._fill(sid, np.column_stack([pts[:, 0] + x, pts[:, 1], np.full(len(pts), z)]))
 
 
-# ----------------------------------------------------------------------------- object shapes
-# Each builder returns parts ``[(class, rgb colour, polygon (N, 2) in metres)]`` for an object
-# standing on the ground at local x = 0, listed back to front.
-
-def _tone(rng: np.random.Generator, cls: int, spread: float = 35.0, scale: float = 1.0):
-    """The class's official colour, faded toward a random grey and jittered per instance."""
-    fade = rng.uniform(0.0, 0.5)
-    base = (1 - fade) * CLASS_COLORS[cls].astype(np.float32) + fade * rng.uniform(60, 160)
-    return np.clip(base * scale + rng.uniform(-spread, spread, 3), 0, 255)
-
-
-def _rect(x0, y0, x1, y1):
-    return [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
-
-
-def _ellipse(cx, cy, rx, ry, n=14, rng=None, rough=0.0):
-    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
-    r = 1.0 if rng is None else 1.0 + rough * rng.uniform(-1, 1, n)
-    return np.column_stack([cx + rx * r * np.cos(t), cy + ry * r * np.sin(t)])
-
-
-def _segment(p0, p1, width):
-    (x0, y0), (x1, y1) = p0, p1
-    d = np.array([y0 - y1, x1 - x0], float)
-    d *= 0.5 * width / max(np.hypot(*d), 1e-9)
-    return [(x0 + d[0], y0 + d[1]), (x1 + d[0], y1 + d[1]), (x1 - d[0], y1 - d[1]), (x0 - d[0], y0 - d[1])]
-
-
-def _vehicle(rng, cls):
-    """Rear view of a car, truck, bus or train."""
-    w, h = {CAR: (1.8, 1.5), TRUCK: (2.5, 3.6), BUS: (2.55, 3.2), TRAIN: (2.9, 3.9)}[cls]
-    w, h = w * rng.uniform(0.9, 1.1), h * rng.uniform(0.9, 1.1)
-    body, dark = _tone(rng, cls), _tone(rng, cls, 15, 0.4)
-    parts = [(cls, dark, _rect(-0.42 * w, 0, -0.2 * w, 0.4)), (cls, dark, _rect(0.2 * w, 0, 0.42 * w, 0.4))]
-    if cls == CAR:
-        parts += [(cls, body, _rect(-w / 2, 0.3, w / 2, 0.62 * h)),
-                  (cls, body, [(-0.45 * w, 0.62 * h), (0.45 * w, 0.62 * h), (0.33 * w, h), (-0.33 * w, h)]),
-                  (cls, dark, [(-0.38 * w, 0.66 * h), (0.38 * w, 0.66 * h), (0.3 * w, 0.95 * h), (-0.3 * w, 0.95 * h)])]
-    else:
-        parts += [(cls, body, _rect(-w / 2, 0.35, w / 2, h)),
-                  (cls, dark, _rect(-0.42 * w, 0.6 * h, 0.42 * w, 0.85 * h))]
-    lamp = np.clip(np.array([200, 30, 30]) + rng.uniform(-30, 30, 3), 0, 255)
-    parts += [(cls, lamp, _rect(-0.48 * w, 0.45, -0.36 * w, 0.55)), (cls, lamp, _rect(0.36 * w, 0.45, 0.48 * w, 0.55))]
-    return parts, w
-
-
-def _person(rng, cls=PERSON, base=0.0):
-    """Front view of a person (``cls`` RIDER when riding), feet at height ``base``."""
-    s = rng.uniform(1.55, 1.95)
-    skin = np.clip(np.array([200, 160, 130]) * rng.uniform(0.5, 1.1), 0, 255)
-    coat, trousers = _tone(rng, cls, 50), _tone(rng, cls, 40, 0.5)
-    y = lambda r: base + r * s  # noqa: E731
-    parts = [(cls, trousers, _rect(-0.17 * s / 1.8, y(0), -0.02, y(0.47))),
-             (cls, trousers, _rect(0.02, y(0), 0.17 * s / 1.8, y(0.47))),
-             (cls, coat, [(-0.13 * s, y(0.45)), (0.13 * s, y(0.45)), (0.14 * s, y(0.82)), (-0.14 * s, y(0.82))]),
-             (cls, coat, _segment((-0.14 * s, y(0.8)), (-0.2 * s, y(0.5)), 0.07 * s)),
-             (cls, coat, _segment((0.14 * s, y(0.8)), (0.2 * s, y(0.5)), 0.07 * s)),
-             (cls, skin, _ellipse(0, y(0.9), 0.07 * s, 0.09 * s))]
-    return parts
-
-
-def _two_wheeler(rng, cls):
-    """Side view of a bicycle or motorcycle with its rider."""
-    r = 0.34 if cls == BICYCLE else 0.32
-    base, dark = _tone(rng, cls), _tone(rng, cls, 10, 0.3)
-    parts = [(cls, dark, _ellipse(-0.55, r, r, r)), (cls, dark, _ellipse(0.55, r, r, r))]
-    if cls == BICYCLE:
-        parts += [(cls, base, _segment((-0.55, r), (0.0, 0.9), 0.05)),
-                  (cls, base, _segment((0.0, 0.9), (0.55, r), 0.05)),
-                  (cls, base, _segment((-0.55, r), (0.5, 0.95), 0.05))]
-    else:
-        parts += [(cls, base, [(-0.6, 0.45), (0.5, 0.45), (0.65, 0.85), (0.1, 1.0), (-0.5, 0.85)])]
-    return parts + _person(rng, RIDER, base=0.55)
-
-
-def _pole(rng, with_item):
-    """A pole, optionally carrying a traffic sign or a traffic light at its top."""
-    h = rng.uniform(3.5, 7.0)
-    parts = [(POLE, _tone(rng, POLE), _rect(-0.08, 0, 0.08, h))]
-    if with_item == SIGN:
-        c, size = _tone(rng, SIGN, 30), rng.uniform(0.5, 0.9)
-        shape = rng.integers(3)
-        poly = (_rect(-size / 2, h - size, size / 2, h) if shape == 0 else
-                _ellipse(0, h - size / 2, size / 2, size / 2) if shape == 1 else
-                [(-size / 2, h), (size / 2, h), (0, h - size)])
-        parts.append((SIGN, c, poly))
-    elif with_item == LIGHT:
-        parts.append((LIGHT, _tone(rng, LIGHT, 30, 0.5), _rect(-0.18, h - 1.0, 0.18, h)))
-        lit = rng.integers(3)
-        for k, lamp in enumerate([(230, 40, 30), (240, 190, 40), (40, 220, 90)]):
-            color = np.array(lamp, np.float32) * (1.0 if k == lit else 0.35)
-            parts.append((LIGHT, color, _ellipse(0, h - 0.18 - 0.3 * k, 0.1, 0.1, n=8)))
-    return parts
-
-
-def _tree(rng):
-    h = rng.uniform(4.0, 10.0)
-    crown = _tone(rng, VEGETATION, 30)
-    return [(VEGETATION, _tone(rng, VEGETATION, 20, 0.5), _rect(-0.15, 0, 0.15, 0.5 * h)),
-            (VEGETATION, crown, _ellipse(0, 0.7 * h, 0.25 * h, 0.3 * h, n=20, rng=rng, rough=0.15))]
-
-
-def _odd_color(rng):
-    """A saturated colour far from the street palette's usual tones (cyan, lime, violet, ...)."""
-    hsv = np.uint8([[[rng.integers(0, 180), rng.integers(200, 256), rng.integers(170, 256)]]])
-    return cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)[0, 0].astype(np.float32)
-
-
-def _anomaly(rng, size):
-    """An object no training frame has, about ``size`` metres tall; returns (parts, width)."""
-    kind = rng.integers(4)
-    c1, c2 = _odd_color(rng), _odd_color(rng)
-    if kind == 0:  # rock: rough dark blob
-        w = size * rng.uniform(1.0, 1.8)
-        grey = np.clip(rng.uniform(60, 140) + rng.uniform(-20, 20, 3), 0, 255)
-        return [(_ANOMALY, grey, _ellipse(0, size / 2, w / 2, size / 2, n=11, rng=rng, rough=0.25))], w
-    if kind == 1:  # box with a lighter top face and a coloured tape stripe
-        w = size * rng.uniform(0.8, 1.6)
-        return [(_ANOMALY, c1, _rect(-w / 2, 0, w / 2, size)),
-                (_ANOMALY, np.clip(c1 * 1.3, 0, 255), [(-w / 2, size), (w / 2, size), (0.4 * w, 1.15 * size), (-0.6 * w, 1.15 * size)]),
-                (_ANOMALY, c2, _rect(-w / 2, 0.45 * size, w / 2, 0.6 * size))], w
-    if kind == 2:  # cone in odd colours with a band
-        w = 0.6 * size
-        return [(_ANOMALY, c2, _rect(-w / 2, 0, w / 2, 0.08 * size)),
-                (_ANOMALY, c1, [(-0.4 * w, 0.08 * size), (0.4 * w, 0.08 * size), (0.05 * w, size), (-0.05 * w, size)]),
-                (_ANOMALY, c2, [(-0.25 * w, 0.45 * size), (0.25 * w, 0.45 * size), (0.2 * w, 0.6 * size), (-0.2 * w, 0.6 * size)])], w
-    # animal-like blob: body, legs, head, spots
-    w = size * rng.uniform(1.3, 2.2)
-    parts = [(_ANOMALY, c1, _rect(x - 0.05 * w, 0, x + 0.05 * w, 0.55 * size)) for x in (-0.35 * w, -0.2 * w, 0.2 * w, 0.35 * w)]
-    parts.append((_ANOMALY, c1, _ellipse(0, 0.7 * size, w / 2, 0.3 * size, n=16, rng=rng, rough=0.1)))
-    parts.append((_ANOMALY, c1, _ellipse(0.55 * w, 0.95 * size, 0.15 * w, 0.15 * size, n=10)))
-    parts += [(_ANOMALY, c2, _ellipse(rng.uniform(-0.3, 0.3) * w, rng.uniform(0.6, 0.8) * size, 0.08 * w, 0.08 * size, n=8))
-              for _ in range(3)]
-    return parts, w
-
-
 # ----------------------------------------------------------------------------- scene layout
 
 def _layout(painter: _Painter, rng: np.random.Generator, split: str) -> None:
     """Sample one street and draw it into ``painter``, far to near."""
-    painter.sky(_tone(rng, SKY, 25))
+    painter.sky(tone(rng, SKY, 25))
     road_l, road_r = rng.uniform(3.0, 8.0, 2)
     walk_l, walk_r = rng.uniform(1.5, 4.0, 2)
     strip_l, strip_r = rng.uniform(0, 3.0, 2) * (rng.random(2) < 0.5)
     far = 400.0
-    painter.ground(rng.choice([TERRAIN, VEGETATION]), _tone(rng, TERRAIN, 30, 0.8), -400, 400, 0.0, far)
-    painter.ground(TERRAIN, _tone(rng, TERRAIN, 30), -road_l - walk_l - strip_l, -road_l - walk_l, 0, far)
-    painter.ground(TERRAIN, _tone(rng, TERRAIN, 30), road_r + walk_r, road_r + walk_r + strip_r, 0, far)
-    painter.ground(SIDEWALK, _tone(rng, SIDEWALK, 40), -road_l - walk_l, -road_l, 0, far)
-    painter.ground(SIDEWALK, _tone(rng, SIDEWALK, 40), road_r, road_r + walk_r, 0, far)
-    painter.ground(ROAD, _tone(rng, ROAD, 30), -road_l, road_r, 0, far)
+    painter.ground(rng.choice([TERRAIN, VEGETATION]), tone(rng, TERRAIN, 30, 0.8), -400, 400, 0.0, far)
+    painter.ground(TERRAIN, tone(rng, TERRAIN, 30), -road_l - walk_l - strip_l, -road_l - walk_l, 0, far)
+    painter.ground(TERRAIN, tone(rng, TERRAIN, 30), road_r + walk_r, road_r + walk_r + strip_r, 0, far)
+    painter.ground(SIDEWALK, tone(rng, SIDEWALK, 40), -road_l - walk_l, -road_l, 0, far)
+    painter.ground(SIDEWALK, tone(rng, SIDEWALK, 40), road_r, road_r + walk_r, 0, far)
+    painter.ground(ROAD, tone(rng, ROAD, 30), -road_l, road_r, 0, far)
     marking = np.clip(rng.uniform(180, 240) + rng.uniform(-10, 10, 3), 0, 255)
     for z in np.arange(rng.uniform(0, 9), 120, 9.0):
         painter.ground(ROAD, marking, -0.08, 0.08, z, z + 3)
@@ -285,22 +150,22 @@ def _layout(painter: _Painter, rng: np.random.Generator, split: str) -> None:
             kind = rng.choice([BUILDING, BUILDING, BUILDING, VEGETATION, WALL, FENCE])
             x = sign * (edge + rng.uniform(0, 2))
             if kind in (WALL, FENCE):  # a low barrier in front of greenery
-                painter.side(VEGETATION, _tone(rng, VEGETATION, 30), x + sign * 3, z, z + length, 0, rng.uniform(4, 10))
+                painter.side(VEGETATION, tone(rng, VEGETATION, 30), x + sign * 3, z, z + length, 0, rng.uniform(4, 10))
                 top = rng.uniform(1.0, 2.5)
                 if kind == WALL:
-                    painter.side(WALL, _tone(rng, WALL, 30), x, z, z + length, 0, top)
+                    painter.side(WALL, tone(rng, WALL, 30), x, z, z + length, 0, top)
                 else:
-                    color = _tone(rng, FENCE, 30)
+                    color = tone(rng, FENCE, 30)
                     painter.side(FENCE, color, x, z, z + length, top - 0.12, top)
                     painter.side(FENCE, color, x, z, z + length, 0.35 * top, 0.35 * top + 0.1)
                     for zp in np.arange(z, z + length, 2.5):
                         painter.side(FENCE, color, x, zp, zp + 0.12, 0, top)
             elif kind == VEGETATION:
-                painter.side(VEGETATION, _tone(rng, VEGETATION, 30), x, z, z + length, 0, rng.uniform(3, 12))
+                painter.side(VEGETATION, tone(rng, VEGETATION, 30), x, z, z + length, 0, rng.uniform(3, 12))
             else:
                 height = rng.uniform(8, 30)
-                painter.side(BUILDING, _tone(rng, BUILDING, 30), x, z, z + length, 0, height)
-                glass = _tone(rng, BUILDING, 20, 0.55)
+                painter.side(BUILDING, tone(rng, BUILDING, 30), x, z, z + length, 0, height)
+                glass = tone(rng, BUILDING, 20, 0.55)
                 for floor in np.arange(2.0, height - 1.0, rng.uniform(2.8, 3.6)):
                     painter.side(BUILDING, glass, x, z + 0.5, z + length - 0.5, floor, floor + 1.4)
             z += length + rng.uniform(0, 6) * (rng.random() < 0.3)
@@ -314,7 +179,7 @@ def _layout(painter: _Painter, rng: np.random.Generator, split: str) -> None:
             else:
                 z, size = rng.uniform(5, 20), rng.uniform(0.6, 1.8)
             z = min(z, painter.cam.f * size / 4.0)  # at least ~4 pixels tall
-            parts, w = _anomaly(rng, size)
+            parts, w = anomaly_object(rng, size)
             x = rng.uniform(-road_l + w / 2 + 0.3, road_r - w / 2 - 0.3)
             anomalies.append((z, x, w, parts))
 
@@ -323,22 +188,22 @@ def _layout(painter: _Painter, rng: np.random.Generator, split: str) -> None:
         cls = rng.choice([CAR] * 8 + [TRUCK, BUS, TRAIN, MOTORCYCLE, BICYCLE])
         z = rng.uniform(6, 90)
         if cls in (MOTORCYCLE, BICYCLE):
-            parts, w = _two_wheeler(rng, cls), 1.3
+            parts, w = two_wheeler(rng, cls), 1.3
         else:
-            parts, w = _vehicle(rng, cls)
+            parts, w = vehicle(rng, cls)
         x = rng.uniform(-road_l + w / 2, road_r - w / 2)
         if not any(z < za + 1.0 and abs(x - xa) < (w + wa) / 2 + 0.5 for za, xa, wa, _ in anomalies):
             objects.append((z, x, w, parts))
     for _ in range(rng.integers(0, 9)):  # pedestrians on the sidewalks
         left = rng.random() < 0.5
         x = -road_l - rng.uniform(0.3, walk_l) if left else road_r + rng.uniform(0.3, walk_r)
-        objects.append((rng.uniform(4, 60), x, 0.5, _person(rng)))
+        objects.append((rng.uniform(4, 60), x, 0.5, person(rng)))
     for sign, kerb, walk in ((-1, road_l, walk_l), (1, road_r, walk_r)):
         for z in np.arange(rng.uniform(3, 15), 120, rng.uniform(12, 30)):  # poles near the kerb
             item = rng.choice([POLE, SIGN, LIGHT])
-            objects.append((z, sign * (kerb + 0.4), 0.2, _pole(rng, item)))
+            objects.append((z, sign * (kerb + 0.4), 0.2, pole(rng, item)))
         for _ in range(rng.integers(0, 5)):  # trees on the sidewalk's outer side
-            objects.append((rng.uniform(5, 100), sign * (kerb + walk - 0.3), 2.0, _tree(rng)))
+            objects.append((rng.uniform(5, 100), sign * (kerb + walk - 0.3), 2.0, tree(rng)))
 
     for z, x, _, parts in sorted(objects, key=lambda o: -o[0]):
         painter.frontal(parts, x, z)
@@ -401,7 +266,7 @@ def generate(split: str, index: int, seed: int = 0, *, height: int = 256, width:
     painter = _Painter(camera)
     _layout(painter, rng, split)
     image, cls, depth = _render(painter, rng)
-    anomaly = cls == _ANOMALY
+    anomaly = cls == ANOMALY
     semantic = np.where(anomaly, IGNORE_INDEX, cls).astype(np.uint8)
     if split in ANOMALY_SPLITS:
         label = anomaly.astype(np.uint8)
