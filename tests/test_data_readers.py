@@ -94,8 +94,9 @@ def test_cityscapes_rejects_corrupt_images_and_unknown_label_ids(tmp_path):
 def _lost_and_found(tmp_path):
     masks, laf = tmp_path / "fishyscapes_lostandfound", tmp_path / "LostAndFound"
     expected = {}
-    for k, (split, city, laf_id) in enumerate([("test", "04_Maurener_Weg_8", "04_Maurener_Weg_8_000000_000030"),
-                                               ("train", "01_Hanns_Klemm_Str_45", "01_Hanns_Klemm_Str_45_000002_000100")]):
+    layout = [("test", "04_Maurener_Weg_8", "04_Maurener_Weg_8_000000_000030"),
+              ("train", "01_Hanns_Klemm_Str_45", "01_Hanns_Klemm_Str_45_000002_000100")]
+    for k, (split, city, laf_id) in enumerate(layout):
         image, label = _image(k), _anomaly_label(k)
         _write_rgb(laf / "leftImg8bit" / split / city / f"{laf_id}_leftImg8bit.png", image)
         _write_label(masks / f"{k:04d}_{laf_id}_labels.png", label)

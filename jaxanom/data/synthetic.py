@@ -13,10 +13,11 @@ Splits (``SPLITS``): ``"train"`` and ``"val"`` hold in-distribution content only
 ``"anomaly_small"`` (small objects 25-80 m away, brought nearer where they would be under ~4
 pixels tall) and ``"anomaly_large"`` (large objects 5-20 m away) add 1-3 objects no training
 frame has (``scene_objects.anomaly_object``: rocks, boxes, cones in odd colours, animal-like
-blobs with spots) standing on the road; ``"anomaly"`` mixes both sizes. Their ``"label"`` is Fishyscapes-style: 0 in-distribution,
-1 anomaly, 255 void. Void is a band of ``void_band`` pixels around each anomaly (annotations are
-uncertain at object borders, as in Fishyscapes); with ``off_road_void=True`` every pixel that is
-neither road nor anomaly is void as well (as in SegmentMeIfYouCan RoadObstacle21).
+blobs with spots) standing on the road; ``"anomaly"`` mixes both sizes. Their ``"label"`` is
+Fishyscapes-style: 0 in-distribution, 1 anomaly, 255 void. Void is a band of ``void_band``
+pixels around each anomaly (annotations are uncertain at object borders, as in Fishyscapes);
+with ``off_road_void=True`` every pixel that is neither road nor anomaly is void as well (as in
+SegmentMeIfYouCan RoadObstacle21, which scores the road only).
 
 Depth is metric (float32, metres along the optical axis); the sky gets ``SKY_DEPTH``.
 NumPy and OpenCV only (no grain, no JAX).
