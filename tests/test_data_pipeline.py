@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from jaxanom.data.pipeline import training_batches
+from jaxanom.data.pipeline import evaluation_batches, training_batches
 from jaxanom.data.synthetic import SyntheticScenes
 from jaxanom.data.transforms import Augment
 
@@ -93,3 +93,16 @@ def test_bad_arguments_raise_value_error():
 def test_process_defaults_come_from_jax():
     batch = next(training_batches(_Numbered(4), batch_size=2, augment=IDENTITY, seed=1))
     assert batch["label"].shape == (2, 4, 4)
+
+
+def test_evaluation_batches_stack_frames_in_order_and_shard_by_process():
+    source = SyntheticScenes("anomaly", 5, seed=2, height=16, width=24)
+    batches = list(evaluation_batches(source, batch_size=2, process_index=0, process_count=1))
+    assert [len(b["name"]) for b in batches] == [2, 2, 1]
+    for i in range(5):
+        batch, row = batches[i // 2], i % 2
+        for key in ("image", "label", "depth"):
+            np.testing.assert_array_equal(batch[key][row], source[i][key])
+        assert batch["name"][row] == source[i]["name"]
+    second = list(evaluation_batches(source, batch_size=2, process_index=1, process_count=2))
+    assert len(second) == 1 and list(second[0]["name"]) == [source[2]["name"], source[3]["name"]]
