@@ -31,7 +31,7 @@ def _pipeline_rows(quick: bool) -> list[dict]:
     from jaxanom.data.pipeline import training_batches
 
     batch, crop = 8, (256, 256)
-    source = SyntheticScenes("train", 64, seed=0, height=256, width=512)
+    source = SyntheticScenes("train", 512, seed=0, height=256, width=512)
     augment = Augment(crop_hw=crop)
     repeats = 3 if quick else 10
     rows = []

@@ -41,22 +41,6 @@ for _label_id, _train_id in _TRAIN_ID_OF_LABEL_ID.items():
 del _label_id, _train_id
 
 
-def label_ids_to_train_ids(label_ids: np.ndarray) -> np.ndarray:
-    """Map a Cityscapes ``*_labelIds.png`` array (H, W) uint8 to trainIds (H, W) uint8 (255 = ignore).
-
-    Raises ValueError when a value is not a Cityscapes label id (0..33).
-    """
-    label_ids = np.asarray(label_ids)
-    if label_ids.dtype != np.uint8:
-        raise ValueError(f"label_ids: expected dtype uint8, got {label_ids.dtype}")
-    bad = np.unique(label_ids[label_ids >= NUM_LABEL_IDS])
-    if bad.size:
-        raise ValueError(
-            f"label_ids: expected Cityscapes label ids 0..{NUM_LABEL_IDS - 1}, got {bad.tolist()}"
-        )
-    return LABEL_ID_TO_TRAIN_ID[label_ids]
-
-
 def colorize(train_ids: np.ndarray) -> np.ndarray:
     """Colour a trainId map (H, W) with the official palette -> (H, W, 3) uint8; 255 is black."""
     palette = np.zeros((256, 3), dtype=np.uint8)

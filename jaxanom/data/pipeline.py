@@ -22,6 +22,11 @@ from jaxanom.data.transforms import Augment
 _PIXEL_KEYS = ("image", "label", "depth")
 
 
+def _unaugmented(record: dict[str, Any]) -> dict[str, Any]:
+    """The pixel maps and name of a record (a named function, so that grain can pickle it)."""
+    return {key: record[key] for key in (*_PIXEL_KEYS, "name") if key in record}
+
+
 def _processes(process_index: int | None, process_count: int | None) -> tuple[int, int]:
     if process_index is None or process_count is None:
         import jax
@@ -87,7 +92,7 @@ def evaluation_batches(
     process_index, process_count = _processes(process_index, process_count)
     dataset = (
         grain.MapDataset.source(source)
-        .map(lambda record: {key: record[key] for key in (*_PIXEL_KEYS, "name") if key in record})
+        .map(_unaugmented)
         .batch(batch_size)
     )
     dataset = dataset[process_index::process_count]

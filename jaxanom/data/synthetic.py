@@ -127,24 +127,42 @@ class _Painter:
 
 # ----------------------------------------------------------------------------- scene layout
 
-def _layout(painter: _Painter, rng: np.random.Generator, split: str) -> None:
-    """Sample one street and draw it into ``painter``, far to near."""
+@dataclasses.dataclass(frozen=True)
+class _Street:
+    """Widths in metres, left and right of the camera: road, sidewalk, grass strip beyond it."""
+
+    road_l: float
+    road_r: float
+    walk_l: float
+    walk_r: float
+    strip_l: float
+    strip_r: float
+
+    @classmethod
+    def sample(cls, rng: np.random.Generator) -> "_Street":
+        road, walk = rng.uniform(3.0, 8.0, 2), rng.uniform(1.5, 4.0, 2)
+        strip = rng.uniform(0, 3.0, 2) * (rng.random(2) < 0.5)
+        return cls(*road, *walk, *strip)
+
+
+def _draw_ground(painter: _Painter, rng: np.random.Generator, s: _Street, far: float = 400.0) -> None:
+    """Sky, then the ground plane: land, grass strips, sidewalks, road with a dashed centre line."""
     painter.sky(tone(rng, SKY, 25))
-    road_l, road_r = rng.uniform(3.0, 8.0, 2)
-    walk_l, walk_r = rng.uniform(1.5, 4.0, 2)
-    strip_l, strip_r = rng.uniform(0, 3.0, 2) * (rng.random(2) < 0.5)
-    far = 400.0
-    painter.ground(rng.choice([TERRAIN, VEGETATION]), tone(rng, TERRAIN, 30, 0.8), -400, 400, 0.0, far)
-    painter.ground(TERRAIN, tone(rng, TERRAIN, 30), -road_l - walk_l - strip_l, -road_l - walk_l, 0, far)
-    painter.ground(TERRAIN, tone(rng, TERRAIN, 30), road_r + walk_r, road_r + walk_r + strip_r, 0, far)
-    painter.ground(SIDEWALK, tone(rng, SIDEWALK, 40), -road_l - walk_l, -road_l, 0, far)
-    painter.ground(SIDEWALK, tone(rng, SIDEWALK, 40), road_r, road_r + walk_r, 0, far)
-    painter.ground(ROAD, tone(rng, ROAD, 30), -road_l, road_r, 0, far)
+    land = rng.choice([TERRAIN, VEGETATION])
+    painter.ground(land, tone(rng, land, 30, 0.8), -far, far, 0.0, far)
+    painter.ground(TERRAIN, tone(rng, TERRAIN, 30), -s.road_l - s.walk_l - s.strip_l, -s.road_l - s.walk_l, 0, far)
+    painter.ground(TERRAIN, tone(rng, TERRAIN, 30), s.road_r + s.walk_r, s.road_r + s.walk_r + s.strip_r, 0, far)
+    painter.ground(SIDEWALK, tone(rng, SIDEWALK, 40), -s.road_l - s.walk_l, -s.road_l, 0, far)
+    painter.ground(SIDEWALK, tone(rng, SIDEWALK, 40), s.road_r, s.road_r + s.walk_r, 0, far)
+    painter.ground(ROAD, tone(rng, ROAD, 30), -s.road_l, s.road_r, 0, far)
     marking = np.clip(rng.uniform(180, 240) + rng.uniform(-10, 10, 3), 0, 255)
     for z in np.arange(rng.uniform(0, 9), 120, 9.0):
         painter.ground(ROAD, marking, -0.08, 0.08, z, z + 3)
 
-    for sign, edge in ((-1, road_l + walk_l + strip_l), (1, road_r + walk_r + strip_r)):
+
+def _draw_roadside(painter: _Painter, rng: np.random.Generator, s: _Street) -> None:
+    """Facades along both sides: buildings with window bands, hedges, walls and fences."""
+    for sign, edge in ((-1, s.road_l + s.walk_l + s.strip_l), (1, s.road_r + s.walk_r + s.strip_r)):
         z = rng.uniform(0.5, 5)
         while z < 200:
             length = rng.uniform(8, 40)
@@ -155,7 +173,7 @@ def _layout(painter: _Painter, rng: np.random.Generator, split: str) -> None:
                 top = rng.uniform(1.0, 2.5)
                 if kind == WALL:
                     painter.side(WALL, tone(rng, WALL, 30), x, z, z + length, 0, top)
-                else:
+                else:  # two rails and posts every 2.5 m
                     color = tone(rng, FENCE, 30)
                     painter.side(FENCE, color, x, z, z + length, top - 0.12, top)
                     painter.side(FENCE, color, x, z, z + length, 0.35 * top, 0.35 * top + 0.1)
@@ -171,42 +189,52 @@ def _layout(painter: _Painter, rng: np.random.Generator, split: str) -> None:
                     painter.side(BUILDING, glass, x, z + 0.5, z + length - 0.5, floor, floor + 1.4)
             z += length + rng.uniform(0, 6) * (rng.random() < 0.3)
 
-    anomalies = []
-    if split in ANOMALY_SPLITS:
-        for _ in range(rng.integers(1, 4)):
-            regime = split if split != "anomaly" else rng.choice(["anomaly_small", "anomaly_large"])
-            if regime == "anomaly_small":
-                z, size = rng.uniform(25, 80), rng.uniform(0.25, 0.8)
-            else:
-                z, size = rng.uniform(5, 20), rng.uniform(0.6, 1.8)
-            z = min(z, painter.cam.f * size / 4.0)  # at least ~4 pixels tall
-            parts, w = anomaly_object(rng, size)
-            x = rng.uniform(-road_l + w / 2 + 0.3, road_r - w / 2 - 0.3)
-            anomalies.append((z, x, w, parts))
 
-    objects = list(anomalies)
+def _place_anomalies(rng: np.random.Generator, s: _Street, split: str, focal: float) -> list[tuple]:
+    """1-3 anomalies ``(z, x, width, parts)`` standing on the road."""
+    anomalies = []
+    for _ in range(rng.integers(1, 4)):
+        regime = split if split != "anomaly" else rng.choice(["anomaly_small", "anomaly_large"])
+        if regime == "anomaly_small":
+            z, size = rng.uniform(25, 80), rng.uniform(0.25, 0.8)
+        else:
+            z, size = rng.uniform(5, 20), rng.uniform(0.6, 1.8)
+        z = min(z, focal * size / 4.0)  # at least ~4 pixels tall
+        parts, w = anomaly_object(rng, size)
+        x = rng.uniform(-s.road_l + w / 2 + 0.3, s.road_r - w / 2 - 0.3)
+        anomalies.append((z, x, w, parts))
+    return anomalies
+
+
+def _place_things(rng: np.random.Generator, s: _Street, anomalies: list[tuple]) -> list[tuple]:
+    """Vehicles, pedestrians, poles and trees ``(z, x, width, parts)``; no vehicle hides an anomaly."""
+    things = []
     for _ in range(rng.integers(0, 9)):  # vehicles in lanes or parked at the kerb
         cls = rng.choice([CAR] * 8 + [TRUCK, BUS, TRAIN, MOTORCYCLE, BICYCLE])
         z = rng.uniform(6, 90)
-        if cls in (MOTORCYCLE, BICYCLE):
-            parts, w = two_wheeler(rng, cls), 1.3
-        else:
-            parts, w = vehicle(rng, cls)
-        x = rng.uniform(-road_l + w / 2, road_r - w / 2)
+        parts, w = (two_wheeler(rng, cls), 1.3) if cls in (MOTORCYCLE, BICYCLE) else vehicle(rng, cls)
+        x = rng.uniform(-s.road_l + w / 2, s.road_r - w / 2)
         if not any(z < za + 1.0 and abs(x - xa) < (w + wa) / 2 + 0.5 for za, xa, wa, _ in anomalies):
-            objects.append((z, x, w, parts))
+            things.append((z, x, w, parts))
     for _ in range(rng.integers(0, 9)):  # pedestrians on the sidewalks
         left = rng.random() < 0.5
-        x = -road_l - rng.uniform(0.3, walk_l) if left else road_r + rng.uniform(0.3, walk_r)
-        objects.append((rng.uniform(4, 60), x, 0.5, person(rng)))
-    for sign, kerb, walk in ((-1, road_l, walk_l), (1, road_r, walk_r)):
+        x = -s.road_l - rng.uniform(0.3, s.walk_l) if left else s.road_r + rng.uniform(0.3, s.walk_r)
+        things.append((rng.uniform(4, 60), x, 0.5, person(rng)))
+    for sign, kerb, walk in ((-1, s.road_l, s.walk_l), (1, s.road_r, s.walk_r)):
         for z in np.arange(rng.uniform(3, 15), 120, rng.uniform(12, 30)):  # poles near the kerb
-            item = rng.choice([POLE, SIGN, LIGHT])
-            objects.append((z, sign * (kerb + 0.4), 0.2, pole(rng, item)))
+            things.append((z, sign * (kerb + 0.4), 0.2, pole(rng, rng.choice([POLE, SIGN, LIGHT]))))
         for _ in range(rng.integers(0, 5)):  # trees on the sidewalk's outer side
-            objects.append((rng.uniform(5, 100), sign * (kerb + walk - 0.3), 2.0, tree(rng)))
+            things.append((rng.uniform(5, 100), sign * (kerb + walk - 0.3), 2.0, tree(rng)))
+    return things
 
-    for z, x, _, parts in sorted(objects, key=lambda o: -o[0]):
+
+def _layout(painter: _Painter, rng: np.random.Generator, split: str) -> None:
+    """Sample one street and draw it into ``painter``, far to near."""
+    street = _Street.sample(rng)
+    _draw_ground(painter, rng, street)
+    _draw_roadside(painter, rng, street)
+    anomalies = _place_anomalies(rng, street, split, painter.cam.f) if split in ANOMALY_SPLITS else []
+    for z, x, _, parts in sorted(anomalies + _place_things(rng, street, anomalies), key=lambda o: -o[0]):
         painter.frontal(parts, x, z)
 
 
