@@ -29,7 +29,7 @@ from jaxanom.train.optim import OptimConfig, make_optimizer
 from jaxanom.train.runlog import RunLog
 from jaxanom.train.sharding import global_batch, initialize_distributed, make_mesh, replicated
 from jaxanom.train.state import TrainState
-from jaxanom.train.step import LossConfig, make_steps
+from jaxanom.train.step import LossConfig, make_steps, model_input
 
 
 class NonFiniteLossError(FloatingPointError):
@@ -128,7 +128,7 @@ def _run(config: TrainConfig, model, train_data, val_data, mesh) -> TrainState:
     tx, lr_at = make_optimizer(config.optim, config.steps)
     init_key, state_key = jax.random.split(jax.random.key(config.seed))
     variables = jax.jit(model.init, static_argnames="train", out_shardings=replicated(mesh))(
-        init_key, np.asarray(first["image"][:1]), train=False)
+        init_key, model_input(np.asarray(first["image"][:1])), train=False)
     state = jax.device_put(TrainState.create(variables, tx, state_key), replicated(mesh))
     train_step, eval_step = make_steps(model, tx, config.loss, mesh)
 
