@@ -42,7 +42,7 @@ class DemoConfig:
     @classmethod
     def quick(cls) -> "DemoConfig":
         experiment = dataclasses.replace(
-            cls.experiment, train_frames=4, height=64, width=96, crop=(64, 96), batch_size=2,
+            cls.experiment, train_frames=4, height=64, width=96, crop=(64, 96), batch_size=4,
             train=dataclasses.replace(cls.experiment.train, steps=3, eval_every=3, save_every=3,
                                       optim=dataclasses.replace(cls.experiment.train.optim, warmup_steps=1)))
         return cls(experiment=experiment, stats_frames=4, val_frames=2, anomaly_frames=2, pictures=1)
