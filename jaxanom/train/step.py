@@ -119,7 +119,7 @@ def train_step(state: TrainState, batch: dict, *, model, tx: optax.GradientTrans
         opt_state=opt_state,
         step=state.step + 1,
     )
-    metrics = {"loss": loss, "grad_norm": optax.global_norm(grads), **aux}
+    metrics = {"loss": loss, "grad_norm": optax.tree.norm(grads), **aux}
     return new_state, jax.tree.map(lambda x: x.astype(jnp.float32), metrics)
 
 

@@ -1,0 +1,234 @@
+"""jaxanom.losses against NumPy references written from the papers' equations."""
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxanom import losses
+
+VOID = 255
+
+
+def variants(fn):
+    """The function eagerly and under jit (shape arguments stay static via closure)."""
+    return pytest.mark.parametrize("run", [lambda f, *a: f(*a), lambda f, *a: jax.jit(f)(*a)], ids=["eager", "jit"])(fn)
+
+
+def random_batch(seed, b=2, h=5, w=7, c=4, void=0.2, scale=3.0):
+    rng = np.random.default_rng(seed)
+    logits = (scale * rng.normal(size=(b, h, w, c))).astype(np.float32)
+    labels = rng.integers(0, c, size=(b, h, w)).astype(np.int32)
+    labels[rng.random((b, h, w)) < void] = VOID
+    z = rng.normal(size=(b, h * w))
+    attention = (np.exp(z) / np.exp(z).sum(1, keepdims=True)).reshape(b, h, w).astype(np.float32)
+    score = rng.normal(size=(b, h, w)).astype(np.float32)
+    return logits, labels, attention, score
+
+
+def ref_log_softmax(x):
+    x = x.astype(np.float64)
+    shifted = x - x.max(-1, keepdims=True)
+    return shifted - np.log(np.exp(shifted).sum(-1, keepdims=True))
+
+
+def ref_cross_entropy(logits, labels, weights=None):
+    log_p = ref_log_softmax(logits)
+    num, den = 0.0, 0.0
+    for idx in np.ndindex(labels.shape):
+        y = labels[idx]
+        if y == VOID:
+            continue
+        wy = 1.0 if weights is None else weights[y]
+        num += -wy * log_p[idx][y]
+        den += wy
+    return num / den if den > 0 else 0.0
+
+
+def ref_correct(logits, labels):
+    return (labels != VOID) & (np.argmax(logits, -1) == labels)
+
+
+def ref_attention_loss(m, logits, labels, k, beta, literal):
+    total = 0.0
+    for i in range(len(labels)):
+        correct = ref_correct(logits[i], labels[i])
+        incorrect = (labels[i] != VOID) & ~correct
+        if not correct.any():
+            continue
+        psi = m[i][correct].astype(np.float64).mean()
+        pen = incorrect & (m[i] < beta * psi)
+        term = m[i] if literal else beta * psi - m[i]
+        total += np.sum(np.exp(k[i][pen].astype(np.float64)) * term[pen])
+    return total / len(labels)
+
+
+@variants
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_cross_entropy_matches_numpy(run, seed):
+    logits, labels, _, _ = random_batch(seed)
+    got = run(losses.cross_entropy, logits, labels)
+    np.testing.assert_allclose(got, ref_cross_entropy(logits, labels), rtol=1e-5)
+
+
+@variants
+def test_cross_entropy_class_weights_match_numpy(run):
+    logits, labels, _, _ = random_batch(3, c=5)
+    weights = np.array([0.5, 2.0, 1.0, 0.0, 3.0], np.float32)
+    got = run(lambda a, b: losses.cross_entropy(a, b, class_weights=weights), logits, labels)
+    np.testing.assert_allclose(got, ref_cross_entropy(logits, labels, weights), rtol=1e-5)
+
+
+def test_cross_entropy_ignores_void_logits_entirely():
+    logits, labels, _, _ = random_batch(4)
+    changed = logits.copy()
+    changed[labels == VOID] = 1e6  # anything on void pixels must not matter
+    assert losses.cross_entropy(changed, labels) == losses.cross_entropy(logits, labels)
+    grad = jax.grad(losses.cross_entropy)(jnp.asarray(logits), labels)
+    assert np.all(np.asarray(grad)[labels == VOID] == 0)
+
+
+def test_cross_entropy_huge_logits_and_single_class():
+    logits, labels, _, _ = random_batch(5, c=1, scale=1e4)
+    assert float(losses.cross_entropy(logits, np.where(labels == VOID, VOID, 0))) == 0.0
+    logits, labels, _, _ = random_batch(6, scale=1e4)
+    got = losses.cross_entropy(logits, labels)
+    np.testing.assert_allclose(got, ref_cross_entropy(logits, labels), rtol=1e-5)
+
+
+def test_all_void_batch_gives_zero_not_nan():
+    logits, labels, attention, score = random_batch(7)
+    void = np.full_like(labels, VOID)
+    assert float(losses.cross_entropy(logits, void)) == 0.0
+    assert float(losses.attention_loss(attention, logits, void, score)) == 0.0
+    assert float(losses.self_regulated_lambda(logits, void)) == 0.0
+
+
+@variants
+def test_reward_logits_matches_eq4_and_skips_void(run):
+    logits, labels, attention, _ = random_batch(8)
+    got = np.asarray(run(lambda a, m, y: losses.reward_logits(a, m, y, tau=5e4), logits, attention, labels))
+    expected = logits.astype(np.float64).copy()
+    for idx in np.ndindex(labels.shape):
+        if labels[idx] != VOID:
+            expected[idx][labels[idx]] += 5e4 * attention[idx]
+    np.testing.assert_allclose(got, expected, rtol=1e-6)
+    np.testing.assert_array_equal(got[labels == VOID], logits[labels == VOID])
+
+
+@pytest.mark.parametrize("prob", [0.0, 1.0, 0.5])
+def test_study_draw_frequency(prob):
+    logits, labels, attention, _ = random_batch(9)
+    keys = jax.random.split(jax.random.key(0), 400)
+    draw = jax.vmap(lambda k: losses.study_logits(k, logits, attention, labels, reward_prob=prob))
+    rewarded_all, study = draw(keys)
+    study = np.asarray(study)
+    if prob in (0.0, 1.0):
+        assert np.all(study == bool(prob))
+    else:
+        assert 0.4 < study.mean() < 0.6  # 400 draws: 4 standard deviations
+    rewarded = np.asarray(losses.reward_logits(logits, attention, labels))
+    rewarded_all = np.asarray(rewarded_all)
+    for s, got in zip(study, rewarded_all):
+        np.testing.assert_array_equal(got, rewarded if s else logits)
+        np.testing.assert_array_equal(got[labels == VOID], logits[labels == VOID])
+
+
+@variants
+@pytest.mark.parametrize("literal", [False, True])
+@pytest.mark.parametrize("seed", [10, 11])
+def test_attention_loss_matches_numpy(run, literal, seed):
+    logits, labels, attention, score = random_batch(seed, b=3, h=6, w=5)
+    # make half of the pixels low-attention so that the beta * psi condition selects some
+    attention = attention * np.where(np.random.default_rng(seed).random(attention.shape) < 0.5, 0.1, 1.0)
+    got = run(lambda m, a, y, k: losses.attention_loss(m, a, y, k, beta=0.5, literal=literal),
+              attention, logits, labels, score)
+    expected = ref_attention_loss(attention, logits, labels, score, 0.5, literal)
+    assert expected > 0
+    np.testing.assert_allclose(got, expected, rtol=1e-5)
+
+
+def test_attention_loss_with_ties_and_image_without_correct_pixels():
+    logits, labels, attention, score = random_batch(12, b=2, c=3)
+    logits = np.round(logits / 3).astype(np.float32)  # many ties in argmax: the first maximum wins
+    labels[0] = np.where(labels[0] == VOID, VOID, (np.argmax(logits[0], -1) + 1) % 3)  # image 0: nothing correct
+    got = losses.attention_loss(attention, logits, labels, score)
+    np.testing.assert_allclose(got, ref_attention_loss(attention, logits, labels, score, 0.5, False), rtol=1e-5)
+
+
+def _attention_step(literal):
+    """One gradient step on attention logits z (softmax per image); mean attention on incorrect and correct pixels."""
+    logits, labels, _, score = random_batch(13, b=2, h=8, w=8, void=0.1)
+    incorrect = (labels != VOID) & ~ref_correct(logits, labels)
+    correct = ref_correct(logits, labels)
+    z = np.where(incorrect, -1.0, 0.0).reshape(2, -1)  # incorrect pixels start with low attention
+
+    def attention_of(z):
+        return jax.nn.softmax(z, axis=-1).reshape(labels.shape)
+
+    def loss(z):
+        return losses.attention_loss(attention_of(z), logits, labels, score, literal=literal)
+
+    z_new = z - 1e3 * np.asarray(jax.grad(loss)(jnp.asarray(z, jnp.float32)))
+    before, after = np.asarray(attention_of(z)), np.asarray(attention_of(z_new))
+    ratio_before = before[incorrect].mean() / before[correct].mean()
+    ratio_after = after[incorrect].mean() / after[correct].mean()
+    return ratio_before, ratio_after, before, after, incorrect, correct
+
+
+def test_default_attention_loss_raises_attention_on_incorrect_pixels():
+    ratio_before, ratio_after, before, after, incorrect, correct = _attention_step(literal=False)
+    assert ratio_after > ratio_before
+    assert after[incorrect].mean() > before[incorrect].mean()
+    assert after[correct].mean() < before[correct].mean()
+
+
+def test_literal_attention_loss_lowers_attention_on_incorrect_pixels():
+    ratio_before, ratio_after, *_ = _attention_step(literal=True)
+    assert ratio_after < ratio_before
+
+
+@variants
+@pytest.mark.parametrize("seed", [14, 15])
+def test_self_regulated_lambda_matches_eq9(run, seed):
+    logits, labels, _, _ = random_batch(seed)
+    expected = ref_correct(logits, labels).sum() / (labels != VOID).sum()
+    np.testing.assert_allclose(run(losses.self_regulated_lambda, logits, labels), expected, rtol=1e-6)
+
+
+@variants
+@pytest.mark.parametrize("literal", [False, True])
+def test_msaam_loss_matches_numpy(run, literal):
+    logits, labels, _, _ = random_batch(16)
+    z = np.random.default_rng(16).normal(size=(2, 3))
+    weights = (np.exp(z) / np.exp(z).sum(1, keepdims=True)).astype(np.float32)
+    got = run(lambda a, y, w: losses.msaam_loss(a, y, w, lam=0.7, literal=literal), logits, labels, weights)
+    variance = np.mean([np.mean((row - row.mean()) ** 2) for row in weights.astype(np.float64)])
+    expected = ref_cross_entropy(logits, labels) + (0.7 if literal else -0.7) * variance
+    np.testing.assert_allclose(got, expected, rtol=1e-5)
+
+
+def test_msaam_default_gradient_spreads_the_branch_weights():
+    logits, labels, _, _ = random_batch(17)
+    z = jnp.asarray(np.random.default_rng(17).normal(size=(2, 3)) * 0.1, jnp.float32)
+
+    def variance_after_step(literal):
+        loss = lambda z: losses.msaam_loss(logits, labels, jax.nn.softmax(z, -1), lam=1.0, literal=literal)
+        z_new = z - 1.0 * jax.grad(loss)(z)
+        return float(jnp.mean(jnp.var(jax.nn.softmax(z_new, -1), axis=1)))
+
+    start = float(jnp.mean(jnp.var(jax.nn.softmax(z, -1), axis=1)))
+    assert variance_after_step(False) > start > variance_after_step(True)
+
+
+@pytest.mark.parametrize("call, name", [
+    (lambda l, y, m, k: losses.cross_entropy(l[..., 0], y), "logits"),
+    (lambda l, y, m, k: losses.cross_entropy(l, y[:, :-1]), "labels"),
+    (lambda l, y, m, k: losses.cross_entropy(l, y, class_weights=np.ones(2)), "class_weights"),
+    (lambda l, y, m, k: losses.reward_logits(l, m[:, :-1], y), "attention_up"),
+    (lambda l, y, m, k: losses.attention_loss(m, l, y, k[:1]), "anomaly_score"),
+    (lambda l, y, m, k: losses.msaam_loss(l, y, np.ones((5, 3)), 0.1), "branch_weights"),
+])
+def test_bad_shapes_raise_value_error_naming_the_argument(call, name):
+    logits, labels, attention, score = random_batch(18)
+    with pytest.raises(ValueError, match=name):
+        call(logits, labels, attention, score)
