@@ -47,8 +47,8 @@ def test_checkerboard_is_all_boundary():
     assert np.asarray(sml.find_boundaries(label)).all()
 
 
-@pytest.mark.parametrize("max_radius", [0, 1, 3, 5])
-@pytest.mark.parametrize("name,label", MAPS[:3], ids=[m[0] for m in MAPS[:3]])
+@pytest.mark.parametrize("max_radius", [0, 3, 5])
+@pytest.mark.parametrize("name,label", [MAPS[0], MAPS[2]], ids=[MAPS[0][0], MAPS[2][0]])
 def test_boundary_distance_thresholds_are_diamond_dilations(name, label, max_radius):
     b = ref.boundaries(label, "geodesic")
     dist = np.asarray(sml.boundary_distance(jnp.asarray(b), max_radius))

@@ -26,11 +26,15 @@ def cases():
 
 
 CASES = list(cases())
-SETTINGS = [(4, 4, "geodesic"), (4, 4, "sml_official"), (4, 2, "geodesic"), (6, 3, "sml_official"), (0, 2, "geodesic"), (3, 1, "geodesic")]
+DEFAULTS = [(4, 4, "geodesic"), (4, 4, "sml_official")]
+OTHER_SETTINGS = [(4, 2, "geodesic"), (6, 3, "sml_official"), (0, 2, "geodesic"), (3, 1, "geodesic")]
+# every map with the paper's settings in both border modes; the other settings on the first map
+SUPPRESSION_CASES = [(name, label, *setting) for name, label in CASES for setting in DEFAULTS]
+SUPPRESSION_CASES += [(*CASES[0], *setting) for setting in OTHER_SETTINGS]
 
 
-@pytest.mark.parametrize("width,iterations,border", SETTINGS)
-@pytest.mark.parametrize("name,label", CASES, ids=[c[0] for c in CASES])
+@pytest.mark.parametrize("name,label,width,iterations,border", SUPPRESSION_CASES,
+                         ids=[f"{c[0]}-{c[2]}-{c[3]}-{c[4]}" for c in SUPPRESSION_CASES])
 def test_suppression_matches_python_loop(name, label, width, iterations, border):
     score = np.random.default_rng(len(name)).normal(size=label.shape).astype(np.float32) * 3
     got = sml.suppress_boundaries(score, label.astype(np.int32), width=width, iterations=iterations, border=border)
@@ -38,8 +42,11 @@ def test_suppression_matches_python_loop(name, label, width, iterations, border)
     np.testing.assert_allclose(np.asarray(got), want, rtol=1e-5, atol=1e-5)
 
 
-@pytest.mark.parametrize("kernel_size,sigma,dilation", [(7, 1.0, 6), (5, 0.7, 1), (3, 2.0, 2), (1, 1.0, 4)])
-@pytest.mark.parametrize("shape", [(9, 14), (40, 37), (1, 5)])
+SMOOTHING_CASES = [((9, 14), 7, 1.0, 6), ((40, 37), 7, 1.0, 6), ((1, 5), 7, 1.0, 6),
+                   ((9, 14), 5, 0.7, 1), ((9, 14), 3, 2.0, 2), ((9, 14), 1, 1.0, 4)]
+
+
+@pytest.mark.parametrize("shape,kernel_size,sigma,dilation", SMOOTHING_CASES)
 def test_smoothing_matches_scipy_correlate(shape, kernel_size, sigma, dilation):
     score = np.random.default_rng(2).normal(size=shape).astype(np.float32) * 5
     got = sml.dilated_smoothing(score, kernel_size=kernel_size, sigma=sigma, dilation=dilation)

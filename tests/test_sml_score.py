@@ -34,8 +34,10 @@ def test_ties_take_the_first_class():
     np.testing.assert_array_equal(np.asarray(pred), 1)
 
 
-@pytest.mark.parametrize("suppress,smooth", [(True, True), (True, False), (False, True), (False, False)])
-@pytest.mark.parametrize("border", ["geodesic", "sml_official"])
+@pytest.mark.parametrize(
+    "suppress,smooth,border",
+    [(True, True, "geodesic"), (True, True, "sml_official"), (True, False, "geodesic"), (False, True, "geodesic"), (False, False, "geodesic")],
+)
 def test_sml_score_matches_reference_pipeline(suppress, smooth, border):
     logits, mean, std = problem(1)
     s, pred = ref.standardize(logits, mean.astype(np.float64), std.astype(np.float64))

@@ -6,7 +6,7 @@ class boundaries (``suppress_boundaries``, Eqs. 6-7), smooth (``dilated_smoothin
 ``sml_score`` does the whole test-time path. See ``../shared/METHODS.md`` §1.
 """
 from jaxanom.sml.boundaries import BORDERS, boundary_distance, find_boundaries
-from jaxanom.sml.postprocess import dilated_smoothing, gaussian_kernel_1d, suppress_boundaries
+from jaxanom.sml.postprocessing import dilated_smoothing, gaussian_kernel_1d, suppress_boundaries
 from jaxanom.sml.score import (
     postprocess,
     postprocess_batch,

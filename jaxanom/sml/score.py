@@ -7,7 +7,7 @@ import numpy as np
 
 from jaxanom._validate import check_finite, check_positive, check_rank
 from jaxanom.sml.boundaries import check_prediction
-from jaxanom.sml.postprocess import (
+from jaxanom.sml.postprocessing import (
     _smooth,
     _suppress,
     check_score,
