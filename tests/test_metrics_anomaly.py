@@ -16,7 +16,8 @@ def random_case(rng, size, levels, void_fraction=0.1, positive_fraction=0.3):
     return scores, labels
 
 
-CASES = [(2, 1), (3, 1), (17, 2), (101, 3), (1000, 5), (4099, 40), (2000, 100000)]
+# Few distinct sizes: each new shape compiles once.
+CASES = [(2, 1), (17, 2), (1000, 5), (1000, 100000), (4099, 40)]
 
 
 @pytest.mark.parametrize("size,levels", CASES)
@@ -129,14 +130,14 @@ def test_ap_auroc_on_the_hand_worked_example():
 
 def test_input_dtypes_and_leading_shapes():
     rng = np.random.default_rng(7)
-    scores, labels = random_case(rng, 600, 30)
+    scores, labels = random_case(rng, 1000, 30)
     kept = labels != 255
     expected = sk.average_precision_score(labels[kept], scores[kept].astype(np.float16))
     for dtype in (np.float16, ml_dtypes.bfloat16):
         quantised = scores.astype(dtype)
         ref = sk.average_precision_score(labels[kept], quantised[kept].astype(np.float64))
         np.testing.assert_allclose(anomaly_metrics(quantised, labels)["ap"], ref, rtol=1e-9)
-    got = anomaly_metrics(scores.astype(np.float16).reshape(3, 10, 20), labels.reshape(3, 10, 20))["ap"]
+    got = anomaly_metrics(scores.astype(np.float16).reshape(4, 10, 25), labels.reshape(4, 10, 25))["ap"]
     np.testing.assert_allclose(got, expected, rtol=1e-9)
 
 

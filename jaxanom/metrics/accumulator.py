@@ -101,8 +101,7 @@ class AnomalyMetricAccumulator:
             keys = (self.num_bins - 1 - bins).astype(np.uint32)
             positives, negatives = self.histogram[bins, 1], self.histogram[bins, 0]
         with jax.enable_x64(True):
-            summary = curve_summary(jnp.asarray(keys), jnp.asarray(positives), jnp.asarray(negatives),
-                                    jnp.float64(tpr))
+            summary = curve_summary(*_pad_to_power_of_two(keys, positives, negatives), jnp.float64(tpr))
             metrics = summary_to_metrics(summary, self.counts, fpr_convention, ap_convention, tpr,
                                          bool(self.float64_keys))
         if self.mode == "binned":
@@ -151,6 +150,16 @@ def _merge(images):
     total = lambda i: np.bincount(inverse, np.concatenate([c[i] for c in images]).astype(np.float64),  # noqa: E731
                                   unique.size).astype(np.int64)
     return unique, total(1), total(2)
+
+
+def _pad_to_power_of_two(keys, positives, negatives):
+    """Pad with empty entries under the largest key (no score has it) so that few array sizes,
+    hence few compilations, occur."""
+    pad = (1 << max(int(keys.size - 1).bit_length(), 4)) - keys.size
+    keys = np.concatenate([keys, np.full(pad, np.iinfo(keys.dtype).max, keys.dtype)])
+    zeros = np.zeros(pad, np.int64)
+    return (jnp.asarray(keys), jnp.asarray(np.concatenate([positives, zeros]).astype(np.int64)),
+            jnp.asarray(np.concatenate([negatives, zeros]).astype(np.int64)))
 
 
 _sort_pixels = jax.jit(sort_pixels)

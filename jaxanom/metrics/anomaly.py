@@ -22,6 +22,9 @@ AP_CONVENTIONS = ("step", "trapz")
 def check_scores_labels(scores, labels) -> tuple[jnp.ndarray, jnp.ndarray, dict]:
     """Validate one pair of score / label arrays; returns them flat with their class counts.
 
+    The flat arrays are padded with void pixels to one of a few sizes (at most 1/16 more
+    pixels, at least 1024), so that images of many sizes share a few compiled programs.
+
     Raises ValueError on: non-float scores, non-integer labels, shape mismatch, labels outside
     {0, 1, 255}, NaN scores on non-void pixels. Call inside ``jax.enable_x64(True)``.
     """
@@ -37,9 +40,20 @@ def check_scores_labels(scores, labels) -> tuple[jnp.ndarray, jnp.ndarray, dict]
         raise ValueError(f"labels: expected values in {{0, 1, 255}}, got {bad_labels} other pixels")
     if nan_scores:
         raise ValueError(f"scores: {nan_scores} NaN values on non-void pixels")
+    if scores.dtype != jnp.float64:
+        scores = scores.astype(jnp.float32)  # exact for float16 / bfloat16; one compiled version
     counts = {"num_positives": positives, "num_negatives": negatives,
               "num_void": int(scores.size) - positives - negatives}
-    return scores.ravel(), labels.ravel(), counts
+    return (*_pad_with_void(scores.ravel(), labels.ravel()), counts)
+
+
+def _pad_with_void(scores, labels):
+    size = scores.shape[0]
+    step = 1 << max(size.bit_length() - 4, 0)
+    padding = max(1024, -(-size // step) * step) - size
+    if padding == 0:
+        return scores, labels
+    return jnp.pad(scores, (0, padding)), jnp.pad(labels, (0, padding), constant_values=255)
 
 
 @jax.jit
