@@ -27,11 +27,11 @@ class CommandError(Exception):
 def main(argv: list[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
-    if not hasattr(args, "run"):
+    if not hasattr(args, "handler"):
         parser.print_help()
         return 2
     try:
-        args.run(args)
+        args.handler(args)
     except (CommandError, ValueError, FileNotFoundError, FileExistsError) as error:
         print(f"jaxanom {args.command}: error: {error}", file=sys.stderr)
         return 2
@@ -55,7 +55,7 @@ def _parser() -> argparse.ArgumentParser:
     demo.add_argument("--quick", action="store_true", help="a seconds-long smoke run of the same path")
     demo.add_argument("--steps", type=int, help="training steps (default: 600; --quick: 3)")
     _common(demo, progress=True)
-    demo.set_defaults(run=_demo)
+    demo.set_defaults(handler=_demo)
 
     train = commands.add_parser("train", help="train a network (config file or flags); --resume continues",
                                 description="Train a DeepLabV3+ (optionally with CuDAM or MSAAM). A config file is "
@@ -73,7 +73,7 @@ def _parser() -> argparse.ArgumentParser:
     train.add_argument("--batch-size", type=int, help="global batch size")
     train.add_argument("--seed", type=int, help="random seed")
     _common(train, progress=True, overwrite=False)
-    train.set_defaults(run=_train)
+    train.set_defaults(handler=_train)
 
     fit = commands.add_parser("fit-stats", help="fit SML class statistics of a trained run",
                               description="Stream a trained network's logits over training frames and write the "
@@ -84,7 +84,7 @@ def _parser() -> argparse.ArgumentParser:
     fit.add_argument("--missing", choices=["error", "pooled"], default="error",
                      help="classes never predicted: fail, or use the pooled statistics (default: %(default)s)")
     _common(fit, progress=False)
-    fit.set_defaults(run=_fit_stats)
+    fit.set_defaults(handler=_fit_stats)
 
     evaluate = commands.add_parser("evaluate", help="score an anomaly dataset with a trained run",
                                    description="Pooled AP / AUROC / FPR@95 per method on an anomaly dataset. "
@@ -97,7 +97,7 @@ def _parser() -> argparse.ArgumentParser:
     _scoring(evaluate)
     evaluate.add_argument("--pictures", type=int, default=0, help="frames to draw (default: %(default)s)")
     _common(evaluate, progress=False)
-    evaluate.set_defaults(run=_evaluate)
+    evaluate.set_defaults(handler=_evaluate)
 
     score = commands.add_parser("score", help="scores and metrics from logits saved by another framework",
                                 description="Read logits (.npy, or .npz with array `logits`) of shape (N, C, H, W) "
@@ -108,7 +108,7 @@ def _parser() -> argparse.ArgumentParser:
     score.add_argument("--labels", help=".npy or .npz file (array `labels`) of anomaly labels")
     _scoring(score)
     _common(score, progress=False)
-    score.set_defaults(run=_score)
+    score.set_defaults(handler=_score)
     return parser
 
 
