@@ -1,0 +1,155 @@
+"""Run every benchmark in one go and (with ``--write``) rewrite ``benchmarks/RESULTS.md``.
+
+    python -m benchmarks [--quick] [--only NAME ...] [--write]
+
+Every ``benchmarks/bench_<name>.py`` module's ``run(quick)`` is called in turn; its rows are
+printed as one markdown table per ``benchmark`` value, under the device and versions of
+``timing.environment()``, each with a one-line reading of the times (jaxanom against every
+peer measured in the same run). A module that fails is reported as failed, the others still run,
+and the exit status is 1.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import importlib
+import os
+import platform
+import sys
+import time
+import traceback
+from pathlib import Path
+from types import ModuleType
+
+HERE = Path(__file__).parent
+PACKAGE = __package__ or "benchmarks"
+
+
+def discover(directory: Path = HERE) -> list[str]:
+    """Names (``bench_<name>`` -> ``<name>``) of the benchmark modules in ``directory``."""
+    return sorted(path.stem.removeprefix("bench_") for path in Path(directory).glob("bench_*.py"))
+
+
+def load(name: str, directory: Path = HERE) -> ModuleType:
+    """The module ``bench_<name>`` of ``directory`` (of this package when it is this folder)."""
+    if Path(directory).resolve() == HERE.resolve():
+        return importlib.import_module(f"{PACKAGE}.bench_{name}")
+    spec = importlib.util.spec_from_file_location(f"bench_{name}", Path(directory) / f"bench_{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def run_all(names: list[str], quick: bool, directory: Path = HERE, log=print) -> dict[str, dict]:
+    """``{name: {"rows", "reader", "seconds"}}`` or ``{name: {"error", "seconds"}}`` per module.
+
+    ``reader(rows) -> str`` reads one table in a line: the module's own ``interpret`` if it has
+    one, else ``interpret`` here.
+    """
+    results = {}
+    for name in names:
+        log(f"running bench_{name}{' (quick)' if quick else ''} ...")
+        start = time.perf_counter()
+        try:
+            module = load(name, directory)
+            results[name] = {"rows": list(module.run(quick=quick)), "reader": getattr(module, "interpret", interpret)}
+        except Exception:  # noqa: BLE001 -- one broken benchmark must not hide the others' results
+            results[name] = {"error": traceback.format_exc(limit=3).strip()}
+        results[name]["seconds"] = time.perf_counter() - start
+        log(f"  {time.perf_counter() - start:.0f} s")
+    return results
+
+
+def interpret(rows: list[dict]) -> str:
+    """One line reading a table: per peer, the range over cases of peer time / jaxanom time."""
+    ours = {r["case"]: r["median_ms"] for r in rows if str(r["impl"]).startswith("jaxanom")}
+    peers: dict[str, list[float]] = {}
+    for r in rows:
+        if not str(r["impl"]).startswith("jaxanom") and ours.get(r["case"], 0) > 0:
+            peers.setdefault(str(r["impl"]), []).append(r["median_ms"] / ours[r["case"]])
+    if not peers:
+        times = [r["median_ms"] for r in rows]
+        return f"jaxanom only: {min(times):.3g} to {max(times):.3g} ms over {len(rows)} case(s)."
+    parts = []
+    for peer, ratios in peers.items():
+        low, high = min(ratios), max(ratios)
+        span = f"{low:.2g}x" if f"{low:.2g}" == f"{high:.2g}" else f"{low:.2g}x to {high:.2g}x"
+        verdict = ("jaxanom faster" if low > 1 else "jaxanom slower" if high < 1
+                   else "jaxanom faster in some cases, slower in others")
+        parts.append(f"{peer} takes {span} jaxanom's time ({verdict})")
+    return "; ".join(parts) + "."
+
+
+def columns(rows: list[dict]) -> list[str]:
+    """Every key that occurs in ``rows``, in order of first appearance."""
+    seen: dict[str, None] = {}
+    for row in rows:
+        seen.update(dict.fromkeys(row))
+    return list(seen)
+
+
+def tables(results: dict[str, dict]) -> str:
+    """Markdown: per module, one table per ``benchmark`` value with its reading, or the failure."""
+    from benchmarks.timing import markdown_table
+
+    lines = []
+    for name, result in results.items():
+        lines += ["", f"## bench_{name} ({result['seconds']:.0f} s)", ""]
+        if "error" in result:
+            lines += ["**failed:**", "", "```", result["error"], "```"]
+            continue
+        groups: dict[str, list[dict]] = {}
+        for row in result["rows"]:
+            groups.setdefault(str(row["benchmark"]), []).append(row)
+        for benchmark, rows in groups.items():
+            lines += [f"### {benchmark}", "", markdown_table(rows, columns(rows)), "", f"Reading: {result['reader'](rows)}", ""]
+    return "\n".join(lines).strip("\n")
+
+
+def header(environment: dict[str, str], quick: bool) -> str:
+    """Date, machine and versions."""
+    versions = ", ".join(f"{k} {v}" for k, v in environment.items() if k not in ("device", "cpu"))
+    return "\n".join([
+        f"Run on {datetime.datetime.now().strftime('%Y-%m-%d %H:%M')} with `python -m benchmarks"
+        f"{' --quick' if quick else ''}`.",
+        "",
+        f"- device: {environment.get('device', '?')}",
+        f"- machine: {platform.platform()}, {environment.get('cpu', '?')}, {os.cpu_count()} CPU cores",
+        f"- versions: {versions}",
+        "",
+        "Times are medians in ms; a peer's ratio is its time over jaxanom's in the same run (above 1: jaxanom "
+        "is faster). Peers are measured in the same process on the same inputs, and the scripts check "
+        "that they compute the same values before timing.",
+    ])
+
+
+def results_markdown(results: dict[str, dict], environment: dict[str, str], quick: bool) -> str:
+    return f"# Benchmark results\n\n{header(environment, quick)}\n\n{tables(results)}\n"
+
+
+def main(argv=None, directory: Path = HERE) -> int:
+    available = discover(directory)
+    parser = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="each module's quick (small) variant")
+    parser.add_argument("--only", nargs="+", choices=available, metavar="NAME",
+                        help=f"modules to run (default: all of {', '.join(available)})")
+    parser.add_argument("--write", action="store_true", help="rewrite RESULTS.md beside the modules")
+    args = parser.parse_args(argv)
+
+    from benchmarks.timing import environment
+
+    env = environment()
+    print(", ".join(f"{k}: {v}" for k, v in env.items()))
+    results = run_all(args.only or available, args.quick, directory)
+    text = results_markdown(results, env, args.quick)
+    print(text)
+    if args.write:
+        from jaxanom.io import write_bytes_atomic
+
+        path = write_bytes_atomic(Path(directory) / "RESULTS.md", text.encode())
+        print(f"wrote {path}")
+    return 1 if any("error" in r for r in results.values()) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

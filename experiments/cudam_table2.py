@@ -1,0 +1,35 @@
+"""CuDAM Table II: MSP, max logit and SML without CuDAM (plain network) and with it (the
+CuDAM-trained network, score + sigma * attention, Eq. 10).
+
+    python -m experiments --only cudam_table2
+"""
+from experiments.common import Row, cudam, improves, ordered, plain
+
+NAME = "cudam_table2"
+TITLE = "CuDAM Table II: uncertainty scores with and without CuDAM"
+
+
+def rows(scale):
+    base, ours = plain(scale), cudam(scale)
+    return [Row("MSP", base, "msp"), Row("max logit", base, "max_logit"), Row("SML", base, "sml_post"),
+            Row("CuDAM + MSP", ours, "msp+att"), Row("CuDAM + max logit", ours, "max_logit+att"),
+            Row("CuDAM + SML", ours, "sml_post+att"),
+            Row("CuDAM + SML (paper's sigma 2e4)", ours, "cudam"),
+            Row("CuDAM network, SML without attention term", ours, "sml_post")]
+
+
+def findings(v):
+    metrics = ("ap", "fpr95", "auroc")
+    return [
+        *(improves(v, f"CuDAM + {s}", s, metrics, f"CuDAM improves {s} in AP, FPR95 and AUROC")
+          for s in ("MSP", "max logit", "SML")),
+        ordered(v, ["MSP", "max logit", "SML"], "ap", "without CuDAM, AP: MSP < max logit < SML"),
+        ordered(v, ["CuDAM + MSP", "CuDAM + max logit", "CuDAM + SML"], "ap", "with CuDAM, AP: MSP < max logit < SML"),
+        improves(v, "CuDAM + SML", "SML", ("miou",), "CuDAM raises mIoU slightly"),
+    ]
+
+
+if __name__ == "__main__":
+    from experiments.__main__ import main
+
+    main(["--only", NAME])

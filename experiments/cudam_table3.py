@@ -1,0 +1,42 @@
+"""CuDAM Table III: ablation of the attention module, the reward (Eq. 4) and the attention loss
+(Eq. 7), scored with SML + attention (Eq. 10).
+
+The LossConfig fields that switch the components off: "attention" alone is the CuDAM network
+trained with plain cross-entropy; "no reward" is ``reward_prob=0`` (no study iteration ever);
+"no L_att" is ``beta=0`` (the threshold beta * psi is 0 and attention is positive, so no pixel
+is penalised and the loss is exactly 0).
+
+    python -m experiments --only cudam_table3
+"""
+from experiments.common import Row, best, cudam, improves, network, plain, worse
+from jaxanom.train.step import LossConfig
+
+NAME = "cudam_table3"
+TITLE = "CuDAM Table III: attention / reward / attention-loss ablation"
+
+
+def rows(scale):
+    return [Row("none (plain network, SML)", plain(scale), "sml_post"),
+            Row("attention", network(scale, "cudam", LossConfig("plain")), "sml_post+att"),
+            Row("attention + reward", cudam(scale, beta=0.0), "sml_post+att"),
+            Row("attention + L_att", cudam(scale, reward_prob=0.0), "sml_post+att"),
+            Row("attention + reward + L_att", cudam(scale), "sml_post+att")]
+
+
+def findings(v):
+    none = "none (plain network, SML)"
+    ablations = ["attention", "attention + reward", "attention + L_att", "attention + reward + L_att"]
+    return [
+        *(improves(v, a, none, ("ap",), f"{a} improves AP over no CuDAM") for a in ablations),
+        improves(v, "attention + reward", "attention + L_att", ("ap",),
+                 "the reward helps more than L_att (largest single gain)"),
+        best(v, "attention + reward + L_att", [none, *ablations], "ap", "all three components give the best AP"),
+        best(v, "attention + reward + L_att", [none, *ablations], "fpr95", "all three components give the best FPR95"),
+        worse(v, "attention + L_att", "attention", "miou", "L_att lowers mIoU relative to attention alone"),
+    ]
+
+
+if __name__ == "__main__":
+    from experiments.__main__ import main
+
+    main(["--only", NAME])

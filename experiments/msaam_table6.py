@@ -1,0 +1,27 @@
+"""MSAAM Table 6: MSP, max logit, entropy and SML on the plain network and on the network with
+MSAAM at the end of the encoder (trained with MSAAM's loss, Eq. 7).
+
+    python -m experiments --only msaam_table6
+"""
+from experiments.common import Row, improves, msaam, plain
+
+NAME = "msaam_table6"
+TITLE = "MSAAM Table 6: gains of MSAAM on scores without extra training"
+SCORES = {"MSP": "msp", "max logit": "max_logit", "entropy": "entropy", "SML": "sml_post"}
+
+
+def rows(scale):
+    base, ours = plain(scale), msaam(scale)
+    return [*(Row(label, base, score) for label, score in SCORES.items()),
+            *(Row(f"MSAAM + {label}", ours, score) for label, score in SCORES.items())]
+
+
+def findings(v):
+    return [improves(v, f"MSAAM + {label}", label, ("ap", "fpr95", "auroc"),
+                     f"MSAAM improves {label} in AP, FPR95 and AUROC") for label in SCORES]
+
+
+if __name__ == "__main__":
+    from experiments.__main__ import main
+
+    main(["--only", NAME])

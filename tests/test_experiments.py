@@ -1,0 +1,113 @@
+"""The experiment runner (a seconds-long table) and the benchmark runner (fake modules)."""
+import json
+import math
+
+import pytest
+
+from benchmarks.__main__ import interpret
+from benchmarks.__main__ import main as bench_main
+from experiments.__main__ import summary, write_results
+from experiments.common import (Finding, Row, Scale, attention_positions, best, cudam, improves, matched_sigma,
+                                matched_tau, ordered, run_table, worse)
+
+
+def test_matched_constants_keep_the_papers_per_pixel_magnitude():
+    assert attention_positions(720, 720) == 180 * 180
+    assert attention_positions(1024, 2048) == 256 * 512
+    assert attention_positions(129, 257) == 33 * 65  # ceil at both stride-2 stages
+    assert matched_tau(Scale()) == pytest.approx(5e4 * (32 * 64) / (180 * 180))
+    assert matched_tau(Scale(height=720, width=720)) == pytest.approx(5e4)
+    assert matched_sigma(1024, 2048) == pytest.approx(2e4)
+    assert matched_sigma(128, 256) == pytest.approx(2e4 / 64)
+
+
+def test_findings_compare_in_the_right_direction():
+    v = {"a": {"ap": 10.0, "fpr95": 50.0, "auroc": 80.0}, "b": {"ap": 20.0, "fpr95": 40.0, "auroc": 79.0}}
+    assert improves(v, "b", "a", ("ap", "fpr95")).holds
+    assert not improves(v, "b", "a", ("ap", "fpr95", "auroc")).holds
+    assert not improves(v, "a", "b").holds
+    assert worse(v, "a", "b", "fpr95", "claim").holds and not worse(v, "b", "a", "fpr95", "claim").holds
+    assert ordered(v, ["a", "b"]).holds and not ordered(v, ["b", "a"]).holds
+    assert best(v, "b", ["a", "b"], "fpr95").holds and best(v, "a", ["a", "b"], "auroc").holds
+    assert "AP 20.00 vs 10.00" in improves(v, "b", "a").evidence
+
+
+def test_scale_rejects_an_unknown_anomaly_reader():
+    with pytest.raises(ValueError, match="anomaly"):
+        Scale(anomaly="fishyscapes:/data")
+
+
+def test_table_trains_once_evaluates_and_writes_results(tmp_path):
+    scale = Scale.smoke()
+    net = cudam(scale)
+    rows = [Row("SML", net, "sml_post"), Row("CuDAM + SML", net, "sml_post+att"), Row("MSP", net, "msp")]
+
+    def findings(v):
+        return [improves(v, "CuDAM + SML", "SML"), Finding("always", True, "by construction")]
+
+    out, runs = tmp_path / "out", tmp_path / "runs"
+    result = run_table("smoke", "Smoke table", rows, findings, scale, out, runs, log=lambda *_: None)
+
+    assert [p.name for p in runs.iterdir()] == [net.key]
+    assert sorted(p.name for p in out.iterdir()) == ["smoke.json", "smoke.md", "smoke_pr.png", "smoke_roc.png"]
+    saved = json.loads((out / "smoke.json").read_text())
+    assert saved == json.loads(json.dumps(result))
+    assert list(saved["table"]) == ["SML", "CuDAM + SML", "MSP"]
+    for values in saved["table"].values():
+        assert all(0 <= values[k] <= 100 and math.isfinite(values[k]) for k in ("ap", "auroc", "fpr95", "miou"))
+    assert saved["table"]["SML"]["network"] == saved["table"]["MSP"]["network"] == net.key
+    assert saved["findings"][1] == {"claim": "always", "holds": True, "evidence": "by construction"}
+    assert "single seed" in saved["seeds"]
+    markdown = (out / "smoke.md").read_text()
+    assert "| CuDAM + SML | `sml_post+att` |" in markdown and "| always | yes | by construction |" in markdown
+
+    # A second table on the same network reads the cached evaluation (no new run folder).
+    again = run_table("smoke2", "Again", rows[:1], lambda v: [], scale, out, runs, log=lambda *_: None)
+    assert again["table"]["SML"] == saved["table"]["SML"]
+    assert [p.name for p in runs.iterdir()] == [net.key]
+    with pytest.raises(ValueError, match="not computed"):
+        run_table("bad", "Bad", [Row("x", net, "entropy+att")], lambda v: [], scale, out, runs, log=lambda *_: None)
+
+    # RESULTS.md gathers the known experiments' JSON files only.
+    (out / "cudam_table2.json").write_text((out / "smoke.json").read_text())
+    text = write_results(out).read_text()
+    assert "1 of 2 qualitative findings" in text or "2 of 2 qualitative findings" in text
+    assert "Smoke table" in text and "single seed" in text.lower()
+    assert "No experiment" in summary([])
+
+
+FAKE = '''
+def run(quick=False):
+    rows = [dict(benchmark="alpha", case="small", impl="jaxanom", median_ms=10.0, ratio=1.0),
+            dict(benchmark="alpha", case="small", impl="peer", median_ms=20.0, ratio=2.0),
+            dict(benchmark="alpha", case="big", impl="jaxanom", median_ms=100.0, ratio=1.0),
+            dict(benchmark="alpha", case="big", impl="peer", median_ms=300.0, ratio=3.0, note="extra column")]
+    return rows + [dict(benchmark="beta", case="q" if quick else "full", impl="jaxanom", median_ms=1.5)]
+'''
+
+
+def test_benchmark_runner_tables_and_results_file(tmp_path, capsys):
+    (tmp_path / "bench_fake.py").write_text(FAKE)
+    (tmp_path / "bench_broken.py").write_text("def run(quick=False):\n    raise RuntimeError('boom')\n")
+    assert bench_main(["--quick", "--only", "fake", "--write"], directory=tmp_path) == 0
+    text = (tmp_path / "RESULTS.md").read_text()
+    assert "device:" in text and "jax " in text and "--quick" in text
+    assert "### alpha" in text and "### beta" in text and "| q |" in text
+    assert "| benchmark | case | impl | median_ms | ratio | note |" in text
+    assert "peer takes 2x to 3x jaxanom's time (jaxanom faster)" in text
+    assert "jaxanom only: 1.5 to 1.5 ms" in text
+    assert "boom" not in text
+
+    assert bench_main(["--write"], directory=tmp_path) == 1
+    text = (tmp_path / "RESULTS.md").read_text()
+    assert "## bench_broken" in text and "failed" in text and "boom" in text and "| full |" in text
+    assert not list(tmp_path.glob(".RESULTS.md.*"))  # atomic write left no temporary file
+    capsys.readouterr()
+
+
+def test_interpret_mixed_and_slower_peers():
+    rows = [dict(case="a", impl="jaxanom", median_ms=10.0), dict(case="a", impl="torch", median_ms=5.0),
+            dict(case="b", impl="jaxanom", median_ms=10.0), dict(case="b", impl="torch", median_ms=20.0),
+            dict(case="b", impl="sk", median_ms=4.0)]
+    assert interpret(rows) == ("torch takes 0.5x to 2x jaxanom's time (jaxanom faster in some cases, slower in "
+                               "others); sk takes 0.4x jaxanom's time (jaxanom slower).")
