@@ -183,9 +183,10 @@ def trained(net: Network, runs: Path, log: Callable = print) -> dict:
     """The network's final variables: trained into ``runs/<key>/``, or restored when already there.
 
     The same data set-up as ``jaxanom.experiment.run_training``, which builds the module from the
-    ``Experiment`` alone and so cannot place CuDAM at the surface position.
+    ``Experiment`` alone and so cannot place CuDAM at the surface position. No validation during
+    training: ``evaluate`` measures mIoU afterwards.
     """
-    from jaxanom.data.pipeline import evaluation_batches, training_batches
+    from jaxanom.data.pipeline import training_batches
     from jaxanom.data.transforms import Augment
     from jaxanom.train.loop import train
 
@@ -197,10 +198,8 @@ def trained(net: Network, runs: Path, log: Callable = print) -> dict:
         f"({e.train.loss.method} loss, {e.train.steps} steps)")
     augment = Augment(crop_hw=tuple(e.crop), scale_range=tuple(e.scale_range))
     batches = training_batches(frames(e, "train"), batch_size=e.batch_size, augment=augment, seed=e.train.seed)
-    val = [{"image": b["image"], "label": b["label"]}
-           for b in evaluation_batches(frames(e, "val", max(e.batch_size, 8)), batch_size=e.batch_size)]
     start = time.perf_counter()
-    state = train(dataclasses.replace(e.train, run_dir=str(run_dir)), net.module(), batches, val)
+    state = train(dataclasses.replace(e.train, run_dir=str(run_dir)), net.module(), batches)
     if not done:
         log(f"  trained in {time.perf_counter() - start:.0f} s")
     return jax.device_get(state.variables)
@@ -304,11 +303,11 @@ def table(rows: Sequence[Row], scale: Scale, runs: Path = RUNS, log: Callable = 
     return values, curves
 
 
-def markdown(values: dict) -> str:
-    """The table as markdown (percent, two decimals)."""
+def markdown(table: Sequence[dict]) -> str:
+    """Table rows ``{label, score, network, miou, ap, fpr95, auroc}`` as markdown (percent, two decimals)."""
     lines = ["| row | score | network | mIoU | AP ↑ | FPR95 ↓ | AUROC ↑ |", "|---|---|---|---|---|---|---|"]
-    for label, v in values.items():
-        lines.append(f"| {label} | `{v['score']}` | `{v['network']}` | {v['miou']:.2f} | {v['ap']:.2f} | "
+    for v in table:
+        lines.append(f"| {v['label']} | `{v['score']}` | `{v['network']}` | {v['miou']:.2f} | {v['ap']:.2f} | "
                      f"{v['fpr95']:.2f} | {v['auroc']:.2f} |")
     return "\n".join(lines)
 
@@ -322,7 +321,7 @@ def run_table(name: str, title: str, rows: Sequence[Row], findings: Callable[[di
     values, curves = table(rows, scale, runs, log)
     checked = findings(values)
     networks = {row.network.key: row.network.to_dict() for row in rows}
-    result = {"name": name, "title": title, "table": values, "scale": dataclasses.asdict(scale),
+    result = {"name": name, "title": title, "table": [{"label": k, **v} for k, v in values.items()], "scale": dataclasses.asdict(scale),
               "findings": [dataclasses.asdict(f) for f in checked], "networks": networks,
               "seeds": f"single seed: training, shuffling and synthetic scenes all use seed {scale.seed}"}
     out_dir = Path(out_dir)
@@ -374,7 +373,7 @@ def not_better(values: dict, new: str, old: str, metric: str, claim: str) -> Fin
 def ordered(values: dict, labels: Sequence[str], metric: str = "ap", claim: str | None = None) -> Finding:
     """``labels`` strictly increase in quality in this order."""
     holds = all(_better(values, b, a, metric) for a, b in zip(labels, labels[1:]))
-    evidence = " < ".join(f"{label} {values[label][metric]:.2f}" for label in labels)
+    evidence = ", ".join(f"{label} {values[label][metric]:.2f}" for label in labels)
     return Finding(claim or f"{NAMES[metric]}: {' < '.join(labels)}", holds, f"{NAMES[metric]}: {evidence}")
 
 

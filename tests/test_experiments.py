@@ -2,13 +2,14 @@
 import json
 import math
 
+import numpy as np
 import pytest
 
 from benchmarks.__main__ import interpret
 from benchmarks.__main__ import main as bench_main
 from experiments.__main__ import summary, write_results
-from experiments.common import (Finding, Row, Scale, attention_positions, best, cudam, improves, matched_sigma,
-                                matched_tau, ordered, run_table, worse)
+from experiments.common import (BASE_SCORES, Finding, Row, Scale, _scores, attention_positions, best, cudam,
+                                improves, matched_sigma, matched_tau, ordered, run_table, worse)
 
 
 def test_matched_constants_keep_the_papers_per_pixel_magnitude():
@@ -19,6 +20,23 @@ def test_matched_constants_keep_the_papers_per_pixel_magnitude():
     assert matched_tau(Scale(height=720, width=720)) == pytest.approx(5e4)
     assert matched_sigma(1024, 2048) == pytest.approx(2e4)
     assert matched_sigma(128, 256) == pytest.approx(2e4 / 64)
+
+
+def test_ensemble_scores_add_sigma_times_attention():
+    rng = np.random.default_rng(0)
+    logits = (rng.normal(size=(2, 9, 13, 5)) * 3).astype(np.float32)
+    attention = rng.random((2, 9, 13)).astype(np.float32) / 30
+    stats = (rng.normal(size=5).astype(np.float32), (0.5 + rng.random(5)).astype(np.float32))
+    scores = {k: np.asarray(v, np.float64) for k, v in _scores({"logits": logits, "attention_up": attention}, stats).items()}
+    sigma = 2e4 * (3 * 4) / (256 * 512)  # 9 x 13 frames -> 3 x 4 attention positions
+    probabilities = np.exp(logits - logits.max(-1, keepdims=True))
+    probabilities /= probabilities.sum(-1, keepdims=True)
+    np.testing.assert_allclose(scores["msp+att"], 1 - probabilities.max(-1) + sigma * attention, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(scores["max_logit+att"], -logits.max(-1) + sigma * attention, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(scores["sml_post+att"], scores["sml_post"] + sigma * attention, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(scores["cudam"], scores["sml_post"] + 2e4 * attention, rtol=1e-5, atol=1e-4)
+    plain = _scores({"logits": logits}, stats)
+    assert tuple(plain) == BASE_SCORES
 
 
 def test_findings_compare_in_the_right_direction():
@@ -52,10 +70,11 @@ def test_table_trains_once_evaluates_and_writes_results(tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["smoke.json", "smoke.md", "smoke_pr.png", "smoke_roc.png"]
     saved = json.loads((out / "smoke.json").read_text())
     assert saved == json.loads(json.dumps(result))
-    assert list(saved["table"]) == ["SML", "CuDAM + SML", "MSP"]
-    for values in saved["table"].values():
+    table = {row.pop("label"): row for row in saved["table"]}
+    assert list(table) == ["SML", "CuDAM + SML", "MSP"]
+    for values in table.values():
         assert all(0 <= values[k] <= 100 and math.isfinite(values[k]) for k in ("ap", "auroc", "fpr95", "miou"))
-    assert saved["table"]["SML"]["network"] == saved["table"]["MSP"]["network"] == net.key
+    assert table["SML"]["network"] == table["MSP"]["network"] == net.key
     assert saved["findings"][1] == {"claim": "always", "holds": True, "evidence": "by construction"}
     assert "single seed" in saved["seeds"]
     markdown = (out / "smoke.md").read_text()
@@ -63,7 +82,7 @@ def test_table_trains_once_evaluates_and_writes_results(tmp_path):
 
     # A second table on the same network reads the cached evaluation (no new run folder).
     again = run_table("smoke2", "Again", rows[:1], lambda v: [], scale, out, runs, log=lambda *_: None)
-    assert again["table"]["SML"] == saved["table"]["SML"]
+    assert again["table"][0] == {"label": "SML", **table["SML"]}
     assert [p.name for p in runs.iterdir()] == [net.key]
     with pytest.raises(ValueError, match="not computed"):
         run_table("bad", "Bad", [Row("x", net, "entropy+att")], lambda v: [], scale, out, runs, log=lambda *_: None)
