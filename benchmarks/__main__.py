@@ -6,7 +6,8 @@ Every ``benchmarks/bench_<name>.py`` module's ``run(quick)`` is called in turn; 
 printed as one markdown table per ``benchmark`` value, under the device and versions of
 ``timing.environment()``, each with a one-line reading of the times (jaxanom against every
 peer measured in the same run). A module that fails is reported as failed, the others still run,
-and the exit status is 1.
+and the exit status is 1. Text below the ``NOTES`` marker line of an existing RESULTS.md (for
+example measurements from another machine) is kept when the file is rewritten.
 """
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ from types import ModuleType
 
 HERE = Path(__file__).parent
 PACKAGE = __package__ or "benchmarks"
+NOTES = "<!-- Hand-written notes: everything below this line is kept by `python -m benchmarks --write`. -->"
 
 
 def discover(directory: Path = HERE) -> list[str]:
@@ -123,8 +125,15 @@ def header(environment: dict[str, str], quick: bool) -> str:
     ])
 
 
-def results_markdown(results: dict[str, dict], environment: dict[str, str], quick: bool) -> str:
-    return f"# Benchmark results\n\n{header(environment, quick)}\n\n{tables(results)}\n"
+def results_markdown(results: dict[str, dict], environment: dict[str, str], quick: bool, notes: str = "") -> str:
+    """The RESULTS.md text: header, tables, then the kept ``notes`` under the ``NOTES`` marker."""
+    return f"# Benchmark results\n\n{header(environment, quick)}\n\n{tables(results)}\n\n{NOTES}\n{notes}"
+
+
+def kept_notes(path: Path) -> str:
+    """The text below the ``NOTES`` marker of an existing results file ("" if none)."""
+    text = path.read_text() if path.exists() else ""
+    return text.partition(NOTES + "\n")[2] if NOTES in text else ""
 
 
 def main(argv=None, directory: Path = HERE) -> int:
@@ -141,12 +150,13 @@ def main(argv=None, directory: Path = HERE) -> int:
     env = environment()
     print(", ".join(f"{k}: {v}" for k, v in env.items()))
     results = run_all(args.only or available, args.quick, directory)
-    text = results_markdown(results, env, args.quick)
+    path = Path(directory) / "RESULTS.md"
+    text = results_markdown(results, env, args.quick, kept_notes(path))
     print(text)
     if args.write:
         from jaxanom.io import write_bytes_atomic
 
-        path = write_bytes_atomic(Path(directory) / "RESULTS.md", text.encode())
+        write_bytes_atomic(path, text.encode())
         print(f"wrote {path}")
     return 1 if any("error" in r for r in results.values()) else 0
 

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from benchmarks.__main__ import interpret
+from benchmarks.__main__ import NOTES, interpret
 from benchmarks.__main__ import main as bench_main
 from experiments.__main__ import summary, write_results
 from experiments.common import (BASE_SCORES, Finding, Row, Scale, _scores, attention_positions, best, cudam,
@@ -117,9 +117,11 @@ def test_benchmark_runner_tables_and_results_file(tmp_path, capsys):
     assert "jaxanom only: 1.5 to 1.5 ms" in text
     assert "boom" not in text
 
+    (tmp_path / "RESULTS.md").write_text(text + "GPU numbers from another machine.\n")
     assert bench_main(["--write"], directory=tmp_path) == 1
     text = (tmp_path / "RESULTS.md").read_text()
     assert "## bench_broken" in text and "failed" in text and "boom" in text and "| full |" in text
+    assert text.endswith(NOTES + "\nGPU numbers from another machine.\n") and text.count(NOTES) == 1
     assert not list(tmp_path.glob(".RESULTS.md.*"))  # atomic write left no temporary file
     capsys.readouterr()
 
