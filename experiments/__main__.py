@@ -85,7 +85,9 @@ def summary(results: list[dict]) -> str:
         f"DeepLabV3+ (`deeplabv3plus_tiny`, output stride 16) trained for {scale.steps} steps, batch "
         f"{scale.batch_size}, on {data}, with AdamW (lr 2e-3) instead of the papers' SGD schedule. SML "
         f"statistics come from {scale.stats_frames} training frames; anomaly metrics pool all non-void pixels "
-        f"of {anomaly}; mIoU is on {scale.val_frames} validation frames. Numbers are percent.",
+        f"of {anomaly}; mIoU is on {scale.val_frames} validation frames. Numbers are percent: AP is the step sum "
+        "(scikit-learn's average precision), FPR95 the FPR at the first ROC point with TPR >= 95% (Fishyscapes' "
+        "convention), AUROC the trapezoid. Rows with the same network hash share one trained network.",
         "",
         f"**Single seed** (seed {scale.seed} for initialisation, shuffling and scenes): differences of a point "
         "or two are within what another seed could change; read the findings as indications, not evidence.",
