@@ -15,7 +15,9 @@ import dataclasses
 import datetime
 import importlib
 import json
+import sys
 import time
+import traceback
 from pathlib import Path
 
 from experiments.common import HERE, RUNS, Scale, matched_sigma, matched_tau, report, run_table
@@ -52,26 +54,34 @@ def main(argv=None) -> None:
     import jax
 
     jax.config.update("jax_compilation_cache_dir", str(args.runs / "jax_cache"))
+    failures = {}
     for name in args.only:
         start = time.perf_counter()
         module = importlib.import_module(f"experiments.{name}")
-        run_table(module.NAME, module.TITLE, module.rows(scale), module.findings, scale, args.out, args.runs)
-        print(f"{name}: done in {time.perf_counter() - start:.0f} s")
-        write_results(args.out)
+        try:
+            run_table(module.NAME, module.TITLE, module.rows(scale), module.findings, scale, args.out, args.runs)
+        except Exception:  # noqa: BLE001 -- e.g. a diverged network: report it, run the other tables
+            failures[name] = traceback.format_exc(limit=4).strip()
+            print(failures[name])
+        print(f"{name}: {'failed' if name in failures else 'done'} in {time.perf_counter() - start:.0f} s")
+        write_results(args.out, failures)
     print(f"results in {args.out / 'RESULTS.md'}")
+    return 1 if failures else 0
 
 
-def write_results(out_dir: Path) -> Path:
-    """Rewrite ``RESULTS.md`` in ``out_dir`` from the experiment JSON files there."""
+def write_results(out_dir: Path, failures: dict[str, str] | None = None) -> Path:
+    """Rewrite ``RESULTS.md`` in ``out_dir`` from the experiment JSON files there (and this run's failures)."""
+    failures = failures or {}
     results = [json.loads((out_dir / f"{name}.json").read_text()) for name in EXPERIMENTS
-               if (out_dir / f"{name}.json").exists()]
-    return write_bytes_atomic(out_dir / "RESULTS.md", (summary(results) + "\n").encode())
+               if name not in failures and (out_dir / f"{name}.json").exists()]
+    return write_bytes_atomic(out_dir / "RESULTS.md", (summary(results, failures) + "\n").encode())
 
 
-def summary(results: list[dict]) -> str:
-    """The RESULTS.md text: set-up, a count of findings reproduced, then every table."""
+def summary(results: list[dict], failures: dict[str, str] | None = None) -> str:
+    """The RESULTS.md text: set-up, a count of findings reproduced, every table, then failed experiments."""
+    failed = [f"\n## {name}: failed\n\n```\n{text}\n```" for name, text in (failures or {}).items()]
     if not results:
-        return "# Experiments\n\nNo experiment has been run yet: `python -m experiments`."
+        return "\n".join(["# Experiments\n\nNo experiment has completed yet: `python -m experiments`.", *failed])
     scale = Scale(**results[0]["scale"])
     held = sum(f["holds"] for r in results for f in r["findings"])
     total = sum(len(r["findings"]) for r in results)
@@ -109,7 +119,7 @@ def summary(results: list[dict]) -> str:
         lines += ["", report(result), "",
                   f"Curves: [{result['name']}_roc.png]({result['name']}_roc.png), "
                   f"[{result['name']}_pr.png]({result['name']}_pr.png)."]
-    return "\n".join(lines)
+    return "\n".join(lines + failed)
 
 
 def _anchor(title: str) -> str:
@@ -119,4 +129,4 @@ def _anchor(title: str) -> str:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -24,4 +24,4 @@ def findings(v):
 if __name__ == "__main__":
     from experiments.__main__ import main
 
-    main(["--only", NAME])
+    raise SystemExit(main(["--only", NAME]))

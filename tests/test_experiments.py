@@ -70,7 +70,7 @@ def test_table_trains_once_evaluates_and_writes_results(tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["smoke.json", "smoke.md", "smoke_pr.png", "smoke_roc.png"]
     saved = json.loads((out / "smoke.json").read_text())
     assert saved == json.loads(json.dumps(result))
-    table = {row.pop("label"): row for row in saved["table"]}
+    table = {row["label"]: row for row in saved["table"]}
     assert list(table) == ["SML", "CuDAM + SML", "MSP"]
     for values in table.values():
         assert all(0 <= values[k] <= 100 and math.isfinite(values[k]) for k in ("ap", "auroc", "fpr95", "miou"))
@@ -82,7 +82,7 @@ def test_table_trains_once_evaluates_and_writes_results(tmp_path):
 
     # A second table on the same network reads the cached evaluation (no new run folder).
     again = run_table("smoke2", "Again", rows[:1], lambda v: [], scale, out, runs, log=lambda *_: None)
-    assert again["table"][0] == {"label": "SML", **table["SML"]}
+    assert again["table"][0] == table["SML"]
     assert [p.name for p in runs.iterdir()] == [net.key]
     with pytest.raises(ValueError, match="not computed"):
         run_table("bad", "Bad", [Row("x", net, "entropy+att")], lambda v: [], scale, out, runs, log=lambda *_: None)
@@ -93,6 +93,8 @@ def test_table_trains_once_evaluates_and_writes_results(tmp_path):
     assert "1 of 2 qualitative findings" in text or "2 of 2 qualitative findings" in text
     assert "Smoke table" in text and "single seed" in text.lower()
     assert "No experiment" in summary([])
+    with_failure = summary([json.loads((out / "smoke.json").read_text())], {"cudam_fig6": "Traceback: boom"})
+    assert "Smoke table" in with_failure and "## cudam_fig6: failed" in with_failure and "Traceback: boom" in with_failure
 
 
 FAKE = '''
