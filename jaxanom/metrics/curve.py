@@ -21,6 +21,11 @@ import jax.numpy as jnp
 from jax import lax
 
 
+def entry_index(size: int) -> jnp.ndarray:
+    """0..size-1 as int32 (half the memory traffic of int64) unless size needs int64."""
+    return jnp.arange(size, dtype=jnp.int32 if size < 2**31 else jnp.int64)
+
+
 def curve_points(keys, pos, neg):
     """Cumulative counts at every entry and where a threshold ends.
 
@@ -29,11 +34,11 @@ def curve_points(keys, pos, neg):
     counts; end (M,) bool, the last entry of each threshold; tp_prev, fp_prev (M,), the counts
     at the previous threshold (0 before the first).
     """
-    index = jnp.arange(keys.shape[0])
+    index = entry_index(keys.shape[0])
     tp, fp = jnp.cumsum(pos), jnp.cumsum(neg)
     next_keys = jnp.concatenate([keys[1:], keys[-1:]])
     end = ((keys != next_keys) | (index == keys.shape[0] - 1)) & (pos + neg > 0)
-    prev = jnp.concatenate([jnp.full((1,), -1), lax.cummax(jnp.where(end, index, -1))[:-1]])
+    prev = jnp.concatenate([jnp.full((1,), -1, index.dtype), lax.cummax(jnp.where(end, index, -1))[:-1]])
     safe = jnp.maximum(prev, 0)
     tp_prev = jnp.where(prev >= 0, tp[safe], 0)
     fp_prev = jnp.where(prev >= 0, fp[safe], 0)
@@ -56,7 +61,7 @@ def curve_summary(keys, pos, neg, tpr):
     """
     tp, fp, end, tp_prev, fp_prev = curve_points(keys, pos, neg)
     size = keys.shape[0]
-    index = jnp.arange(size)
+    index = entry_index(size)
     f64 = jnp.float64
     p, n = tp[-1].astype(f64), fp[-1].astype(f64)
     tpf, fpf, tpp, fpp = (x.astype(f64) for x in (tp, fp, tp_prev, fp_prev))
