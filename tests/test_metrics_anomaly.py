@@ -205,3 +205,16 @@ def test_bad_input_raises():
     # NaN on a void pixel is ignored.
     result = anomaly_metrics(np.array([0.1, 0.2, np.nan]), np.array([0, 1, 255], np.uint8))
     assert result["auroc"] == 1.0
+
+
+def test_arrays_sharded_over_the_four_devices():
+    import jax
+    from jax.sharding import NamedSharding, PartitionSpec
+
+    rng = np.random.default_rng(9)
+    scores, labels = random_case(rng, 1000, 5)
+    sharding = NamedSharding(jax.make_mesh((4,), ("data",)), PartitionSpec("data"))
+    kept = labels != 255
+    result = anomaly_metrics(jax.device_put(scores.astype(np.float32), sharding), jax.device_put(labels, sharding))
+    np.testing.assert_allclose(result["auroc"], sk.roc_auc_score(labels[kept], scores[kept].astype(np.float32)),
+                               rtol=1e-9)

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxanom.metrics.curve import curve_points, curve_summary
+from jaxanom.metrics.placement import on_one_device
 from jaxanom.metrics.ranking import NEGATIVE, POSITIVE, keys_to_scores, sort_pixels
 
 FPR_CONVENTIONS = ("first", "interp", "nearest", "strict")
@@ -28,7 +29,7 @@ def check_scores_labels(scores, labels) -> tuple[jnp.ndarray, jnp.ndarray, dict]
     Raises ValueError on: non-float scores, non-integer labels, shape mismatch, labels outside
     {0, 1, 255}, NaN scores on non-void pixels. Call inside ``jax.enable_x64(True)``.
     """
-    scores, labels = jnp.asarray(scores), jnp.asarray(labels)
+    scores, labels = on_one_device(jnp.asarray(scores)), on_one_device(jnp.asarray(labels))
     if not jnp.issubdtype(scores.dtype, jnp.floating):
         raise ValueError(f"scores: expected a floating dtype, got {scores.dtype}")
     if not jnp.issubdtype(labels.dtype, jnp.integer):
