@@ -43,6 +43,7 @@ def check_scores_labels(scores, labels) -> tuple[jnp.ndarray, jnp.ndarray, dict]
         raise ValueError(f"scores: {nan_scores} NaN values on non-void pixels")
     if scores.dtype != jnp.float64:
         scores = scores.astype(jnp.float32)  # exact for float16 / bfloat16; one compiled version
+    labels = labels.astype(jnp.uint8)  # values checked to be 0, 1 or 255
     counts = {"num_positives": positives, "num_negatives": negatives,
               "num_void": int(scores.size) - positives - negatives}
     return (*_pad_with_void(scores.ravel(), labels.ravel()), counts)
