@@ -212,3 +212,9 @@ def test_best_rectangle_matches_brute_force(box):
     want_corner, want_avg = best_rectangle_reference(m, *box)
     assert tuple(np.asarray(corner)) == want_corner
     np.testing.assert_allclose(avg, want_avg, rtol=1e-6)
+
+
+@pytest.mark.parametrize("shape, box", [((5, 7), (6, 1)), ((5, 7), (1, 0)), ((2, 5, 7), (1, 1))])
+def test_best_rectangle_rejects_bad_sizes(shape, box):
+    with pytest.raises(ValueError, match="height|highlight"):
+        best_rectangle(jnp.zeros(shape), *box)
