@@ -8,6 +8,8 @@ Contract (the training loop and the scorers rely on it):
     out = model.apply(variables, images, train=False)
 
 ``images``: float32 (B, H, W, 3), already normalised by the caller; any H, W >= 1.
+``train`` is a Python bool (static under ``jax.jit``): True normalises with batch statistics and
+returns updated ``batch_stats`` (pass ``mutable=["batch_stats"]``), False uses running averages.
 ``out`` is a dict:
   * ``"logits"``: float32 (B, H, W, num_classes), bilinearly resized to the input size.
   * with ``attention="cudam"``: ``"attention"`` float32 (B, h, w), CuDAM's map M_att at the
@@ -141,6 +143,7 @@ class DeepLabV3Plus(nn.Module):
         low_proj = ConvBN(self.low_level_channels, 1, dtype=self.dtype, name="low_level")(low, train)
         x = resize_bilinear(x, *low.shape[1:3])
         x = jnp.concatenate([x, low_proj], axis=-1)
+        # two 3x3 convolutions; CuDAM follows the first ("deep") or the second ("surface")
         for i, position in enumerate(CUDAM_POSITIONS):
             x = ConvBN(self.decoder_channels, 3, dtype=self.dtype, name=f"decoder{i}")(x, train)
             if self.attention == "cudam" and self.cudam_position == position:
