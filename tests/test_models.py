@@ -182,6 +182,7 @@ def test_gradients_are_finite(train_grads):
 def test_bfloat16_compute_keeps_float32_params_and_outputs(cudam_vars, cudam_out):
     model = tiny(attention="cudam", dtype=jnp.bfloat16)
     shapes = jax.eval_shape(lambda x: model.init(KEY, x, train=False), IMAGES)
+    assert set(shapes) == {"params", "batch_stats"}
     assert all(a.dtype == jnp.float32 for a in jax.tree.leaves(shapes))
     out = eval_fn(model)(cudam_vars, IMAGES)
     assert out["logits"].dtype == jnp.float32 and out["attention"].dtype == jnp.float32
