@@ -20,13 +20,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from jaxanom.nn.layers import resize_bilinear
-
-
-def spatial_softmax(scores: jax.Array) -> jax.Array:
-    """Softmax over the positions of each image: (B, h, w) -> (B, h, w), each map sums to 1."""
-    b, h, w = scores.shape
-    return jax.nn.softmax(scores.reshape(b, h * w), axis=-1).reshape(b, h, w)
+from jaxanom.nn.layers import resize_bilinear, spatial_softmax
 
 
 class CuDAMAttention(nn.Module):

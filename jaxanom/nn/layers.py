@@ -1,4 +1,4 @@
-"""Building blocks shared by the backbone and the heads: conv + BatchNorm (+ ReLU), bilinear resize.
+"""Building blocks shared by the networks: conv + BatchNorm (+ ReLU), bilinear resize, spatial softmax.
 
 Mixed precision: parameters are always float32 (``param_dtype``); ``dtype`` is the compute dtype
 (e.g. ``jnp.bfloat16``). BatchNorm statistics are reduced in float32 whatever ``dtype`` is.
@@ -86,3 +86,9 @@ def resize_bilinear(x: jax.Array, height: int, width: int) -> jax.Array:
         t = t.reshape((-1,) + (1,) * (x.ndim - axis - 1)).astype(x.dtype)
         x = jnp.take(x, i0, axis=axis) * (1 - t) + jnp.take(x, i1, axis=axis) * t
     return x
+
+
+def spatial_softmax(scores: jax.Array) -> jax.Array:
+    """Softmax over the positions of each image: (B, h, w) -> (B, h, w), each map sums to 1."""
+    b, h, w = scores.shape
+    return jax.nn.softmax(scores.reshape(b, h * w), axis=-1).reshape(b, h, w)

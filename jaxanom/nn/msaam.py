@@ -33,8 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom.nn.cudam import spatial_softmax
-from jaxanom.nn.layers import resize_bilinear
+from jaxanom.nn.layers import resize_bilinear, spatial_softmax
 
 
 def adaptive_pool_matrix(size: int, bins: int) -> np.ndarray:
