@@ -25,7 +25,9 @@ def check_rank(name: str, x, rank: int, layout: str) -> None:
 
 @jax.jit
 def _all_finite(x) -> jax.Array:
-    return jnp.all(jnp.isfinite(x))
+    # max |x| is NaN or Inf exactly when some entry is; a float max-reduction is several
+    # times faster than a boolean all-reduction on XLA:CPU
+    return jnp.isfinite(jnp.max(jnp.abs(x), initial=0.0))
 
 
 def check_finite(name: str, x) -> None:
