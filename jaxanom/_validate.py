@@ -49,8 +49,13 @@ def check_positive(name: str, x) -> None:
             )
 
 
+def dtype_of(x) -> np.dtype:
+    """The dtype of an array, tracer, or array-like (without converting a tracer)."""
+    return np.dtype(x.dtype) if hasattr(x, "dtype") else np.asarray(x).dtype
+
+
 def check_integer(name: str, x) -> None:
     """``x`` must have an integer dtype (class indices)."""
-    dtype = x.dtype if hasattr(x, "dtype") else np.asarray(x).dtype
+    dtype = dtype_of(x)
     if not np.issubdtype(dtype, np.integer):
         raise ValueError(f"{name} must hold integer class indices, got dtype {dtype}")

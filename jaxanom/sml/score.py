@@ -5,7 +5,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_finite, check_positive, check_rank
+from jaxanom._validate import check_finite, check_integer, check_positive, check_rank
 from jaxanom.sml.boundaries import check_prediction
 from jaxanom.sml.postprocessing import (
     _smooth,
@@ -104,9 +104,9 @@ def postprocess_batch(score, prediction, *, suppress=True, smooth=True, width=4,
     check_rank("score", score, 3, "(B, H, W)")
     check_finite("score", score)
     check_rank("prediction", prediction, 3, "(B, H, W)")
-    if np.shape(prediction) != np.shape(score) or not np.issubdtype(np.asarray(prediction).dtype, np.integer):
-        raise ValueError(f"prediction must be integer with the score's shape {np.shape(score)}, got "
-                         f"{np.shape(prediction)} {np.asarray(prediction).dtype}")
+    check_integer("prediction", prediction)
+    if np.shape(prediction) != np.shape(score):
+        raise ValueError(f"prediction must have the score's shape {np.shape(score)}, got {np.shape(prediction)}")
     options = _checked_options(suppress, smooth, width, iterations, border, kernel_size, sigma, dilation)
     return _postprocess_batch(jnp.asarray(score), jnp.asarray(prediction), **options)
 
