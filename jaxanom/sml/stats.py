@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_finite, check_rank
+from jaxanom._validate import check_finite, check_rank, dtype_of
 
 
 class ClassStats(NamedTuple):
@@ -92,8 +92,8 @@ def _checked_valid(valid, shape: tuple[int, ...]) -> jax.Array:
         return jnp.ones(shape, bool)
     if np.shape(valid) != shape:
         raise ValueError(f"valid must have shape {shape} (the logits' pixels), got {np.shape(valid)}")
-    if np.asarray(valid).dtype != bool:
-        raise ValueError(f"valid must be a bool mask, got dtype {np.asarray(valid).dtype}")
+    if dtype_of(valid) != bool:
+        raise ValueError(f"valid must be a bool mask, got dtype {dtype_of(valid)}")
     return jnp.asarray(valid)
 
 
