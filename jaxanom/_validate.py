@@ -8,6 +8,7 @@ Shape checks run in both cases, since shapes are known while tracing.
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 
@@ -22,9 +23,16 @@ def check_rank(name: str, x, rank: int, layout: str) -> None:
         raise ValueError(f"{name} must have rank {rank} {layout}, got shape {np.shape(x)}")
 
 
+@jax.jit
+def _all_finite(x) -> jax.Array:
+    # max |x| is NaN or Inf exactly when some entry is; a float max-reduction is several
+    # times faster than a boolean all-reduction on XLA:CPU
+    return jnp.isfinite(jnp.max(jnp.abs(x), initial=0.0))
+
+
 def check_finite(name: str, x) -> None:
-    """No NaN or Inf in ``x`` (skipped for tracers)."""
-    if is_concrete(x) and not bool(np.all(np.isfinite(np.asarray(x)))):
+    """No NaN or Inf in ``x`` (skipped for tracers); one compiled reduction, no host copy."""
+    if is_concrete(x) and not bool(_all_finite(jnp.asarray(x))):
         bad = int(np.size(x) - np.count_nonzero(np.isfinite(np.asarray(x))))
         raise ValueError(f"{name} must be finite, got {bad} NaN/Inf value(s)")
 
@@ -41,8 +49,13 @@ def check_positive(name: str, x) -> None:
             )
 
 
+def dtype_of(x) -> np.dtype:
+    """The dtype of an array, tracer, or array-like (without converting a tracer)."""
+    return np.dtype(x.dtype) if hasattr(x, "dtype") else np.asarray(x).dtype
+
+
 def check_integer(name: str, x) -> None:
     """``x`` must have an integer dtype (class indices)."""
-    dtype = x.dtype if hasattr(x, "dtype") else np.asarray(x).dtype
+    dtype = dtype_of(x)
     if not np.issubdtype(dtype, np.integer):
         raise ValueError(f"{name} must hold integer class indices, got dtype {dtype}")

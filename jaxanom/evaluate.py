@@ -42,11 +42,12 @@ def predictions(predict: Callable, batches: Iterable[dict]) -> Iterator[dict]:
         yield {**batch, **predict(batch["image"])}
 
 
-def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, mode: str = "exact",
-                    fpr_convention: str = "first", ap_convention: str = "step",
+def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, cudam_sigma: float = 2e4,
+                    mode: str = "exact", fpr_convention: str = "first", ap_convention: str = "step",
                     keep_curves: bool = False) -> tuple[dict, dict]:
     """Pooled metrics per method over batches ``{"logits", "label", "attention_up"?}``.
 
+    ``stats``: SML ``(mean, std)``; ``cudam_sigma``: the ensemble weight of Eq. 10.
     Returns ``(metrics[name], curves[name])``; ``curves[name] = {"roc": (fpr, tpr), "pr":
     (recall, precision)}`` when ``keep_curves`` (it keeps every score on the host: small sets
     only). ``mode="binned"`` is not offered here because score ranges differ per method.
@@ -57,7 +58,8 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, mode: 
                                       have_attention="attention_up" in batch)
         labels = np.asarray(batch["label"])
         for name in names:
-            score = scoring.score_batch(name, batch["logits"], stats=stats, attention_up=batch.get("attention_up"))
+            score = scoring.score_batch(name, batch["logits"], stats=stats, attention_up=batch.get("attention_up"),
+                                        cudam_sigma=cudam_sigma)
             accumulators.setdefault(name, AnomalyMetricAccumulator(mode)).update(score, labels)
             if keep_curves:
                 kept.setdefault(name, []).append((np.asarray(score).ravel(), labels.ravel()))

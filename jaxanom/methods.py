@@ -54,11 +54,12 @@ def check_methods(names, *, have_stats: bool, have_attention: bool) -> tuple[str
     return names
 
 
-def score_batch(name: str, logits, *, stats=None, attention_up=None) -> jax.Array:
+def score_batch(name: str, logits, *, stats=None, attention_up=None, cudam_sigma: float = 2e4) -> jax.Array:
     """Scores of method ``name`` for logits ``(B, H, W, C)`` -> float32 ``(B, H, W)``.
 
     ``stats``: ``(mean, std)`` each ``(C,)`` for the SML methods; ``attention_up``:
-    ``(B, H, W)`` attention already upsampled to the logits' size, for ``cudam``.
+    ``(B, H, W)`` attention already upsampled to the logits' size, and ``cudam_sigma`` (Eq. 10),
+    for ``cudam``.
     """
     check_methods([name], have_stats=stats is not None, have_attention=attention_up is not None)
     if name in _PLAIN:
@@ -68,4 +69,4 @@ def score_batch(name: str, logits, *, stats=None, attention_up=None) -> jax.Arra
     if name in _POSTPROCESSED:
         prediction = jnp.argmax(jnp.asarray(logits), axis=-1).astype(jnp.int32)
         return sml.postprocess_batch(_PLAIN[_POSTPROCESSED[name]](logits), prediction)
-    return cudam_score(sml.sml_score_batch(logits, *stats), attention_up)
+    return cudam_score(sml.sml_score_batch(logits, *stats), attention_up, cudam_sigma)

@@ -1,5 +1,21 @@
-"""Test set-up: 4 simulated CPU devices, configured before JAX starts a backend."""
+"""Test set-up: 4 simulated CPU devices (configured before JAX starts a backend), real sample data."""
+import os
+from pathlib import Path
+
 import jax
+import pytest
 
 jax.config.update("jax_num_cpu_devices", 4)
 jax.config.update("jax_platforms", "cpu")
+
+# ../shared/realdata beside the repository (as CI clones it), or JAXANOM_REALDATA.
+REALDATA = Path(os.environ.get("JAXANOM_REALDATA", Path(__file__).resolve().parents[2] / "shared" / "realdata"))
+
+
+@pytest.fixture(scope="session")
+def road_anomaly_sample() -> Path:
+    """The folder of the six real Road Anomaly frames; skips (with the path) where it is absent."""
+    root = REALDATA / "RoadAnomaly_sample"
+    if not root.is_dir():
+        pytest.skip(f"real Road Anomaly sample not found at {root} (set JAXANOM_REALDATA)")
+    return root

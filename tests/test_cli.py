@@ -1,6 +1,5 @@
 """The ``jaxanom`` command end to end on tiny settings, and its one-line errors."""
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -8,7 +7,6 @@ from sklearn.metrics import average_precision_score, roc_auc_score
 
 from jaxanom.cli import main
 
-REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "RoadAnomaly_sample"
 
 
 @pytest.fixture(scope="module")
@@ -52,11 +50,10 @@ def test_fit_stats_and_evaluate_from_the_demo_run(demo_dir, tmp_path, capsys):
     assert "| sml_post |" in capsys.readouterr().out
 
 
-def test_evaluate_reads_real_road_anomaly_frames(demo_dir, tmp_path):
-    if not REALDATA.is_dir():
-        pytest.skip(f"real sample data not found at {REALDATA}")
+def test_evaluate_reads_real_road_anomaly_frames(demo_dir, tmp_path, road_anomaly_sample):
     out = tmp_path / "real"
-    assert main(["evaluate", "--run", str(demo_dir / "run"), "--dataset", "road-anomaly", "--path", str(REALDATA),
+    assert main(["evaluate", "--run", str(demo_dir / "run"), "--dataset", "road-anomaly",
+                 "--path", str(road_anomaly_sample),
                  "--methods", "msp,max_logit", "--out", str(out)]) == 0
     result = json.loads((out / "metrics.json").read_text())
     assert result["frames"] == 6

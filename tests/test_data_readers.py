@@ -1,6 +1,5 @@
 """Dataset readers on tiny fixtures in each official layout, on bad folders, and on real frames."""
 import json
-import os
 from pathlib import Path
 
 import cv2
@@ -10,8 +9,6 @@ import pytest
 from jaxanom.data import (Cityscapes, FishyscapesLostAndFound, FishyscapesStatic, RoadAnomaly,
                           SegmentMeIfYouCan)
 
-REALDATA = Path(os.environ.get("JAXANOM_REALDATA",
-                               Path(__file__).resolve().parents[2] / "shared" / "realdata"))
 H, W = 6, 10
 
 
@@ -205,10 +202,8 @@ def test_road_anomaly_errors(tmp_path):
         RoadAnomaly(tmp_path)[1]
 
 
-def test_road_anomaly_on_real_frames():
-    root = REALDATA / "RoadAnomaly_sample"
-    if not root.is_dir():
-        pytest.skip(f"real Road Anomaly sample not found at {root} (shared/ is not beside the repository)")
+def test_road_anomaly_on_real_frames(road_anomaly_sample):
+    root = road_anomaly_sample
     reader = RoadAnomaly(root)
     assert len(reader) == len(json.loads((root / "frame_list.json").read_text()))
     for i in range(len(reader)):

@@ -78,6 +78,26 @@ def test_fpr_first_matches_searchsorted_on_sklearn_roc(size, levels):
         assert anomaly_metrics(scores, labels, tpr=tpr)["fpr_at_tpr"] == pytest.approx(expected, rel=1e-12)
 
 
+@pytest.mark.parametrize("size,levels", CASES[2:])
+def test_fpr_interp_and_nearest_match_their_reference_recipes(size, levels):
+    rng = np.random.default_rng(size + 4)
+    scores, labels = random_case(rng, size, levels)
+    y, s = labels[labels != 255], scores[labels != 255]
+    tpr = 0.9137  # no ROC point sits exactly on it
+    # ood-metrics (SML, Mask2Anomaly): np.interp over scikit-learn's (dropped-intermediate) ROC.
+    fpr_curve, tpr_curve, _ = sk.roc_curve(y, s)
+    expected = np.interp(tpr, tpr_curve, fpr_curve)
+    got = anomaly_metrics(scores, labels, fpr_convention="interp", tpr=tpr)["fpr_at_tpr"]
+    np.testing.assert_allclose(got, expected, rtol=1e-12)
+    # PEBAL: nearest TPR among the origin and the points up to full recall, ties to the last.
+    fpr_curve, tpr_curve, _ = sk.roc_curve(y, s, drop_intermediate=False)
+    candidates = tpr_curve[: np.argmax(tpr_curve == 1.0) + 1]
+    distance = np.abs(candidates - tpr)
+    expected = fpr_curve[np.flatnonzero(distance == distance.min()).max()]
+    got = anomaly_metrics(scores, labels, fpr_convention="nearest", tpr=tpr)["fpr_at_tpr"]
+    assert got == pytest.approx(expected, rel=1e-12)
+
+
 # Hand-worked example. Scores high -> low with classes (p positive, n negative):
 # 0.9p 0.8n 0.7p 0.6p+0.6n (tie) 0.5n 0.4p 0.3n 0.2p 0.1n 0.05n; P = 5, N = 6.
 # ROC points (TPR, FPR): origin (0,0); 0.9 (.2,0); 0.8 (.2,1/6); 0.7 (.4,1/6); 0.6 (.6,2/6);
@@ -185,3 +205,16 @@ def test_bad_input_raises():
     # NaN on a void pixel is ignored.
     result = anomaly_metrics(np.array([0.1, 0.2, np.nan]), np.array([0, 1, 255], np.uint8))
     assert result["auroc"] == 1.0
+
+
+def test_arrays_sharded_over_the_four_devices():
+    import jax
+    from jax.sharding import NamedSharding, PartitionSpec
+
+    rng = np.random.default_rng(9)
+    scores, labels = random_case(rng, 1000, 5)
+    sharding = NamedSharding(jax.make_mesh((4,), ("data",)), PartitionSpec("data"))
+    kept = labels != 255
+    result = anomaly_metrics(jax.device_put(scores.astype(np.float32), sharding), jax.device_put(labels, sharding))
+    np.testing.assert_allclose(result["auroc"], sk.roc_auc_score(labels[kept], scores[kept].astype(np.float32)),
+                               rtol=1e-9)

@@ -73,3 +73,13 @@ def test_bad_input_raises():
         confusion_matrix(prediction, np.where(label == 1, 9, label).astype(np.uint8), C)
     with pytest.raises(ValueError, match="prediction: expected an integer"):
         confusion_matrix(prediction.astype(np.float32), label, C)
+
+
+def test_arrays_sharded_over_the_four_devices():
+    import jax
+    from jax.sharding import NamedSharding, PartitionSpec
+
+    prediction, label = random_pair(3, shape=(4, 9, 11))
+    sharding = NamedSharding(jax.make_mesh((4,), ("data",)), PartitionSpec("data"))
+    matrix = confusion_matrix(jax.device_put(prediction, sharding), jax.device_put(label, sharding), C)
+    np.testing.assert_array_equal(matrix, reference_matrix(prediction, label))

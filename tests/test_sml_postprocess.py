@@ -124,7 +124,6 @@ GOOD_SCORE, GOOD_PRED = np.zeros((4, 5), np.float32), np.zeros((4, 5), np.int32)
         (lambda: sml.dilated_smoothing(GOOD_SCORE, sigma=0.0), "sigma must be > 0"),
         (lambda: sml.dilated_smoothing(GOOD_SCORE, dilation=0), "dilation must be an int >= 1"),
         (lambda: sml.dilated_smoothing(np.array([1.0, np.inf], np.float32)[None]), "score must be finite"),
-        (lambda: sml.postprocess(GOOD_SCORE, GOOD_PRED, smoothing=True), "unknown options"),
         (lambda: sml.postprocess_batch(GOOD_SCORE, GOOD_PRED), "score must have rank 3"),
     ],
 )

@@ -159,3 +159,10 @@ STATS3 = sml.stats_init(3)
 def test_bad_input_raises_value_error(call, match):
     with pytest.raises(ValueError, match=match):
         call()
+
+
+def test_stats_update_works_inside_jit():
+    logits = random_logits(np.random.default_rng(5), (5, 6), 3)
+    valid = np.random.default_rng(6).random((5, 6)) > 0.5
+    jitted = jax.jit(sml.stats_update)(sml.stats_init(3), logits, valid)
+    chex.assert_trees_all_close(jitted, sml.stats_update(sml.stats_init(3), logits, valid), rtol=1e-6)

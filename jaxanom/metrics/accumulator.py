@@ -2,7 +2,9 @@
 
 ``exact`` mode keeps, per image, its distinct non-void scores (as sort keys) with the number of
 positive and negative pixels at each, counts in the smallest unsigned dtype that holds them:
-about 6 bytes per distinct score for float32 maps, far less for float16 or saturated scores.
+a 4-byte key (8 for float64) and two 1-4 byte counts per distinct score, so about 6 bytes per
+pixel for float32 maps whose scores are mostly distinct (raw scores + labels: 5), and far less
+for float16 or saturated scores, whose values repeat.
 ``compute`` merges the images and gives exactly ``anomaly_metrics`` of their concatenation.
 
 ``binned`` mode keeps two histograms (positive / negative pixels) of ``num_bins`` uniform bins

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxanom.metrics.curve import curve_points, curve_summary
+from jaxanom.metrics.placement import on_one_device
 from jaxanom.metrics.ranking import NEGATIVE, POSITIVE, keys_to_scores, sort_pixels
 
 FPR_CONVENTIONS = ("first", "interp", "nearest", "strict")
@@ -28,7 +29,7 @@ def check_scores_labels(scores, labels) -> tuple[jnp.ndarray, jnp.ndarray, dict]
     Raises ValueError on: non-float scores, non-integer labels, shape mismatch, labels outside
     {0, 1, 255}, NaN scores on non-void pixels. Call inside ``jax.enable_x64(True)``.
     """
-    scores, labels = jnp.asarray(scores), jnp.asarray(labels)
+    scores, labels = on_one_device(jnp.asarray(scores)), on_one_device(jnp.asarray(labels))
     if not jnp.issubdtype(scores.dtype, jnp.floating):
         raise ValueError(f"scores: expected a floating dtype, got {scores.dtype}")
     if not jnp.issubdtype(labels.dtype, jnp.integer):
@@ -42,6 +43,7 @@ def check_scores_labels(scores, labels) -> tuple[jnp.ndarray, jnp.ndarray, dict]
         raise ValueError(f"scores: {nan_scores} NaN values on non-void pixels")
     if scores.dtype != jnp.float64:
         scores = scores.astype(jnp.float32)  # exact for float16 / bfloat16; one compiled version
+    labels = labels.astype(jnp.uint8)  # values checked to be 0, 1 or 255
     counts = {"num_positives": positives, "num_negatives": negatives,
               "num_void": int(scores.size) - positives - negatives}
     return (*_pad_with_void(scores.ravel(), labels.ravel()), counts)

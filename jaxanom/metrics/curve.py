@@ -21,6 +21,11 @@ import jax.numpy as jnp
 from jax import lax
 
 
+def entry_index(size: int) -> jnp.ndarray:
+    """0..size-1 as int32 (half the memory traffic of int64) unless size needs int64."""
+    return jnp.arange(size, dtype=jnp.int32 if size < 2**31 else jnp.int64)
+
+
 def curve_points(keys, pos, neg):
     """Cumulative counts at every entry and where a threshold ends.
 
@@ -29,11 +34,11 @@ def curve_points(keys, pos, neg):
     counts; end (M,) bool, the last entry of each threshold; tp_prev, fp_prev (M,), the counts
     at the previous threshold (0 before the first).
     """
-    index = jnp.arange(keys.shape[0])
+    index = entry_index(keys.shape[0])
     tp, fp = jnp.cumsum(pos), jnp.cumsum(neg)
     next_keys = jnp.concatenate([keys[1:], keys[-1:]])
     end = ((keys != next_keys) | (index == keys.shape[0] - 1)) & (pos + neg > 0)
-    prev = jnp.concatenate([jnp.full((1,), -1), lax.cummax(jnp.where(end, index, -1))[:-1]])
+    prev = jnp.concatenate([jnp.full((1,), -1, index.dtype), lax.cummax(jnp.where(end, index, -1))[:-1]])
     safe = jnp.maximum(prev, 0)
     tp_prev = jnp.where(prev >= 0, tp[safe], 0)
     fp_prev = jnp.where(prev >= 0, fp[safe], 0)
@@ -56,36 +61,52 @@ def curve_summary(keys, pos, neg, tpr):
     """
     tp, fp, end, tp_prev, fp_prev = curve_points(keys, pos, neg)
     size = keys.shape[0]
-    index = jnp.arange(size)
+    index = entry_index(size)
     f64 = jnp.float64
     p, n = tp[-1].astype(f64), fp[-1].astype(f64)
     tpf, fpf, tpp, fpp = (x.astype(f64) for x in (tp, fp, tp_prev, fp_prev))
     precision = tpf / jnp.maximum(tpf + fpf, 1.0)
     precision_prev = tpp / jnp.maximum(tpp + fpp, 1.0)
     d_recall = (tpf - tpp) / p
-    ap_step = jnp.sum(jnp.where(end, d_recall * precision, 0.0))
-    has_prev = end & (tpp + fpp > 0)
-    ap_trapz = jnp.sum(jnp.where(has_prev, d_recall * (precision + precision_prev) / 2, 0.0))
-    auroc = jnp.sum(jnp.where(end, (fpf - fpp) * (tpf + tpp), 0.0)) / (2.0 * p * n)
+    tpr_k = tpf / p
+    distance = jnp.abs(tpr_k - tpr)
+    per_entry = (  # one term per point; all reduced in a single pass (see _combine)
+        jnp.where(end, d_recall * precision, 0.0),
+        jnp.where(end & (tpp + fpp > 0), d_recall * (precision + precision_prev) / 2, 0.0),
+        jnp.where(end, (fpf - fpp) * (tpf + tpp), 0.0),
+        end.astype(index.dtype),
+        jnp.where(end & (tpr_k >= tpr), index, size - 1),
+        jnp.where(end & (tpr_k > tpr), index, size),
+        jnp.where(end & (tpp < p), distance, jnp.inf),
+        jnp.where(end & (tpp < p), index, -1),
+        jnp.where(end, 2.0 * tpf / (tpf + fpf + p), -1.0),
+        index,
+    )
+    start = (0.0, 0.0, 0.0, 0, size - 1, size, jnp.inf, -1, -jnp.inf, size)
+    start = tuple(jnp.asarray(v, x.dtype) for v, x in zip(start, per_entry))
+    (ap_step, ap_trapz, auroc, num_thresholds, first, strict, nearest_distance, nearest, best_f1,
+     best) = lax.reduce(per_entry, start, _combine, (0,))
 
-    tpr_k, fpr_k, tpr_prev, fpr_prev = tpf / p, fpf / n, tpp / p, fpp / n
-    first = jnp.min(jnp.where(end & (tpr_k >= tpr), index, size - 1))
-    strict = jnp.min(jnp.where(end & (tpr_k > tpr), index, size))
-    fpr_strict = jnp.where(strict < size, fpr_k[jnp.minimum(strict, size - 1)], jnp.nan)
-    t1, f1, t0, f0 = tpr_k[first], fpr_k[first], tpr_prev[first], fpr_prev[first]
+    fpr_at = lambda i: fp[i].astype(f64) / n  # noqa: E731
+    fpr_strict = jnp.where(strict < size, fpr_at(jnp.minimum(strict, size - 1)), jnp.nan)
+    t1, f1, t0, f0 = tpf[first] / p, fpr_at(first), tpp[first] / p, fpp[first] / n
     fpr_interp = jnp.where(t1 == tpr, f1, f0 + (tpr - t0) * (f1 - f0) / (t1 - t0))
-    full_recall = jnp.min(jnp.where(end & (tp == tp[-1]), index, size - 1))
-    distance = jnp.where(end & (index <= full_recall), jnp.abs(tpr_k - tpr), jnp.inf)
-    nearest_distance = jnp.min(distance)
-    nearest = jnp.max(jnp.where(distance == nearest_distance, index, 0))
-    fpr_nearest = jnp.where(tpr < nearest_distance, 0.0, fpr_k[nearest])
-
-    f1_score = jnp.where(end, 2.0 * tpf / (tpf + fpf + p), -1.0)
-    best = jnp.argmax(f1_score)
+    fpr_nearest = jnp.where(tpr < nearest_distance, 0.0, fpr_at(jnp.maximum(nearest, 0)))
     return {
-        "ap_step": ap_step, "ap_trapz": ap_trapz, "auroc": auroc,
-        "fpr_first": fpr_k[first], "fpr_interp": fpr_interp,
-        "fpr_nearest": fpr_nearest, "fpr_strict": fpr_strict,
-        "first_key": keys[first], "best_f1": f1_score[best], "best_f1_key": keys[best],
-        "num_positives": tp[-1], "num_negatives": fp[-1], "num_thresholds": jnp.sum(end),
+        "ap_step": ap_step, "ap_trapz": ap_trapz, "auroc": auroc / (2.0 * p * n),
+        "fpr_first": f1, "fpr_interp": fpr_interp, "fpr_nearest": fpr_nearest, "fpr_strict": fpr_strict,
+        "first_key": keys[first], "best_f1": best_f1, "best_f1_key": keys[best],
+        "num_positives": tp[-1], "num_negatives": fp[-1], "num_thresholds": num_thresholds,
     }
+
+
+def _combine(a, b):
+    """Reducer of ``curve_summary``'s per-point terms: three sums, a count, the first index
+    with TPR >= t and > t, the nearest TPR (ties to the later point: larger FPR) and the best
+    F1 (ties to the earlier point: higher threshold)."""
+    sums = tuple(x + y for x, y in zip(a[:4], b[:4]))
+    take_b_nearest = (b[6] < a[6]) | ((b[6] == a[6]) & (b[7] > a[7]))
+    take_b_best = (b[8] > a[8]) | ((b[8] == a[8]) & (b[9] < a[9]))
+    return (*sums, jnp.minimum(a[4], b[4]), jnp.minimum(a[5], b[5]),
+            jnp.where(take_b_nearest, b[6], a[6]), jnp.where(take_b_nearest, b[7], a[7]),
+            jnp.where(take_b_best, b[8], a[8]), jnp.where(take_b_best, b[9], a[9]))

@@ -13,6 +13,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxanom.metrics.placement import on_one_device
+
 
 def confusion_matrix(prediction, label, num_classes: int, ignore: int = 255) -> jax.Array:
     """(num_classes, num_classes) int32 counts, rows = true class, columns = predicted class.
@@ -22,7 +24,7 @@ def confusion_matrix(prediction, label, num_classes: int, ignore: int = 255) -> 
     mismatch or a class index outside [0, num_classes) (other than ``ignore`` in ``label``).
     int32 counts: split datasets above 2**31 pixels and sum the matrices as int64.
     """
-    prediction, label = jnp.asarray(prediction), jnp.asarray(label)
+    prediction, label = on_one_device(jnp.asarray(prediction)), on_one_device(jnp.asarray(label))
     if int(num_classes) < 1:
         raise ValueError(f"num_classes: expected a positive integer, got {num_classes}")
     for name, array in (("prediction", prediction), ("label", label)):

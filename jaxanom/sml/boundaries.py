@@ -4,7 +4,7 @@ A pixel is a boundary pixel where the dilation of the prediction with the 3x3 cr
 from its erosion with the 3x3 square (a band about 2 px wide). Border modes:
 
 - ``"geodesic"`` (default): pixels outside the image are ignored by both operations
-  (replicating the edge is the same thing for a max / min over a window that holds its centre).
+  (padded with the integer dtype's min for the dilation and max for the erosion).
 - ``"sml_official"``: the original code's pinned kornia, whose dilation pads with 0 and whose
   erosion pads with 1.0; image-edge pixels of classes >= 2 then count as boundary.
 """
@@ -21,27 +21,29 @@ from jaxanom._validate import check_integer, check_rank
 BORDERS = ("geodesic", "sml_official")
 
 
-def _padded(x: jax.Array, pad_value) -> jax.Array:
-    """``x`` padded by one pixel: replicated edge (``pad_value=None``) or a constant."""
-    if pad_value is None:
-        return jnp.pad(x, 1, mode="edge")
-    return jnp.pad(x, 1, constant_values=pad_value)
+def _padded(x: jax.Array, fill) -> jax.Array:
+    """``x`` padded by one pixel of the constant ``fill``."""
+    return jnp.pad(x, 1, constant_values=fill)
 
 
-def _dilate_cross(x: jax.Array, pad_value) -> jax.Array:
-    p = _padded(x, pad_value)
+def _dilate_cross(x: jax.Array, fill) -> jax.Array:
+    p = _padded(x, fill)
     return jnp.maximum(jnp.maximum(jnp.maximum(p[1:-1, 1:-1], p[:-2, 1:-1]), jnp.maximum(p[2:, 1:-1], p[1:-1, :-2])), p[1:-1, 2:])
 
 
-def _erode_square(x: jax.Array, pad_value) -> jax.Array:
-    p = _padded(x, pad_value)
+def _erode_square(x: jax.Array, fill) -> jax.Array:
+    p = _padded(x, fill)
     rows = jnp.minimum(jnp.minimum(p[:-2], p[1:-1]), p[2:])
     return jnp.minimum(jnp.minimum(rows[:, :-2], rows[:, 1:-1]), rows[:, 2:])
 
 
 def _find_boundaries(prediction: jax.Array, border: str = "geodesic") -> jax.Array:
-    dilation_pad, erosion_pad = (None, None) if border == "geodesic" else (0, 1)
-    return _dilate_cross(prediction, dilation_pad) != _erode_square(prediction, erosion_pad)
+    if border == "geodesic":  # pad with the identity of max / min: outside pixels never win
+        info = jnp.iinfo(prediction.dtype)
+        dilation_fill, erosion_fill = info.min, info.max
+    else:  # kornia's pads
+        dilation_fill, erosion_fill = 0, 1
+    return _dilate_cross(prediction, dilation_fill) != _erode_square(prediction, erosion_fill)
 
 
 def check_border(border: str) -> None:

@@ -5,7 +5,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_finite, check_positive, check_rank
+from jaxanom._validate import check_finite, check_integer, check_positive, check_rank
 from jaxanom.sml.boundaries import check_prediction
 from jaxanom.sml.postprocessing import (
     _smooth,
@@ -57,16 +57,11 @@ _sml_score_jit = jax.jit(_sml_score, static_argnames=_OPTIONS)
 _sml_score_batch = jax.jit(_sml_score_batch_impl, static_argnames=_OPTIONS)
 
 
-def _check_options(options: dict) -> dict:
-    unknown = set(options) - set(_OPTIONS)
-    if unknown:
-        raise ValueError(f"unknown options {sorted(unknown)}; expected some of {_OPTIONS}")
-    full = dict(suppress=True, smooth=True, width=4, iterations=4, border="geodesic", kernel_size=7, sigma=1.0, dilation=6)
-    full.update(options)
-    check_suppression(full["width"], full["iterations"], full["border"])
-    check_smoothing(full["kernel_size"], full["sigma"], full["dilation"])
-    full["sigma"] = float(full["sigma"])
-    return full
+def _checked_options(suppress, smooth, width, iterations, border, kernel_size, sigma, dilation) -> dict:
+    check_suppression(width, iterations, border)
+    check_smoothing(kernel_size, sigma, dilation)
+    return dict(suppress=bool(suppress), smooth=bool(smooth), width=int(width), iterations=int(iterations),
+                border=border, kernel_size=int(kernel_size), sigma=float(sigma), dilation=int(dilation))
 
 
 def _check_logits_stats(logits, mean, std, batched: bool) -> None:
@@ -89,40 +84,47 @@ def standardized_max_logit(logits, mean, std) -> tuple[jax.Array, jax.Array]:
     return _standardized_max_logit_jit(jnp.asarray(logits), jnp.asarray(mean, jnp.float32), jnp.asarray(std, jnp.float32))
 
 
-def postprocess(score, prediction, **options) -> jax.Array:
-    """Boundary suppression then dilated smoothing of any score map float ``(H, W)``.
+def postprocess(score, prediction, *, suppress=True, smooth=True, width=4, iterations=4, border="geodesic",
+                kernel_size=7, sigma=1.0, dilation=6) -> jax.Array:
+    """Boundary suppression then dilated smoothing of any score map float ``(H, W)`` -> float32 ``(H, W)``.
 
-    Options (all static): ``suppress=True``, ``smooth=True``, ``width=4``, ``iterations=4``,
-    ``border="geodesic"``, ``kernel_size=7``, ``sigma=1.0``, ``dilation=6`` (see
-    ``suppress_boundaries`` and ``dilated_smoothing``). Turning both off returns the score.
+    ``prediction`` int ``(H, W)`` gives the class boundaries. ``suppress`` / ``smooth`` toggle
+    the two steps (the paper's Tables 3 and 7); the other options are those of
+    ``suppress_boundaries`` and ``dilated_smoothing``. Turning both off returns the score.
     """
     check_score(score)
     check_prediction(prediction, np.shape(score))
-    return _postprocess_jit(jnp.asarray(score), jnp.asarray(prediction), **_check_options(options))
+    options = _checked_options(suppress, smooth, width, iterations, border, kernel_size, sigma, dilation)
+    return _postprocess_jit(jnp.asarray(score), jnp.asarray(prediction), **options)
 
 
-def postprocess_batch(score, prediction, **options) -> jax.Array:
-    """``postprocess`` over a batch: score ``(B, H, W)``, prediction int ``(B, H, W)``."""
+def postprocess_batch(score, prediction, *, suppress=True, smooth=True, width=4, iterations=4, border="geodesic",
+                      kernel_size=7, sigma=1.0, dilation=6) -> jax.Array:
+    """``postprocess`` over a batch: score float ``(B, H, W)``, prediction int ``(B, H, W)``."""
     check_rank("score", score, 3, "(B, H, W)")
     check_finite("score", score)
     check_rank("prediction", prediction, 3, "(B, H, W)")
-    if np.shape(prediction) != np.shape(score) or not np.issubdtype(np.asarray(prediction).dtype, np.integer):
-        raise ValueError(f"prediction must be integer with the score's shape {np.shape(score)}, got "
-                         f"{np.shape(prediction)} {np.asarray(prediction).dtype}")
-    return _postprocess_batch(jnp.asarray(score), jnp.asarray(prediction), **_check_options(options))
+    check_integer("prediction", prediction)
+    if np.shape(prediction) != np.shape(score):
+        raise ValueError(f"prediction must have the score's shape {np.shape(score)}, got {np.shape(prediction)}")
+    options = _checked_options(suppress, smooth, width, iterations, border, kernel_size, sigma, dilation)
+    return _postprocess_batch(jnp.asarray(score), jnp.asarray(prediction), **options)
 
 
-def sml_score(logits, mean, std, **options) -> jax.Array:
+def sml_score(logits, mean, std, *, suppress=True, smooth=True, width=4, iterations=4, border="geodesic",
+              kernel_size=7, sigma=1.0, dilation=6) -> jax.Array:
     """The SML anomaly score ``-postprocess(SML)``: logits ``(H, W, C)`` -> float32 ``(H, W)``.
 
-    mean/std ``(C,)`` from ``stats_finalize``; options as in ``postprocess``
-    (``suppress`` and ``smooth`` toggle the two steps, as the paper's ablations do).
+    mean/std float ``(C,)`` from ``stats_finalize``; options as in ``postprocess``.
     """
     _check_logits_stats(logits, mean, std, batched=False)
-    return _sml_score_jit(jnp.asarray(logits), jnp.asarray(mean, jnp.float32), jnp.asarray(std, jnp.float32), **_check_options(options))
+    options = _checked_options(suppress, smooth, width, iterations, border, kernel_size, sigma, dilation)
+    return _sml_score_jit(jnp.asarray(logits), jnp.asarray(mean, jnp.float32), jnp.asarray(std, jnp.float32), **options)
 
 
-def sml_score_batch(logits, mean, std, **options) -> jax.Array:
-    """``sml_score`` over a batch: logits ``(B, H, W, C)`` -> float32 ``(B, H, W)`` (one compile per shape/options)."""
+def sml_score_batch(logits, mean, std, *, suppress=True, smooth=True, width=4, iterations=4, border="geodesic",
+                    kernel_size=7, sigma=1.0, dilation=6) -> jax.Array:
+    """``sml_score`` over a batch: logits ``(B, H, W, C)`` -> float32 ``(B, H, W)``; one compile per shape and options."""
     _check_logits_stats(logits, mean, std, batched=True)
-    return _sml_score_batch(jnp.asarray(logits), jnp.asarray(mean, jnp.float32), jnp.asarray(std, jnp.float32), **_check_options(options))
+    options = _checked_options(suppress, smooth, width, iterations, border, kernel_size, sigma, dilation)
+    return _sml_score_batch(jnp.asarray(logits), jnp.asarray(mean, jnp.float32), jnp.asarray(std, jnp.float32), **options)

@@ -21,7 +21,7 @@ Policy for a class that was never predicted (or has fewer than 2 pixels, or zero
 from __future__ import annotations
 
 import os
-import tempfile
+import io
 import zipfile
 from typing import Iterable, NamedTuple
 
@@ -29,7 +29,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_finite, check_rank
+from jaxanom._validate import check_finite, check_rank, dtype_of
+from jaxanom.io import write_bytes_atomic
 
 
 class ClassStats(NamedTuple):
@@ -92,8 +93,8 @@ def _checked_valid(valid, shape: tuple[int, ...]) -> jax.Array:
         return jnp.ones(shape, bool)
     if np.shape(valid) != shape:
         raise ValueError(f"valid must have shape {shape} (the logits' pixels), got {np.shape(valid)}")
-    if np.asarray(valid).dtype != bool:
-        raise ValueError(f"valid must be a bool mask, got dtype {np.asarray(valid).dtype}")
+    if dtype_of(valid) != bool:
+        raise ValueError(f"valid must be a bool mask, got dtype {dtype_of(valid)}")
     return jnp.asarray(valid)
 
 
@@ -171,17 +172,11 @@ def save_stats(path, mean, std, counts) -> None:
     shapes = {k: v.shape for k, v in arrays.items()}
     if len(set(shapes.values())) != 1 or arrays["mean"].ndim != 1:
         raise ValueError(f"mean, std and counts must all have shape (C,), got {shapes}")
-    folder = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(folder):
+    if not os.path.isdir(os.path.dirname(os.path.abspath(path))):
         raise ValueError(f"path must be in an existing folder, got {str(path)!r}")
-    fd, tmp = tempfile.mkstemp(dir=folder, suffix=".npz.tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    write_bytes_atomic(path, buffer.getvalue())
 
 
 def load_stats(path) -> tuple[jax.Array, jax.Array, np.ndarray]:
