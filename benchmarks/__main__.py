@@ -71,7 +71,9 @@ def interpret(rows: list[dict]) -> str:
             peers.setdefault(str(r["impl"]), []).append(r["median_ms"] / ours[r["case"]])
     if not peers:
         times = [r["median_ms"] for r in rows]
-        return f"jaxanom only: {min(times):.3g} to {max(times):.3g} ms over {len(rows)} case(s)."
+        if len(times) == 1:
+            return f"no peer in this run; {times[0]:.3g} ms."
+        return f"no peer in this run; {min(times):.3g} to {max(times):.3g} ms over {len(rows)} cases."
     parts = []
     for peer, ratios in peers.items():
         low, high = min(ratios), max(ratios)

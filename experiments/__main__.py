@@ -59,7 +59,8 @@ def main(argv=None) -> None:
         start = time.perf_counter()
         module = importlib.import_module(f"experiments.{name}")
         try:
-            run_table(module.NAME, module.TITLE, module.rows(scale), module.findings, scale, args.out, args.runs)
+            run_table(module.NAME, module.TITLE, module.rows(scale), module.findings, scale, args.out, args.runs,
+                      description=describe(module))
         except Exception:  # noqa: BLE001 -- e.g. a diverged network: report it, run the other tables
             failures[name] = traceback.format_exc(limit=4).strip()
             print(failures[name])
@@ -67,6 +68,12 @@ def main(argv=None) -> None:
         write_results(args.out, failures)
     print(f"results in {args.out / 'RESULTS.md'}")
     return 1 if failures else 0
+
+
+def describe(module) -> str:
+    """The experiment file's docstring without its command line, as one paragraph."""
+    text = " ".join(line.strip() for line in module.__doc__.split("\n\n    python -m")[0].splitlines())
+    return " ".join(text.split())
 
 
 def write_results(out_dir: Path, failures: dict[str, str] | None = None) -> Path:

@@ -329,7 +329,8 @@ def markdown(table: Sequence[dict]) -> str:
 
 
 def run_table(name: str, title: str, rows: Sequence[Row], findings: Callable[[dict], list[Finding]],
-              scale: Scale, out_dir: Path = HERE, runs: Path = RUNS, log: Callable = print) -> dict:
+              scale: Scale, out_dir: Path = HERE, runs: Path = RUNS, log: Callable = print,
+              description: str = "") -> dict:
     """Compute the table, check the findings, write ``<name>.json/.md/_roc.png/_pr.png`` in ``out_dir``."""
     from jaxanom.viz import plot_curves
 
@@ -337,7 +338,7 @@ def run_table(name: str, title: str, rows: Sequence[Row], findings: Callable[[di
     values, curves = table(rows, scale, runs, log)
     checked = findings(values)
     networks = {row.network.key: row.network.to_dict() for row in rows}
-    result = {"name": name, "title": title, "table": [{"label": k, **v} for k, v in values.items()], "scale": dataclasses.asdict(scale),
+    result = {"name": name, "title": title, "description": description, "table": [{"label": k, **v} for k, v in values.items()], "scale": dataclasses.asdict(scale),
               "findings": [dataclasses.asdict(f) for f in checked], "networks": networks,
               "seeds": f"single seed: training, shuffling and synthetic scenes all use seed {scale.seed}"}
     out_dir = Path(out_dir)
@@ -350,7 +351,8 @@ def run_table(name: str, title: str, rows: Sequence[Row], findings: Callable[[di
 
 def report(result: dict) -> str:
     """A result as markdown: title, table, findings."""
-    lines = [f"## {result['title']}", "", markdown(result["table"]), "", f"`{result['name']}`; {result['seeds']}.",
+    lines = [f"## {result['title']}", "", *([result["description"], ""] if result.get("description") else []),
+             markdown(result["table"]), "", f"`{result['name']}`; {result['seeds']}.",
              "", "| paper's finding | holds here? | evidence |", "|---|---|---|"]
     lines += [f"| {f['claim']} | {'yes' if f['holds'] else '**no**'} | {f['evidence']} |" for f in result["findings"]]
     return "\n".join(lines)

@@ -64,7 +64,8 @@ def test_table_trains_once_evaluates_and_writes_results(tmp_path):
         return [improves(v, "CuDAM + SML", "SML"), Finding("always", True, "by construction")]
 
     out, runs = tmp_path / "out", tmp_path / "runs"
-    result = run_table("smoke", "Smoke table", rows, findings, scale, out, runs, log=lambda *_: None)
+    result = run_table("smoke", "Smoke table", rows, findings, scale, out, runs, log=lambda *_: None,
+                       description="What the smoke table shows.")
 
     assert [p.name for p in runs.iterdir()] == [net.key]
     assert sorted(p.name for p in out.iterdir()) == ["smoke.json", "smoke.md", "smoke_pr.png", "smoke_roc.png"]
@@ -78,6 +79,7 @@ def test_table_trains_once_evaluates_and_writes_results(tmp_path):
     assert saved["findings"][1] == {"claim": "always", "holds": True, "evidence": "by construction"}
     assert "single seed" in saved["seeds"]
     markdown = (out / "smoke.md").read_text()
+    assert markdown.startswith("## Smoke table\n\nWhat the smoke table shows.\n")
     assert "| CuDAM + SML | `sml_post+att` |" in markdown and "| always | yes | by construction |" in markdown
 
     # A second table on the same network reads the cached evaluation (no new run folder).
@@ -116,7 +118,7 @@ def test_benchmark_runner_tables_and_results_file(tmp_path, capsys):
     assert "### alpha" in text and "### beta" in text and "| q |" in text
     assert "| benchmark | case | impl | median_ms | ratio | note |" in text
     assert "peer takes 2x to 3x jaxanom's time (jaxanom faster)" in text
-    assert "jaxanom only: 1.5 to 1.5 ms" in text
+    assert "Reading: no peer in this run; 1.5 ms." in text
     assert "boom" not in text
 
     (tmp_path / "RESULTS.md").write_text(text + "GPU numbers from another machine.\n")
