@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import importlib
+import importlib.util
 import os
 import platform
 import sys
@@ -106,7 +107,8 @@ def tables(results: dict[str, dict]) -> str:
         for row in result["rows"]:
             groups.setdefault(str(row["benchmark"]), []).append(row)
         for benchmark, rows in groups.items():
-            lines += [f"### {benchmark}", "", markdown_table(rows, columns(rows)), "", f"Reading: {result['reader'](rows)}", ""]
+            lines += [f"### {benchmark}", "", markdown_table(rows, columns(rows)), "",
+                      f"Reading: {result['reader'](rows)}", ""]
     return "\n".join(lines).strip("\n")
 
 

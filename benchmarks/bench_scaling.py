@@ -79,7 +79,8 @@ def _train_step_child(devices: int, quick: bool) -> dict:
 
     batch, height, width = (4, 64, 128) if quick else (8, 128, 256)
     frames = [generate("train", i, 0, height=height, width=width) for i in range(batch)]
-    local = {"image": np.stack([f["image"] for f in frames]), "label": np.stack([f["label"] for f in frames]).astype(np.int32)}
+    local = {"image": np.stack([f["image"] for f in frames]),
+             "label": np.stack([f["label"] for f in frames]).astype(np.int32)}
     model = build_model("deeplabv3plus_tiny", attention="cudam")
     mesh = make_mesh()
     tx, _ = make_optimizer(OptimConfig(name="adamw", lr=1e-3), 1000)

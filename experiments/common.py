@@ -166,7 +166,10 @@ def plain(scale: Scale) -> Network:
 
 
 def cudam(scale: Scale, position: str = "deep", **loss) -> Network:
-    """DeepLabV3+ with CuDAM trained with Eq. 8; ``loss`` overrides ``LossConfig`` fields (tau defaults to ``matched_tau``)."""
+    """DeepLabV3+ with CuDAM trained with Eq. 8.
+
+    ``loss`` overrides ``LossConfig`` fields; tau defaults to ``matched_tau``.
+    """
     config = LossConfig(method="cudam", **{"tau": matched_tau(scale), **loss})
     return network(scale, "cudam", config, position)
 
@@ -291,7 +294,8 @@ def evaluate(net: Network, variables: dict, scale: Scale, log: Callable = print)
 
 def evaluation(net: Network, scale: Scale, runs: Path, log: Callable = print) -> dict:
     """``evaluate`` of the trained network, cached in its run folder per evaluation setting."""
-    settings = {k: getattr(scale, k) for k in ("stats_frames", "val_frames", "anomaly_frames", "anomaly_split", "anomaly")}
+    fields = ("stats_frames", "val_frames", "anomaly_frames", "anomaly_split", "anomaly")
+    settings = {k: getattr(scale, k) for k in fields}
     tag = hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:8]
     cache = runs / net.key / f"evaluation_{tag}.json"
     if cache.exists():
@@ -338,7 +342,8 @@ def run_table(name: str, title: str, rows: Sequence[Row], findings: Callable[[di
     values, curves = table(rows, scale, runs, log)
     checked = findings(values)
     networks = {row.network.key: row.network.to_dict() for row in rows}
-    result = {"name": name, "title": title, "description": description, "table": [{"label": k, **v} for k, v in values.items()], "scale": dataclasses.asdict(scale),
+    result = {"name": name, "title": title, "description": description,
+              "table": [{"label": k, **v} for k, v in values.items()], "scale": dataclasses.asdict(scale),
               "findings": [dataclasses.asdict(f) for f in checked], "networks": networks,
               "seeds": f"single seed: training, shuffling and synthetic scenes all use seed {scale.seed}"}
     out_dir = Path(out_dir)
@@ -397,6 +402,7 @@ def ordered(values: dict, labels: Sequence[str], metric: str = "ap", claim: str 
 
 def best(values: dict, winner: str, among: Sequence[str], metric: str = "ap", claim: str | None = None) -> Finding:
     """``winner`` is the best of ``among``."""
-    top = min(among, key=lambda k: values[k][metric]) if metric in LOWER_IS_BETTER else max(among, key=lambda k: values[k][metric])
+    pick = min if metric in LOWER_IS_BETTER else max
+    top = pick(among, key=lambda k: values[k][metric])
     evidence = ", ".join(f"{label} {values[label][metric]:.2f}" for label in among)
     return Finding(claim or f"{winner} has the best {NAMES[metric]}", top == winner, f"{NAMES[metric]}: {evidence}")
