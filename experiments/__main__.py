@@ -117,6 +117,11 @@ def summary(results: list[dict], failures: dict[str, str] | None = None) -> str:
         f"**{held} of {total} qualitative findings of the papers hold here.** The synthetic data was not "
         "changed to make any of them hold; a finding that does not hold is reported as such.",
         "",
+        "Findings that do **not** hold here:",
+        "",
+        *(f"- `{r['name']}`: {f['claim']} ({f['evidence']})"
+          for r in results for f in r["findings"] if not f["holds"]),
+        "",
         "| experiment | findings that hold |",
         "|---|---|",
         *(f"| [{r['title']}](#{_anchor(r['title'])}) | {sum(f['holds'] for f in r['findings'])} / "
