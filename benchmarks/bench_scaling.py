@@ -83,6 +83,8 @@ def _train_step_child(devices: int, quick: bool) -> dict:
              "label": np.stack([f["label"] for f in frames]).astype(np.int32)}
     model = build_model("deeplabv3plus_tiny", attention="cudam")
     mesh = make_mesh()
+    if mesh.devices.size != devices:
+        raise RuntimeError(f"expected a mesh of {devices} simulated devices, got {mesh.devices.size}")
     tx, _ = make_optimizer(OptimConfig(name="adamw", lr=1e-3), 1000)
     with jax.set_mesh(mesh):
         variables = jax.jit(model.init, static_argnames="train", out_shardings=replicated(mesh))(
