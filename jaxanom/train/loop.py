@@ -105,21 +105,24 @@ def _set_data_state(batches, state: Any) -> None:
     batches.set_state(state.encode() if isinstance(state, str) else state)
 
 
-def train(config: TrainConfig, model, train_data: Iterable[dict], val_data: Iterable[dict] | None = None) -> TrainState:
+def train(config: TrainConfig, model, train_data: Iterable[dict], val_data: Iterable[dict] | None = None,
+          variables: dict | None = None) -> TrainState:
     """Train ``model`` (the jaxanom.models contract) and return the final state.
 
     ``val_data`` must be re-iterable (a list, a grain dataset); it is evaluated every
-    ``config.eval_every`` steps. Raises NonFiniteLossError when the loss or gradient stops being
-    finite, leaving the last good checkpoint in ``run_dir/checkpoints``.
+    ``config.eval_every`` steps. ``variables`` (``{"params", "batch_stats"}``, e.g. with a
+    pretrained backbone) replace ``model.init`` for a fresh run; a resumed run ignores them.
+    Raises NonFiniteLossError when the loss or gradient stops being finite, leaving the last
+    good checkpoint in ``run_dir/checkpoints``.
     """
     if config.distributed:
         initialize_distributed()
     mesh = make_mesh()
     with jax.set_mesh(mesh):
-        return _run(config, model, train_data, val_data, mesh)
+        return _run(config, model, train_data, val_data, variables, mesh)
 
 
-def _run(config: TrainConfig, model, train_data, val_data, mesh) -> TrainState:
+def _run(config: TrainConfig, model, train_data, val_data, variables, mesh) -> TrainState:
     os.makedirs(config.run_dir, exist_ok=True)
     source = iter(train_data)
     resumable = hasattr(source, "get_state") and hasattr(source, "set_state")
@@ -127,8 +130,8 @@ def _run(config: TrainConfig, model, train_data, val_data, mesh) -> TrainState:
 
     tx, lr_at = make_optimizer(config.optim, config.steps)
     init_key, state_key = jax.random.split(jax.random.key(config.seed))
-    variables = jax.jit(model.init, static_argnames="train", out_shardings=replicated(mesh))(
-        init_key, np.asarray(first["image"][:1]), train=False)
+    if variables is None:
+        variables = jax.jit(model.init, static_argnames="train")(init_key, np.asarray(first["image"][:1]), train=False)
     state = jax.device_put(TrainState.create(variables, tx, state_key), replicated(mesh))
     train_step, eval_step = make_steps(model, tx, config.loss, mesh)
 
@@ -170,8 +173,8 @@ def _run(config: TrainConfig, model, train_data, val_data, mesh) -> TrainState:
             log.scalars(step, {f"train/{name}": value for name, value in metrics.items()})
             if val_data is not None and (step % config.eval_every == 0 or step == config.steps):
                 log.scalars(step, evaluate(eval_step, state.variables, val_data, mesh, config.loss.ignore))
-            if step == config.steps or checkpointer.should_save(step):
-                checkpointer.save(step, state, _data_state(source) if resumable else None, force=True)
+            if step == config.steps or checkpointer.is_due(step):
+                checkpointer.save(step, state, _data_state(source) if resumable else None)
         checkpointer.wait()
     finally:
         bar.close()
