@@ -1,0 +1,6 @@
+"""Segmentation networks: ResNet backbones, DeepLabV3+ (with CuDAM / MSAAM), a registry by name."""
+from jaxanom.models.deeplab import DeepLabV3Plus
+from jaxanom.models.registry import build_model, count_params, model_names
+from jaxanom.models.resnet import RESNETS, ResNet, ResNetSpec
+
+__all__ = ["DeepLabV3Plus", "ResNet", "ResNetSpec", "RESNETS", "build_model", "count_params", "model_names"]

@@ -1,0 +1,87 @@
+"""Curiosity-driven attention module (CuDAM), Eqs. 1-3 of the CuDAM paper (seeds/000).
+
+Given decoder features ``F_a`` (B, h, w, C') and two encoder stages ``F_low``, ``F_mid``:
+
+* Eq. 1  ``M_att = softmax_{h,w}( f([mean_c F_a ; max_c F_a]) )``: channel-wise average and max
+  pooling (CBAM), one ``k x k`` convolution to one channel, softmax over all h*w positions of
+  each image, so every image's map sums to 1. Computed in float32: its values are ~1/(h*w).
+* Eq. 2  ``F_sc = eta(concat(F_low, F_mid, F_a))``: one 1x1 convolution to C' channels of the
+  three maps brought to F_a's size. We resize each input bilinearly and apply its slice of the
+  single 1x1 kernel *before* resizing (identical maths, since bilinear resizing is linear and
+  its weights sum to 1, but the large ``F_mid`` is projected at its own, smaller size).
+* Eq. 3  ``F = alpha * M_att * (F_a + F_sc) + F_a`` with a learnable scalar ``alpha``
+  initialised to 0, so an untrained module returns ``F_a`` exactly.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+from jaxanom.nn.layers import resize_bilinear
+
+
+def spatial_softmax(scores: jax.Array) -> jax.Array:
+    """Softmax over the positions of each image: (B, h, w) -> (B, h, w), each map sums to 1."""
+    b, h, w = scores.shape
+    return jax.nn.softmax(scores.reshape(b, h * w), axis=-1).reshape(b, h, w)
+
+
+class CuDAMAttention(nn.Module):
+    """CuDAM attention block (Eqs. 1-3).
+
+    Attributes:
+      kernel_size: size of the convolution ``f`` of Eq. 1 (7, as CBAM's spatial attention).
+      dtype: compute dtype of the features; the attention map is always float32.
+
+    ``__call__(f_a, f_low, f_mid)`` with f_a (B, h, w, C'), f_low (B, h1, w1, C1), f_mid
+    (B, h2, w2, C2) returns ``(features, attention)``: features (B, h, w, C') in ``dtype``
+    (Eq. 3) and the attention map ``M_att`` (B, h, w) float32, summing to 1 per image.
+    Parameters: ``attention_conv`` (k*k*2 + 1), ``fusion_kernel`` ((C1+C2+C') x C'),
+    ``fusion_bias`` (C') and ``alpha`` (scalar, init 0).
+    """
+
+    kernel_size: int = 7
+    dtype: Any = jnp.float32
+
+    @nn.compact
+    def __call__(
+        self, f_a: jax.Array, f_low: jax.Array, f_mid: jax.Array
+    ) -> tuple[jax.Array, jax.Array]:
+        b, h, w, channels = f_a.shape
+        # Eq. 1, in float32.
+        f32 = f_a.astype(jnp.float32)
+        pooled = jnp.stack([f32.mean(-1), f32.max(-1)], axis=-1)
+        pad = self.kernel_size // 2
+        scores = nn.Conv(
+            1,
+            (self.kernel_size, self.kernel_size),
+            padding=((pad, pad), (pad, pad)),
+            dtype=jnp.float32,
+            param_dtype=jnp.float32,
+            name="attention_conv",
+        )(pooled)[..., 0]
+        attention = spatial_softmax(scores)
+
+        # Eq. 2: one 1x1 convolution over concat(F_low, F_mid, F_a), applied slice by slice.
+        parts = (f_low, f_mid, f_a)
+        fan_in = sum(p.shape[-1] for p in parts)
+        kernel = self.param(
+            "fusion_kernel", nn.initializers.lecun_normal(), (fan_in, channels), jnp.float32
+        ).astype(self.dtype)
+        bias = self.param("fusion_bias", nn.initializers.zeros, (channels,), jnp.float32)
+        f_sc = bias.astype(self.dtype)
+        start = 0
+        for part in parts:
+            stop = start + part.shape[-1]
+            projected = jnp.einsum("bhwc,cd->bhwd", part.astype(self.dtype), kernel[start:stop])
+            f_sc = f_sc + resize_bilinear(projected, h, w)
+            start = stop
+
+        # Eq. 3.
+        alpha = self.param("alpha", nn.initializers.zeros, (), jnp.float32)
+        gate = (alpha * attention)[..., None].astype(self.dtype)
+        features = gate * (f_a.astype(self.dtype) + f_sc) + f_a.astype(self.dtype)
+        return features, attention
