@@ -15,6 +15,7 @@ run (tests/test_train_resume.py); on GPUs this holds as far as their kernels are
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import math
 import os
@@ -117,23 +118,29 @@ def train(config: TrainConfig, model, train_data: Iterable[dict], val_data: Iter
     """
     if config.distributed:
         initialize_distributed()
-    mesh = make_mesh()
-    with jax.set_mesh(mesh):
-        return _run(config, model, train_data, val_data, variables, mesh)
+    compiled = _compiled(model, config.loss, config.optim, config.steps, tuple(jax.devices()))
+    with jax.set_mesh(compiled[0]):
+        return _run(config, model, train_data, val_data, variables, *compiled)
 
 
-def _run(config: TrainConfig, model, train_data, val_data, variables, mesh) -> TrainState:
+@functools.lru_cache(maxsize=4)
+def _compiled(model, loss: LossConfig, optim: OptimConfig, steps: int, devices: tuple):
+    """Mesh, optimizer, schedule and jitted steps; a later run with equal settings reuses them."""
+    mesh = make_mesh(devices)
+    tx, lr_at = make_optimizer(optim, steps)
+    return (mesh, tx, lr_at) + make_steps(model, tx, loss, mesh)
+
+
+def _run(config: TrainConfig, model, train_data, val_data, variables, mesh, tx, lr_at, train_step, eval_step) -> TrainState:
     os.makedirs(config.run_dir, exist_ok=True)
     source = iter(train_data)
     resumable = hasattr(source, "get_state") and hasattr(source, "set_state")
     first = next(source)
 
-    tx, lr_at = make_optimizer(config.optim, config.steps)
     init_key, state_key = jax.random.split(jax.random.key(config.seed))
     if variables is None:
         variables = jax.jit(model.init, static_argnames="train")(init_key, np.asarray(first["image"][:1]), train=False)
     state = jax.device_put(TrainState.create(variables, tx, state_key), replicated(mesh))
-    train_step, eval_step = make_steps(model, tx, config.loss, mesh)
 
     checkpointer = Checkpointer(os.path.join(config.run_dir, "checkpoints"), config.save_every, config.keep)
     pending = [first]
