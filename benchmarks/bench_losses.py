@@ -58,11 +58,11 @@ def _torch_objective(torch, logits, attention, labels, cudam: bool):
     return seg + lam * att
 
 
-def _jax_fn(labels, cudam: bool):
+def _jax_fn(cudam: bool):
     cfg = LossConfig(method="cudam" if cudam else "plain", reward_prob=1.0)
     key = jax.random.key(0)
 
-    def loss(logits, attention):
+    def loss(logits, attention, labels):
         if not cudam:
             return losses.cross_entropy(logits, labels)
         return objective({"logits": logits, "attention": attention}, labels, key, cfg)[0]
@@ -78,8 +78,8 @@ def run(quick: bool = False) -> list[dict]:
     repeats = 3 if quick else 7
     rows = []
     for cudam in (False, True):
-        fn = _jax_fn(jnp.asarray(labels), cudam)
-        args = (jnp.asarray(logits), jnp.asarray(attention))
+        fn = _jax_fn(cudam)
+        args = (jnp.asarray(logits), jnp.asarray(attention), jnp.asarray(labels))
         jax_ms = median_ms(lambda: fn(*args), repeats=repeats)
         jax_loss = float(fn(*args)[0])
 
