@@ -146,3 +146,14 @@ def test_sigkill_and_resume_ends_with_bitwise_equal_parameters(tmp_path):
     assert sorted(expected.files) == sorted(got.files)
     for name in expected.files:
         np.testing.assert_array_equal(got[name], expected[name], err_msg=name)
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda b: {"image": b["image"]}, "'image' and 'label'"),
+    (lambda b: {**b, "image": b["image"][..., :2]}, r"batch\['image'\]"),
+    (lambda b: {**b, "label": b["label"].astype(np.float32)}, r"batch\['label'\]: expected int"),
+    (lambda b: {**b, "label": np.where(b["label"] == 0, 7, b["label"])}, r"model has 3 classes\), got \[7\]"),
+])
+def test_bad_first_batch_is_a_clear_error(tmp_path, change, message):
+    with pytest.raises(ValueError, match=message):
+        train(config(tmp_path), TinySegNet(), [change(make_batch(0))], variables=init_variables())

@@ -97,6 +97,28 @@ def evaluate(eval_step, variables, batches: Iterable[dict], mesh, ignore: int) -
     return {"val/miou": mean_iou(confusion), "val/pixel_accuracy": float(np.trace(confusion) / max(confusion.sum(), 1))}
 
 
+def check_batch(batch: Any, num_classes: int, ignore: int) -> None:
+    """ValueError unless ``batch`` is ``{"image": (B, H, W, 3) float, "label": (B, H, W) int}``
+    with labels in [0, num_classes) or ``ignore``. The loop checks the first batch only."""
+    if not isinstance(batch, dict) or not {"image", "label"} <= set(batch):
+        got = sorted(batch) if isinstance(batch, dict) else type(batch).__name__
+        raise ValueError(f"train_data: expected batches as dicts with 'image' and 'label', got {got}")
+    image, label = np.asarray(batch["image"]), np.asarray(batch["label"])
+    if image.ndim != 4 or image.shape[-1] != 3 or not np.issubdtype(image.dtype, np.floating):
+        raise ValueError(f"batch['image']: expected float (B, H, W, 3), got {image.dtype} {image.shape}")
+    if label.shape != image.shape[:3] or not np.issubdtype(label.dtype, np.integer):
+        raise ValueError(f"batch['label']: expected int {image.shape[:3]}, got {label.dtype} {label.shape}")
+    bad = (label != ignore) & ((label < 0) | (label >= num_classes))
+    if bad.any():
+        raise ValueError(f"batch['label']: expected values in [0, {num_classes}) or {ignore} (the model has "
+                         f"{num_classes} classes), got {np.unique(label[bad])[:10].tolist()}")
+
+
+def _num_classes(model, image) -> int:
+    out = jax.eval_shape(lambda x: model.init_with_output(jax.random.key(0), x, train=False)[0], image[:1])
+    return out["logits"].shape[-1]
+
+
 def _data_state(batches) -> Any:
     state = batches.get_state()
     return state.decode() if isinstance(state, bytes) else state
@@ -136,6 +158,7 @@ def _run(config: TrainConfig, model, train_data, val_data, variables, mesh, tx, 
     source = iter(train_data)
     resumable = hasattr(source, "get_state") and hasattr(source, "set_state")
     first = next(source)
+    check_batch(first, _num_classes(model, np.asarray(first["image"])), config.loss.ignore)
 
     init_key, state_key = jax.random.split(jax.random.key(config.seed))
     if variables is None:
