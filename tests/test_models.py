@@ -6,7 +6,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxanom.models import RESNETS, DeepLabV3Plus, ResNet, build_model, count_params, model_names
+from jaxanom.models import (RESNETS, DeepLabV3Plus, ResNet, ResNetSpec, build_model, count_params,
+                            model_names)
 
 KEY = jax.random.key(0, impl="rbg")  # cheap to compile on CPU
 NUM_CLASSES = 5
@@ -182,6 +183,7 @@ def test_gradients_are_finite(train_grads):
 def test_bfloat16_compute_keeps_float32_params_and_outputs(cudam_vars, cudam_out):
     model = tiny(attention="cudam", dtype=jnp.bfloat16)
     shapes = jax.eval_shape(lambda x: model.init(KEY, x, train=False), IMAGES)
+    assert set(shapes) == {"params", "batch_stats"}
     assert all(a.dtype == jnp.float32 for a in jax.tree.leaves(shapes))
     out = eval_fn(model)(cudam_vars, IMAGES)
     assert out["logits"].dtype == jnp.float32 and out["attention"].dtype == jnp.float32
@@ -217,6 +219,21 @@ def test_tiny_parameter_counts_match_hand_formulas():
              + cin * hidden + hidden * hidden + hidden * cin + cin  # channel W1, W2, W3 + b3
              + 3 * cin * gru + 6 * gru * gru + 4 * gru + 3 * gru + 3)  # GRU input, cell, W_h
     assert count_params(tiny(attention="msaam")) == backbone + head + msaam
+
+
+def test_deep_stem_shapes_and_parameter_count():
+    spec = RESNETS["resnet_tiny"]
+    deep = ResNetSpec(spec.stage_sizes, spec.bottleneck, spec.width, deep_stem=True)
+    x = jax.ShapeDtypeStruct((2, 37, 45, 3), jnp.float32)
+    params, feats = {}, {}
+    for name, s in (("plain", spec), ("deep", deep)):
+        feats[name], variables = jax.eval_shape(lambda x: ResNet(s, 8).init_with_output(KEY, x), x)
+        params[name] = n_params(variables["params"])
+    w = spec.width
+    assert params["deep"] - params["plain"] == (
+        conv_bn(3, w // 2, 3) + conv_bn(w // 2, w // 2, 3) + conv_bn(w // 2, w, 3) - conv_bn(3, w, 7))
+    for key in feats["plain"]:
+        assert feats["deep"][key].shape == feats["plain"][key].shape, key
 
 
 @pytest.mark.parametrize("name, want", [

@@ -84,12 +84,14 @@ def test_cudam_init_alpha_zero_returns_input_exactly(cudam_case):
     np.testing.assert_array_equal(np.asarray(features), f_a)
 
 
-def test_cudam_matches_numpy_reference(cudam_case):
+@pytest.mark.parametrize("jit", [True, False], ids=["jit", "eager"])
+def test_cudam_matches_numpy_reference(cudam_case, jit):
     module, params, inputs = cudam_case
     params = {**params, "alpha": jnp.float32(3.5)}
     # scale the attention conv up so the map is far from uniform
     params["attention_conv"] = {**params["attention_conv"], "kernel": params["attention_conv"]["kernel"] * 5}
-    features, att = jax.jit(module.apply)({"params": params}, *inputs)
+    apply = jax.jit(module.apply) if jit else module.apply
+    features, att = apply({"params": params}, *inputs)
     want_f, want_att = cudam_reference(as_np(params), *(x.astype(np.float64) for x in inputs))
     np.testing.assert_allclose(att, want_att, rtol=1e-5, atol=1e-8)
     np.testing.assert_allclose(features, want_f, rtol=1e-5, atol=1e-5)
@@ -212,3 +214,9 @@ def test_best_rectangle_matches_brute_force(box):
     want_corner, want_avg = best_rectangle_reference(m, *box)
     assert tuple(np.asarray(corner)) == want_corner
     np.testing.assert_allclose(avg, want_avg, rtol=1e-6)
+
+
+@pytest.mark.parametrize("shape, box", [((5, 7), (6, 1)), ((5, 7), (1, 0)), ((2, 5, 7), (1, 1))])
+def test_best_rectangle_rejects_bad_sizes(shape, box):
+    with pytest.raises(ValueError, match="height|highlight"):
+        best_rectangle(jnp.zeros(shape), *box)

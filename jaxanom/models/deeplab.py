@@ -8,6 +8,8 @@ Contract (the training loop and the scorers rely on it):
     out = model.apply(variables, images, train=False)
 
 ``images``: float32 (B, H, W, 3), already normalised by the caller; any H, W >= 1.
+``train`` is a Python bool (static under ``jax.jit``): True normalises with batch statistics and
+returns updated ``batch_stats`` (pass ``mutable=["batch_stats"]``), False uses running averages.
 ``out`` is a dict:
   * ``"logits"``: float32 (B, H, W, num_classes), bilinearly resized to the input size.
   * with ``attention="cudam"``: ``"attention"`` float32 (B, h, w), CuDAM's map M_att at the
@@ -29,8 +31,20 @@ upsampled to its size, concatenated, two 3x3 conv-BN-ReLU of ``decoder_channels`
 classifier with bias. CuDAM sits after the first decoder convolution (``"deep"``, the paper's
 best, Table V) or after the second, just before the classifier (``"surface"``), with
 F_low = ``layer1`` and F_mid = ``layer2``. MSAAM sits at the end of the encoder, before ASPP.
+
+On the CuDAM position: the paper inserts the module "after the convolution layer following the
+concatenation" (256 channels here, as METHODS.md decides) yet lists the inserted feature as
+(304, 180, 180), the concatenation itself; with 304 channels Eq. 2's 1x1 conv would have
+(256 + 512 + 304) * 304 weights, about the paper's +0.34M, against +0.26M here. Its "surface"
+position is near the output (the paper's (19, 720, 720)); we take the last decoder feature
+before the classifier, which keeps the map at stride 4 and the 1x1 fusion affordable.
+
+BatchNorm in train mode needs more than one value per channel: the ASPP image-pooling branch
+sees one pixel per image, so train with batches of 2 or more (as in PyTorch).
 """
 from __future__ import annotations
+
+import numbers
 
 import flax.linen as nn
 import jax
@@ -92,7 +106,7 @@ class DeepLabV3Plus(nn.Module):
     dtype: Dtype = jnp.float32
 
     def __post_init__(self):
-        if not isinstance(self.num_classes, int) or self.num_classes < 1:
+        if not isinstance(self.num_classes, numbers.Integral) or self.num_classes < 1:
             raise ValueError(f"num_classes: expected a positive int, got {self.num_classes!r}")
         if isinstance(self.backbone, str) and self.backbone not in RESNETS:
             raise ValueError(f"backbone: expected one of {sorted(RESNETS)}, got {self.backbone!r}")
@@ -129,6 +143,7 @@ class DeepLabV3Plus(nn.Module):
         low_proj = ConvBN(self.low_level_channels, 1, dtype=self.dtype, name="low_level")(low, train)
         x = resize_bilinear(x, *low.shape[1:3])
         x = jnp.concatenate([x, low_proj], axis=-1)
+        # two 3x3 convolutions; CuDAM follows the first ("deep") or the second ("surface")
         for i, position in enumerate(CUDAM_POSITIONS):
             x = ConvBN(self.decoder_channels, 3, dtype=self.dtype, name=f"decoder{i}")(x, train)
             if self.attention == "cudam" and self.cudam_position == position:

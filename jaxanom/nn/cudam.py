@@ -6,9 +6,10 @@ Given decoder features ``F_a`` (B, h, w, C') and two encoder stages ``F_low``, `
   pooling (CBAM), one ``k x k`` convolution to one channel, softmax over all h*w positions of
   each image, so every image's map sums to 1. Computed in float32: its values are ~1/(h*w).
 * Eq. 2  ``F_sc = eta(concat(F_low, F_mid, F_a))``: one 1x1 convolution to C' channels of the
-  three maps brought to F_a's size. We resize each input bilinearly and apply its slice of the
-  single 1x1 kernel *before* resizing (identical maths, since bilinear resizing is linear and
-  its weights sum to 1, but the large ``F_mid`` is projected at its own, smaller size).
+  three maps brought to F_a's size by bilinear resizing. We apply each input's slice of the
+  single 1x1 kernel at the input's own size and resize afterwards: the same result (resizing
+  is linear and its weights sum to 1), but the 512-channel ``F_mid`` is projected at its own,
+  four times smaller size and no concatenated tensor is built.
 * Eq. 3  ``F = alpha * M_att * (F_a + F_sc) + F_a`` with a learnable scalar ``alpha``
   initialised to 0, so an untrained module returns ``F_a`` exactly.
 """
@@ -20,13 +21,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from jaxanom.nn.layers import resize_bilinear
-
-
-def spatial_softmax(scores: jax.Array) -> jax.Array:
-    """Softmax over the positions of each image: (B, h, w) -> (B, h, w), each map sums to 1."""
-    b, h, w = scores.shape
-    return jax.nn.softmax(scores.reshape(b, h * w), axis=-1).reshape(b, h, w)
+from jaxanom.nn.layers import resize_bilinear, spatial_softmax
 
 
 class CuDAMAttention(nn.Module):

@@ -1,4 +1,4 @@
-"""Building blocks shared by the backbone and the heads: conv + BatchNorm (+ ReLU), bilinear resize.
+"""Building blocks shared by the networks: conv + BatchNorm (+ ReLU), bilinear resize, spatial softmax.
 
 Mixed precision: parameters are always float32 (``param_dtype``); ``dtype`` is the compute dtype
 (e.g. ``jnp.bfloat16``). BatchNorm statistics are reduced in float32 whatever ``dtype`` is.
@@ -10,6 +10,7 @@ from typing import Any
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 Dtype = Any
 
@@ -60,13 +61,34 @@ class ConvBN(nn.Module):
         return nn.relu(x) if self.relu else x
 
 
+def _linear_taps(size_in: int, size_out: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Source indices (i0, i1) and weight of i1 for linear resampling with half-pixel centres.
+
+    ``src = (o + 0.5) * size_in / size_out - 0.5``, clamped to [0, size_in - 1]; the value at
+    ``o`` is ``(1 - t) x[i0] + t x[i1]``, as PyTorch's ``align_corners=False``.
+    """
+    src = np.clip((np.arange(size_out) + 0.5) * size_in / size_out - 0.5, 0, size_in - 1)
+    i0 = np.floor(src).astype(np.int32)
+    return i0, np.minimum(i0 + 1, size_in - 1), (src - i0).astype(np.float32)
+
+
 def resize_bilinear(x: jax.Array, height: int, width: int) -> jax.Array:
     """Bilinear resize of ``x`` (B, h, w, C) to (B, height, width, C), half-pixel centres.
 
-    Half-pixel centres are PyTorch's ``align_corners=False``; no antialiasing, so a
-    downscale samples like PyTorch's ``interpolate`` does. Same dtype out as in.
+    Half-pixel centres with clamped borders are PyTorch's ``align_corners=False``; no
+    antialiasing on downscaling, also as PyTorch. Two gathers and a blend per axis (memory-bound;
+    ``jax.image.resize`` would multiply by dense (out x in) matrices instead). Same dtype out.
     """
-    if x.shape[1:3] == (height, width):
-        return x
-    shape = (x.shape[0], height, width, x.shape[3])
-    return jax.image.resize(x, shape, "bilinear", antialias=False).astype(x.dtype)
+    for axis, size in ((1, height), (2, width)):
+        if x.shape[axis] == size:
+            continue
+        i0, i1, t = _linear_taps(x.shape[axis], size)
+        t = t.reshape((-1,) + (1,) * (x.ndim - axis - 1)).astype(x.dtype)
+        x = jnp.take(x, i0, axis=axis) * (1 - t) + jnp.take(x, i1, axis=axis) * t
+    return x
+
+
+def spatial_softmax(scores: jax.Array) -> jax.Array:
+    """Softmax over the positions of each image: (B, h, w) -> (B, h, w), each map sums to 1."""
+    b, h, w = scores.shape
+    return jax.nn.softmax(scores.reshape(b, h * w), axis=-1).reshape(b, h, w)

@@ -33,8 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom.nn.cudam import spatial_softmax
-from jaxanom.nn.layers import resize_bilinear
+from jaxanom.nn.layers import resize_bilinear, spatial_softmax
 
 
 def adaptive_pool_matrix(size: int, bins: int) -> np.ndarray:
@@ -162,7 +161,11 @@ def best_rectangle(highlight: jax.Array, height: int, width: int) -> tuple[jax.A
     ``(corner, average)``: corner int32 (4,) = (y1, x1, y2, x2), inclusive as in Eq. 12 (the
     first best window in row-major order on ties), and the average, float32 scalar.
     """
+    if highlight.ndim != 2:
+        raise ValueError(f"highlight: expected one map (h, w), got shape {highlight.shape}")
     h, w = highlight.shape
+    if not (1 <= height <= h and 1 <= width <= w):
+        raise ValueError(f"height, width: expected 1..{h} and 1..{w}, got {height} and {width}")
     integral = jnp.pad(highlight.astype(jnp.float32).cumsum(0).cumsum(1), ((1, 0), (1, 0)))
     sums = (
         integral[height:, width:]

@@ -10,7 +10,7 @@ from the newest one; a damaged newest checkpoint stops the run with a ValueError
 silently restarted).
 
 On CPU a run that is killed and resumed ends with parameters bitwise equal to an uninterrupted
-run (tests/test_train_resume.py); on GPUs this holds as far as their kernels are deterministic.
+run (tests/test_train_loop.py); on GPUs this holds as far as their kernels are deterministic.
 """
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ from jaxanom.train.optim import OptimConfig, make_optimizer
 from jaxanom.train.runlog import RunLog
 from jaxanom.train.sharding import global_batch, initialize_distributed, make_mesh, replicated
 from jaxanom.train.state import TrainState
-from jaxanom.train.step import LossConfig, make_steps
+from jaxanom.train.step import LossConfig, make_steps, model_input
 
 
 class NonFiniteLossError(FloatingPointError):
@@ -98,14 +98,14 @@ def evaluate(eval_step, variables, batches: Iterable[dict], mesh, ignore: int) -
 
 
 def check_batch(batch: Any, num_classes: int, ignore: int) -> None:
-    """ValueError unless ``batch`` is ``{"image": (B, H, W, 3) float, "label": (B, H, W) int}``
+    """ValueError unless ``batch`` is ``{"image": (B, H, W, 3) uint8 or float, "label": (B, H, W) int}``
     with labels in [0, num_classes) or ``ignore``. The loop checks the first batch only."""
     if not isinstance(batch, dict) or not {"image", "label"} <= set(batch):
         got = sorted(batch) if isinstance(batch, dict) else type(batch).__name__
         raise ValueError(f"train_data: expected batches as dicts with 'image' and 'label', got {got}")
     image, label = np.asarray(batch["image"]), np.asarray(batch["label"])
-    if image.ndim != 4 or image.shape[-1] != 3 or not np.issubdtype(image.dtype, np.floating):
-        raise ValueError(f"batch['image']: expected float (B, H, W, 3), got {image.dtype} {image.shape}")
+    if image.ndim != 4 or image.shape[-1] != 3 or not (image.dtype == np.uint8 or np.issubdtype(image.dtype, np.floating)):
+        raise ValueError(f"batch['image']: expected uint8 or float (B, H, W, 3), got {image.dtype} {image.shape}")
     if label.shape != image.shape[:3] or not np.issubdtype(label.dtype, np.integer):
         raise ValueError(f"batch['label']: expected int {image.shape[:3]}, got {label.dtype} {label.shape}")
     bad = (label != ignore) & ((label < 0) | (label >= num_classes))
@@ -115,7 +115,7 @@ def check_batch(batch: Any, num_classes: int, ignore: int) -> None:
 
 
 def _num_classes(model, image) -> int:
-    out = jax.eval_shape(lambda x: model.init_with_output(jax.random.key(0), x, train=False)[0], image[:1])
+    out = jax.eval_shape(lambda x: model.init_with_output(jax.random.key(0), model_input(x), train=False)[0], image[:1])
     return out["logits"].shape[-1]
 
 
@@ -162,7 +162,8 @@ def _run(config: TrainConfig, model, train_data, val_data, variables, mesh, tx, 
 
     init_key, state_key = jax.random.split(jax.random.key(config.seed))
     if variables is None:
-        variables = jax.jit(model.init, static_argnames="train")(init_key, np.asarray(first["image"][:1]), train=False)
+        variables = jax.jit(model.init, static_argnames="train")(
+            init_key, model_input(np.asarray(first["image"][:1])), train=False)
     state = jax.device_put(TrainState.create(variables, tx, state_key), replicated(mesh))
 
     checkpointer = Checkpointer(os.path.join(config.run_dir, "checkpoints"), config.save_every, config.keep)

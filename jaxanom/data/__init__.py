@@ -1,0 +1,13 @@
+"""Data: procedural street scenes, dataset readers, augmentations.
+
+Readers and the generator need only NumPy and OpenCV; the grain input pipeline lives in
+``jaxanom.data.pipeline`` and is imported on its own.
+"""
+from jaxanom.data.cityscapes import Cityscapes
+from jaxanom.data.fishyscapes import FishyscapesLostAndFound, FishyscapesStatic
+from jaxanom.data.road_anomaly import RoadAnomaly
+from jaxanom.data.smiyc import RoadAnomaly21, RoadObstacle21, SegmentMeIfYouCan
+from jaxanom.data.synthetic import SyntheticScenes, generate
+
+__all__ = ["Cityscapes", "FishyscapesLostAndFound", "FishyscapesStatic", "RoadAnomaly",
+           "RoadAnomaly21", "RoadObstacle21", "SegmentMeIfYouCan", "SyntheticScenes", "generate"]

@@ -1,0 +1,37 @@
+"""Cityscapes reader (official layout), fine labels mapped to the 19 trainIds.
+
+Layout: ``<root>/leftImg8bit/<split>/<city>/<city>_<seq>_<frame>_leftImg8bit.png`` and
+``<root>/gtFine/<split>/<city>/<city>_<seq>_<frame>_gtFine_labelIds.png``.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from jaxanom.data.cityscapes_labels import LABEL_ID_TO_TRAIN_ID, NUM_LABEL_IDS
+from jaxanom.data.frames import FrameReader
+from jaxanom.data.image_io import check_values, require_dir, require_file
+
+_IMAGE_SUFFIX = "_leftImg8bit.png"
+
+
+def _train_ids(raw: np.ndarray, path: Path) -> np.ndarray:
+    return LABEL_ID_TO_TRAIN_ID[check_values(raw, range(NUM_LABEL_IDS), path)]
+
+
+class Cityscapes(FrameReader):
+    """``Cityscapes(root, split)[i]`` -> image, trainId label (255 = ignore), name ``<city>_<seq>_<frame>``."""
+
+    def __init__(self, root: str | Path, split: str = "train"):
+        image_dir = require_dir(Path(root) / "leftImg8bit" / split, "Cityscapes images")
+        label_dir = require_dir(Path(root) / "gtFine" / split, "Cityscapes fine labels")
+        images = sorted(image_dir.glob(f"*/*{_IMAGE_SUFFIX}"))
+        if not images:
+            raise FileNotFoundError(f"Cityscapes images: no <city>/*{_IMAGE_SUFFIX} in {image_dir}")
+        frames = []
+        for image in images:
+            name = image.name[: -len(_IMAGE_SUFFIX)]
+            label = label_dir / image.parent.name / f"{name}_gtFine_labelIds.png"
+            frames.append((name, image, require_file(label, "Cityscapes label")))
+        super().__init__(frames, _train_ids)

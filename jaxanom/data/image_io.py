@@ -1,0 +1,61 @@
+"""Reading images and label masks from disk with errors that name the file.
+
+``cv2.imread`` returns ``None`` for missing or undecodable files instead of raising; every
+reader goes through these functions so that a bad file gives a ``FileNotFoundError`` or a
+``ValueError`` with its path.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+ANOMALY_LABEL_VALUES = (0, 1, 255)
+
+
+def require_dir(path: Path, what: str) -> Path:
+    """``path`` as a Path, or FileNotFoundError naming ``what`` it should hold."""
+    path = Path(path)
+    if not path.is_dir():
+        raise FileNotFoundError(f"{what}: folder {path} does not exist")
+    return path
+
+
+def require_file(path: Path, what: str) -> Path:
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{what}: file {path} does not exist")
+    return path
+
+
+def read_rgb(path: Path) -> np.ndarray:
+    """An image file -> (H, W, 3) uint8 RGB."""
+    image = cv2.imread(str(require_file(path, "image")), cv2.IMREAD_COLOR)
+    if image is None:
+        raise ValueError(f"image: cannot decode {path} (corrupt or unsupported format)")
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def read_label(path: Path) -> np.ndarray:
+    """A single-channel 8-bit label PNG -> (H, W) uint8, values unchanged."""
+    label = cv2.imread(str(require_file(path, "label")), cv2.IMREAD_UNCHANGED)
+    if label is None:
+        raise ValueError(f"label: cannot decode {path} (corrupt or unsupported format)")
+    if label.ndim != 2 or label.dtype != np.uint8:
+        raise ValueError(f"label: expected a single-channel 8-bit image in {path}, "
+                         f"got shape {label.shape} dtype {label.dtype}")
+    return label
+
+
+def check_values(label: np.ndarray, allowed, path: Path) -> np.ndarray:
+    """Return ``label`` if all its values are in ``allowed``, else ValueError naming the file."""
+    bad = np.setdiff1d(np.unique(label), np.asarray(allowed))
+    if bad.size:
+        raise ValueError(f"label: expected values in {tuple(allowed)} in {path}, got {bad.tolist()}")
+    return label
+
+
+def check_same_size(image: np.ndarray, label: np.ndarray, path: Path) -> None:
+    if image.shape[:2] != label.shape:
+        raise ValueError(f"label: size {label.shape} of {path} differs from its image's {image.shape[:2]}")

@@ -1,0 +1,46 @@
+"""SegmentMeIfYouCan readers: RoadAnomaly21 (Anomaly Track) and RoadObstacle21 (Obstacle Track).
+
+Layout of both tracks (``dataset_AnomalyTrack`` / ``dataset_ObstacleTrack``):
+``<root>/images/<frame>.<jpg|webp|png>`` and ``<root>/labels_masks/<frame>_labels_semantic.png``
+with 0 = in-distribution, 1 = anomaly / obstacle, 255 = void. Only the validation frames have
+label masks (the test labels are held out), so the reader lists the frames that have one.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from jaxanom.data.frames import FrameReader
+from jaxanom.data.image_io import ANOMALY_LABEL_VALUES, check_values, require_dir
+
+_LABEL_SUFFIX = "_labels_semantic.png"
+_IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".webp", ".png")
+
+
+def _anomaly_labels(raw: np.ndarray, path: Path) -> np.ndarray:
+    return check_values(raw, ANOMALY_LABEL_VALUES, path)
+
+
+class SegmentMeIfYouCan(FrameReader):
+    """``SegmentMeIfYouCan(root)[i]`` -> image, label 0 / 1 / 255, name; root is one track's folder."""
+
+    def __init__(self, root: str | Path):
+        image_dir = require_dir(Path(root) / "images", "SegmentMeIfYouCan images")
+        label_dir = require_dir(Path(root) / "labels_masks", "SegmentMeIfYouCan label masks")
+        labels = sorted(label_dir.glob(f"*{_LABEL_SUFFIX}"))
+        if not labels:
+            raise FileNotFoundError(f"SegmentMeIfYouCan label masks: no *{_LABEL_SUFFIX} in {label_dir}")
+        frames = []
+        for label in labels:
+            name = label.name[: -len(_LABEL_SUFFIX)]
+            images = [image_dir / f"{name}{ext}" for ext in _IMAGE_EXTENSIONS if (image_dir / f"{name}{ext}").is_file()]
+            if not images:
+                raise FileNotFoundError(f"SegmentMeIfYouCan image: no {name}{{{','.join(_IMAGE_EXTENSIONS)}}} "
+                                        f"in {image_dir} for label {label}")
+            frames.append((name, images[0], label))
+        super().__init__(frames, _anomaly_labels)
+
+
+RoadAnomaly21 = SegmentMeIfYouCan
+RoadObstacle21 = SegmentMeIfYouCan

@@ -1,0 +1,123 @@
+"""``jaxanom demo``: the whole method on synthetic driving scenes, end to end.
+
+Train a small DeepLabV3+ with CuDAM on in-distribution scenes, fit SML statistics on the
+training frames, then score a synthetic anomaly split with every method, pooled as the
+benchmarks pool, and write a results table, a JSON of the numbers and pictures.
+"""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from jaxanom import methods as scoring
+from jaxanom import sml
+from jaxanom.evaluate import anomaly_results, predictions, predictor, segmentation_results
+from jaxanom.experiment import Experiment, build_network, frames, run_training
+from jaxanom.io import write_json_atomic, write_png_atomic
+from jaxanom.train.loop import TrainConfig
+from jaxanom.train.optim import OptimConfig
+from jaxanom.train.step import LossConfig
+
+DEMO_METHODS = ("msp", "max_logit", "entropy", "energy", "sml", "sml_post", "cudam")
+
+
+@dataclasses.dataclass(frozen=True)
+class DemoConfig:
+    """Sizes of the demo; ``quick()`` is a seconds-long smoke run of the same path."""
+
+    experiment: Experiment = Experiment(
+        train_frames=256, height=128, width=256, crop=(128, 256), batch_size=8,
+        train=TrainConfig(run_dir="", steps=600, eval_every=200, save_every=200, keep=2,
+                          loss=LossConfig(method="cudam"),
+                          optim=OptimConfig(name="adamw", lr=2e-3, weight_decay=1e-4, warmup_steps=30)))
+    stats_frames: int = 64
+    val_frames: int = 32
+    anomaly_frames: int = 64
+    anomaly_split: str = "anomaly"
+    pictures: int = 4
+
+    @classmethod
+    def quick(cls) -> "DemoConfig":
+        experiment = dataclasses.replace(
+            cls.experiment, train_frames=4, height=64, width=96, crop=(64, 96), batch_size=4,
+            train=dataclasses.replace(cls.experiment.train, steps=3, eval_every=3, save_every=3,
+                                      optim=dataclasses.replace(cls.experiment.train.optim, warmup_steps=1)))
+        return cls(experiment=experiment, stats_frames=4, val_frames=2, anomaly_frames=2, pictures=1)
+
+
+def _batches(source, batch_size: int):
+    from jaxanom.data.pipeline import evaluation_batches
+
+    return evaluation_batches(source, batch_size=batch_size)
+
+
+def run_demo(out_dir: str | Path, config: DemoConfig = DemoConfig(), *, progress: bool = True,
+             log=print) -> dict:
+    """Run the demo into ``out_dir`` (created; must not exist or be empty); returns the results."""
+    out_dir = Path(out_dir)
+    experiment = config.experiment
+    log(f"[1/4] training {experiment.model} + CuDAM on {experiment.train_frames} synthetic scenes "
+        f"({experiment.train.steps} steps, batch {experiment.batch_size}, {jax.device_count()} device(s))")
+    variables = run_training(experiment, out_dir / "run", progress=progress)
+    predict = predictor(build_network(experiment), variables)
+    batch = experiment.batch_size
+
+    log(f"[2/4] fitting SML class statistics on {config.stats_frames} training frames")
+    train_frames = frames(experiment, "train", config.stats_frames)
+    stats = sml.fit_stats(out["logits"] for out in predictions(predict, _batches(train_frames, batch)))
+    mean, std = sml.stats_finalize(stats, missing="pooled")
+    sml.save_stats(out_dir / "sml_stats.npz", mean, std, stats.count)
+    never_predicted = np.flatnonzero(np.asarray(stats.count) < 2).tolist()
+
+    log(f"[3/4] evaluating on {config.val_frames} validation and {config.anomaly_frames} anomaly frames")
+    segmentation = segmentation_results(
+        predictions(predict, _batches(frames(experiment, "val", config.val_frames), batch)),
+        experiment.num_classes)
+    anomaly_frames = frames(experiment, config.anomaly_split, config.anomaly_frames)
+    metrics, curves = anomaly_results(predictions(predict, _batches(anomaly_frames, batch)), DEMO_METHODS,
+                                      stats=(mean, std), keep_curves=True)
+
+    log("[4/4] writing pictures and results")
+    _pictures(out_dir, predict, anomaly_frames, (mean, std), config.pictures)
+    from jaxanom.viz import plot_curves
+
+    plot_curves(out_dir / "roc.png", {n: c["roc"] for n, c in curves.items()}, kind="roc")
+    plot_curves(out_dir / "pr.png", {n: c["pr"] for n, c in curves.items()}, kind="pr")
+    results = {"anomaly": {"split": config.anomaly_split, "frames": config.anomaly_frames, "metrics": metrics},
+               "segmentation": segmentation, "sml_classes_never_predicted": never_predicted,
+               "experiment": experiment.to_dict()}
+    write_json_atomic(out_dir / "results.json", results)
+    log(results_table(metrics, segmentation))
+    log(f"results in {out_dir}/ (results.json, roc.png, pr.png, frame_*.png)")
+    return results
+
+
+def results_table(metrics: dict, segmentation: dict | None = None) -> str:
+    """A markdown table of AP / AUROC / FPR@95 per method (percent)."""
+    lines = ["| method | AP | AUROC | FPR@95 |", "|---|---|---|---|"]
+    for name, m in metrics.items():
+        lines.append(f"| {name} | {100 * m['ap']:.2f} | {100 * m['auroc']:.2f} | {100 * m['fpr_at_tpr']:.2f} |")
+    if segmentation is not None:
+        lines.append(f"\nsegmentation mIoU on in-distribution frames: {100 * segmentation['miou']:.2f}")
+    return "\n".join(lines)
+
+
+def _pictures(out_dir: Path, predict, source, stats, count: int) -> None:
+    """One panel per frame: image | prediction | anomaly label | SML score | CuDAM attention."""
+    from jaxanom.data.cityscapes_labels import colorize
+    from jaxanom.viz import heatmap, overlay
+
+    for index in range(min(count, len(source))):
+        frame = source[index]
+        out = predict(frame["image"][None])
+        score = scoring.score_batch("sml_post", out["logits"], stats=stats)[0]
+        label = frame["label"]
+        truth = np.stack([np.where(label == 1, 255, 0), np.zeros_like(label), np.where(label == 255, 128, 0)], -1)
+        panels = [frame["image"], colorize(np.asarray(out["logits"][0].argmax(-1))),
+                  truth.astype(np.uint8), heatmap(np.asarray(score))]
+        if "attention_up" in out:
+            panels.append(overlay(frame["image"], heatmap(np.asarray(out["attention_up"][0])), alpha=0.6))
+        write_png_atomic(out_dir / f"frame_{index}.png", np.concatenate(panels, axis=1))

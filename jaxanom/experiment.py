@@ -1,0 +1,146 @@
+"""An experiment: which network, which data, how to train it; and the runs built from one.
+
+``Experiment`` is a frozen dataclass (config-as-code: ``experiments/*.py`` build them). A run
+folder holds ``experiment.json`` (the config), ``checkpoints/``, ``log.jsonl`` and TensorBoard
+events, so ``load_variables(run_dir)`` can rebuild the network without the original script.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from pathlib import Path
+from typing import Any, Sequence
+
+import jax
+import numpy as np
+
+from jaxanom.io import write_json_atomic
+from jaxanom.train.loop import TrainConfig
+from jaxanom.train.step import LossConfig
+from jaxanom.train.optim import OptimConfig
+
+DATASETS = ("synthetic", "cityscapes")
+
+
+@dataclasses.dataclass(frozen=True)
+class Experiment:
+    """A network and its training data.
+
+    ``model``: a ``jaxanom.models.build_model`` name; ``attention``: None, "cudam" or "msaam";
+    ``data``: "synthetic" (generated ``train_frames`` frames of ``height`` x ``width``) or
+    "cityscapes" (``data_root`` in the official layout). Training crops are ``crop`` pixels
+    after random scaling by ``scale_range``. ``train.seed`` seeds the network, the shuffling and
+the synthetic scenes; ``train.run_dir`` is set when a run starts.
+    """
+
+    model: str = "deeplabv3plus_tiny"
+    attention: str | None = "cudam"
+    output_stride: int = 16
+    num_classes: int = 19
+    data: str = "synthetic"
+    data_root: str | None = None
+    train_frames: int = 256
+    height: int = 128
+    width: int = 256
+    crop: tuple[int, int] = (128, 256)
+    scale_range: tuple[float, float] = (0.75, 1.5)
+    batch_size: int = 8
+    train: TrainConfig = dataclasses.field(default_factory=lambda: TrainConfig(run_dir=""))
+
+    def __post_init__(self):
+        if self.data not in DATASETS:
+            raise ValueError(f"data: expected one of {DATASETS}, got {self.data!r}")
+        if self.data != "synthetic" and not self.data_root:
+            raise ValueError(f"data_root: expected the folder of the {self.data} dataset, got {self.data_root!r}")
+        if self.batch_size < 1 or self.train_frames < self.batch_size:
+            raise ValueError(f"batch_size, train_frames: expected 1 <= batch_size <= train_frames, "
+                             f"got {self.batch_size}, {self.train_frames}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> "Experiment":
+        """The inverse of ``to_dict`` (lists become tuples, nested configs are rebuilt)."""
+        values = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
+        train = dict(values.pop("train"))
+        train["loss"] = LossConfig(**_tuples(train["loss"]))
+        train["optim"] = OptimConfig(**train["optim"])
+        return cls(**values, train=TrainConfig(**train))
+
+
+def _tuples(values: dict) -> dict:
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
+
+
+def build_network(experiment: Experiment):
+    """The Flax module of ``experiment``."""
+    from jaxanom.models import build_model
+
+    return build_model(experiment.model, num_classes=experiment.num_classes,
+                       attention=experiment.attention, output_stride=experiment.output_stride)
+
+
+def frames(experiment: Experiment, split: str, num_frames: int | None = None) -> Sequence[dict]:
+    """A random-access source of the experiment's data: synthetic split name, or Cityscapes split."""
+    if experiment.data == "synthetic":
+        from jaxanom.data import SyntheticScenes
+
+        count = num_frames or experiment.train_frames
+        return SyntheticScenes(split, count, experiment.train.seed, height=experiment.height, width=experiment.width)
+    from jaxanom.data import Cityscapes
+
+    return Cityscapes(experiment.data_root, split)
+
+
+def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress: bool = True) -> dict:
+    """Train (or resume, if ``run_dir`` holds checkpoints) and return the final variables."""
+    from jaxanom.data.pipeline import evaluation_batches, training_batches
+    from jaxanom.data.transforms import Augment
+    from jaxanom.train.loop import train
+
+    run_dir = Path(run_dir)
+    config_file = run_dir / "experiment.json"
+    if config_file.exists() and json.loads(config_file.read_text()) != _jsonable(experiment):
+        raise ValueError(f"run_dir: {run_dir} holds a run of a different experiment; choose another folder")
+    write_json_atomic(config_file, _jsonable(experiment))
+    augment = Augment(crop_hw=tuple(experiment.crop), scale_range=tuple(experiment.scale_range))
+    batches = training_batches(frames(experiment, "train"), batch_size=experiment.batch_size,
+                               augment=augment, seed=experiment.train.seed)
+    val = [{"image": b["image"], "label": b["label"]}
+           for b in evaluation_batches(frames(experiment, "val", max(experiment.batch_size, 8)),
+                                       batch_size=experiment.batch_size)]
+    config = dataclasses.replace(experiment.train, run_dir=str(run_dir), progress=progress)
+    state = train(config, build_network(experiment), batches, val)
+    return jax.device_get(state.variables)
+
+
+def _jsonable(experiment: Experiment) -> dict:
+    values = experiment.to_dict()
+    values["train"]["run_dir"] = ""
+    return json.loads(json.dumps(values))
+
+
+def load_experiment(run_dir: str | os.PathLike) -> Experiment:
+    """The ``Experiment`` a run folder was trained with; ValueError if the folder is not a run."""
+    config_file = Path(run_dir) / "experiment.json"
+    if not config_file.is_file():
+        raise ValueError(f"run_dir: expected a training run folder with experiment.json, got {os.fspath(run_dir)!r}")
+    return Experiment.from_dict(json.loads(config_file.read_text()))
+
+
+def load_variables(run_dir: str | os.PathLike, step: int | None = None) -> tuple[Experiment, dict]:
+    """``(experiment, variables)`` of the newest (or ``step``) checkpoint in ``run_dir``."""
+    from jaxanom.train.checkpoint import restore_checkpoint
+    from jaxanom.train.optim import make_optimizer
+    from jaxanom.train.state import TrainState
+
+    experiment = load_experiment(run_dir)
+    model = build_network(experiment)
+    image = np.zeros((1, *experiment.crop, 3), np.float32)
+    variables = jax.jit(model.init, static_argnames="train")(jax.random.key(0), image, train=False)
+    tx, _ = make_optimizer(experiment.train.optim, experiment.train.steps)
+    template = TrainState.create(variables, tx, jax.random.key(0))
+    state, _ = restore_checkpoint(Path(run_dir) / "checkpoints", template, step)
+    return experiment, jax.device_get(state.variables)

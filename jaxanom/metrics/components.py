@@ -1,0 +1,97 @@
+"""SMIYC component-level metrics: sIoU, PPV and F1 over connected components (METHODS.md §6).
+
+Follows the SegmentMeIfYouCan definitions (Chan et al., 2021) and their benchmark code:
+- anomaly mask = score >= threshold (default: the pixel threshold of best F1 over all images,
+  the point of the exact PR curve), minus void pixels; 8-connected components (OpenCV);
+- predicted components under ``min_predicted`` pixels are dropped and ground-truth components
+  (label 1) under ``min_ground_truth`` pixels become void: 500 / 100 ("anomaly" track),
+  50 / 10 ("obstacle" track); then only non-void pixels count;
+- sIoU(k) of ground-truth component k, with K(k) the predicted components meeting k:
+  |k ∩ K(k)| / |(k ∪ K(k)) \\ A(k)|, A(k) the pixels of other ground-truth components, i.e.
+  |k ∩ K(k)| / (|k| + pixels of K(k) on no ground-truth component);
+- PPV(p) of predicted component p: |p ∩ ground truth| / |p|;
+- at t in linspace(0.25, 0.75, 11), pooled over images: TP = #{sIoU >= t}, FN = #{sIoU < t},
+  FP = #{PPV < t}, F1 = 2 TP / (2 TP + FN + FP); ``f1_mean`` is their mean.
+The benchmark code predicts score > threshold with a binned threshold; here the threshold is an
+exact score and pixels at it are predicted, the mask whose pixel F1 is the best.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from jaxanom.metrics.accumulator import AnomalyMetricAccumulator
+
+TRACKS = {"anomaly": (500, 100), "obstacle": (50, 10)}  # (min_predicted, min_ground_truth) pixels
+SIOU_THRESHOLDS = np.linspace(0.25, 0.75, 11)
+
+
+def component_metrics(scores_per_image, labels_per_image, *, track: str = "anomaly",
+                      threshold: float | None = None) -> dict:
+    """SMIYC component metrics of a dataset.
+
+    scores_per_image: sequence of float (H, W) maps; labels_per_image: the matching uint8
+    (H, W) labels in {0, 1, 255}. Returns a dict: ``threshold``, ``siou`` (per ground-truth
+    component) and ``ppv`` (per predicted component) as float64 arrays, ``mean_siou``,
+    ``mean_ppv``, ``siou_thresholds``, ``tp``, ``fn``, ``fp``, ``f1`` (11,) and ``f1_mean``.
+    """
+    if track not in TRACKS:
+        raise ValueError(f"track: expected one of {tuple(TRACKS)}, got {track!r}")
+    scores_per_image, labels_per_image = list(scores_per_image), list(labels_per_image)
+    if len(scores_per_image) != len(labels_per_image) or not scores_per_image:
+        raise ValueError(f"labels_per_image: expected one label map per score map (at least one), got "
+                         f"{len(labels_per_image)} for {len(scores_per_image)}")
+    pixels = AnomalyMetricAccumulator()
+    for scores, labels in zip(scores_per_image, labels_per_image):
+        if np.ndim(scores) != 2:
+            raise ValueError(f"scores_per_image: expected (H, W) maps, got shape {np.shape(scores)}")
+        pixels.update(scores, labels)  # validates labels / NaN / shapes
+    if threshold is None:
+        threshold = pixels.compute()["best_f1_threshold"]
+    min_predicted, min_ground_truth = TRACKS[track]
+    per_image = [image_components(np.asarray(s) >= threshold, np.asarray(l), min_predicted, min_ground_truth)
+                 for s, l in zip(scores_per_image, labels_per_image)]
+    siou = np.concatenate([s for s, _ in per_image])
+    ppv = np.concatenate([p for _, p in per_image])
+    tp = np.array([np.sum(siou >= t) for t in SIOU_THRESHOLDS])
+    fn = np.array([np.sum(siou < t) for t in SIOU_THRESHOLDS])
+    fp = np.array([np.sum(ppv < t) for t in SIOU_THRESHOLDS])
+    denominator = 2 * tp + fn + fp
+    f1 = np.where(denominator > 0, 2 * tp / np.maximum(denominator, 1), np.nan)
+    mean = lambda x: float(x.mean()) if x.size else float("nan")  # noqa: E731
+    return {"threshold": float(threshold), "siou": siou, "ppv": ppv, "mean_siou": mean(siou),
+            "mean_ppv": mean(ppv), "siou_thresholds": SIOU_THRESHOLDS, "tp": tp, "fn": fn, "fp": fp,
+            "f1": f1, "f1_mean": mean(f1), "track": track}
+
+
+def _components(mask: np.ndarray, min_size: int) -> tuple[np.ndarray, np.ndarray]:
+    """8-connected components of a bool (H, W) mask: (ids (H, W), 0 = none, numbered 1.. among
+    components of >= min_size pixels; small (H, W) bool, the pixels of smaller components)."""
+    _, ids, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    large = stats[:, cv2.CC_STAT_AREA] >= min_size
+    large[0] = False
+    renumber = np.where(large, np.cumsum(large), 0)
+    small = ~large
+    small[0] = False
+    return renumber[ids], small[ids]
+
+
+def image_components(prediction: np.ndarray, labels: np.ndarray, min_predicted: int,
+                     min_ground_truth: int) -> tuple[np.ndarray, np.ndarray]:
+    """One image: bool (H, W) predicted mask and (H, W) labels -> (sIoU per ground-truth
+    component, PPV per predicted component), float64, in OpenCV's component order."""
+    void = labels == 255
+    predicted, _ = _components(prediction & ~void, min_predicted)
+    truth, small_truth = _components(labels == 1, min_ground_truth)
+    region = ~void & ~small_truth
+    num_truth, num_predicted = truth.max(initial=0), predicted.max(initial=0)
+    joint = np.bincount(truth[region].astype(np.int64) * (num_predicted + 1) + predicted[region],
+                        minlength=(num_truth + 1) * (num_predicted + 1)).reshape(num_truth + 1, num_predicted + 1)
+    truth_size = joint[1:].sum(axis=1)
+    covered = joint[1:, 1:].sum(axis=1)
+    meets = joint[1:, 1:] > 0
+    siou = covered / (truth_size + meets.astype(np.int64) @ joint[0, 1:])
+    predicted_size = joint[:, 1:].sum(axis=0)
+    in_region = predicted_size > 0
+    ppv = joint[1:, 1:].sum(axis=0)[in_region] / predicted_size[in_region]
+    return siou.astype(np.float64), ppv.astype(np.float64)

@@ -1,0 +1,128 @@
+"""Standardized Max Logits (Eq. 5) and the full SML anomaly score."""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxanom._validate import check_finite, check_positive, check_rank
+from jaxanom.sml.boundaries import check_prediction
+from jaxanom.sml.postprocessing import (
+    _smooth,
+    _suppress,
+    check_score,
+    check_smoothing,
+    check_suppression,
+)
+
+
+def _standardized_max_logit(logits, mean, std):
+    logits = logits.astype(jnp.float32)
+    prediction = jnp.argmax(logits, axis=-1).astype(jnp.int32)
+    sml = (jnp.max(logits, axis=-1) - mean[prediction]) / std[prediction]
+    return sml, prediction
+
+
+def _postprocess(score, prediction, *, suppress=True, smooth=True, width=4, iterations=4,
+                 border="geodesic", kernel_size=7, sigma=1.0, dilation=6):
+    out = score.astype(jnp.float32)
+    if suppress:
+        out = _suppress(out, prediction, width, iterations, border)
+    if smooth:
+        out = _smooth(out, kernel_size, sigma, dilation)
+    return out
+
+
+def _sml_score(logits, mean, std, **options):
+    sml, prediction = _standardized_max_logit(logits, mean, std)
+    return -_postprocess(sml, prediction, **options)
+
+
+_OPTIONS = ("suppress", "smooth", "width", "iterations", "border", "kernel_size", "sigma", "dilation")
+
+
+def _sml_score_batch_impl(logits, mean, std, **options):
+    return jax.vmap(lambda one: _sml_score(one, mean, std, **options))(logits)
+
+
+def _postprocess_batch_impl(score, prediction, **options):
+    return jax.vmap(lambda s, p: _postprocess(s, p, **options))(score, prediction)
+
+
+# Built once at import; options are static, so each (shape, options) pair compiles once.
+_standardized_max_logit_jit = jax.jit(_standardized_max_logit)
+_postprocess_jit = jax.jit(_postprocess, static_argnames=_OPTIONS)
+_postprocess_batch = jax.jit(_postprocess_batch_impl, static_argnames=_OPTIONS)
+_sml_score_jit = jax.jit(_sml_score, static_argnames=_OPTIONS)
+_sml_score_batch = jax.jit(_sml_score_batch_impl, static_argnames=_OPTIONS)
+
+
+def _check_options(options: dict) -> dict:
+    unknown = set(options) - set(_OPTIONS)
+    if unknown:
+        raise ValueError(f"unknown options {sorted(unknown)}; expected some of {_OPTIONS}")
+    full = dict(suppress=True, smooth=True, width=4, iterations=4, border="geodesic", kernel_size=7, sigma=1.0, dilation=6)
+    full.update(options)
+    check_suppression(full["width"], full["iterations"], full["border"])
+    check_smoothing(full["kernel_size"], full["sigma"], full["dilation"])
+    full["sigma"] = float(full["sigma"])
+    return full
+
+
+def _check_logits_stats(logits, mean, std, batched: bool) -> None:
+    check_rank("logits", logits, 4 if batched else 3, "(B, H, W, C)" if batched else "(H, W, C)")
+    for name, x in (("mean", mean), ("std", std)):
+        if np.shape(x) != (np.shape(logits)[-1],):
+            raise ValueError(f"{name} must have shape (C,) = ({np.shape(logits)[-1]},) like the logits' classes, got {np.shape(x)}")
+    check_finite("logits", logits)
+    check_finite("mean", mean)
+    check_positive("std", std)
+
+
+def standardized_max_logit(logits, mean, std) -> tuple[jax.Array, jax.Array]:
+    """Eq. 5: ``S = (L - mu_Y) / sigma_Y`` with ``L``, ``Y`` the max logit and argmax.
+
+    logits float ``(H, W, C)``, mean/std float ``(C,)`` (std > 0) ->
+    ``(sml float32 (H, W), prediction int32 (H, W))``. Higher SML = *less* anomalous.
+    """
+    _check_logits_stats(logits, mean, std, batched=False)
+    return _standardized_max_logit_jit(jnp.asarray(logits), jnp.asarray(mean, jnp.float32), jnp.asarray(std, jnp.float32))
+
+
+def postprocess(score, prediction, **options) -> jax.Array:
+    """Boundary suppression then dilated smoothing of any score map float ``(H, W)``.
+
+    Options (all static): ``suppress=True``, ``smooth=True``, ``width=4``, ``iterations=4``,
+    ``border="geodesic"``, ``kernel_size=7``, ``sigma=1.0``, ``dilation=6`` (see
+    ``suppress_boundaries`` and ``dilated_smoothing``). Turning both off returns the score.
+    """
+    check_score(score)
+    check_prediction(prediction, np.shape(score))
+    return _postprocess_jit(jnp.asarray(score), jnp.asarray(prediction), **_check_options(options))
+
+
+def postprocess_batch(score, prediction, **options) -> jax.Array:
+    """``postprocess`` over a batch: score ``(B, H, W)``, prediction int ``(B, H, W)``."""
+    check_rank("score", score, 3, "(B, H, W)")
+    check_finite("score", score)
+    check_rank("prediction", prediction, 3, "(B, H, W)")
+    if np.shape(prediction) != np.shape(score) or not np.issubdtype(np.asarray(prediction).dtype, np.integer):
+        raise ValueError(f"prediction must be integer with the score's shape {np.shape(score)}, got "
+                         f"{np.shape(prediction)} {np.asarray(prediction).dtype}")
+    return _postprocess_batch(jnp.asarray(score), jnp.asarray(prediction), **_check_options(options))
+
+
+def sml_score(logits, mean, std, **options) -> jax.Array:
+    """The SML anomaly score ``-postprocess(SML)``: logits ``(H, W, C)`` -> float32 ``(H, W)``.
+
+    mean/std ``(C,)`` from ``stats_finalize``; options as in ``postprocess``
+    (``suppress`` and ``smooth`` toggle the two steps, as the paper's ablations do).
+    """
+    _check_logits_stats(logits, mean, std, batched=False)
+    return _sml_score_jit(jnp.asarray(logits), jnp.asarray(mean, jnp.float32), jnp.asarray(std, jnp.float32), **_check_options(options))
+
+
+def sml_score_batch(logits, mean, std, **options) -> jax.Array:
+    """``sml_score`` over a batch: logits ``(B, H, W, C)`` -> float32 ``(B, H, W)`` (one compile per shape/options)."""
+    _check_logits_stats(logits, mean, std, batched=True)
+    return _sml_score_batch(jnp.asarray(logits), jnp.asarray(mean, jnp.float32), jnp.asarray(std, jnp.float32), **_check_options(options))

@@ -1,0 +1,135 @@
+"""The ``jaxanom`` command end to end on tiny settings, and its one-line errors."""
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from sklearn.metrics import average_precision_score, roc_auc_score
+
+from jaxanom.cli import main
+
+REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "RoadAnomaly_sample"
+
+
+@pytest.fixture(scope="module")
+def demo_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo")
+    assert main(["demo", "--quick", "--out", str(out), "--overwrite", "--no-progress"]) == 0
+    return out
+
+
+def test_quick_demo_writes_its_results(demo_dir):
+    results = json.loads((demo_dir / "results.json").read_text())
+    metrics = results["anomaly"]["metrics"]
+    assert set(metrics) == {"msp", "max_logit", "entropy", "energy", "sml", "sml_post", "cudam"}
+    for values in metrics.values():
+        assert 0.0 <= values["ap"] <= 1.0 and 0.0 <= values["auroc"] <= 1.0
+    assert 0.0 <= results["segmentation"]["miou"] <= 1.0
+    for name in ("roc.png", "pr.png", "frame_0.png", "sml_stats.npz", "run/experiment.json"):
+        assert (demo_dir / name).is_file(), name
+    assert list((demo_dir / "run" / "checkpoints").iterdir())
+
+
+def test_demo_refuses_a_non_empty_folder(demo_dir, capsys):
+    assert main(["demo", "--quick", "--out", str(demo_dir)]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "not empty" in error and len(error.splitlines()) == 1
+
+
+def test_fit_stats_and_evaluate_from_the_demo_run(demo_dir, tmp_path, capsys):
+    stats = tmp_path / "stats.npz"
+    assert main(["fit-stats", "--run", str(demo_dir / "run"), "--frames", "4", "--missing", "pooled",
+                 "--out", str(stats)]) == 0
+    with np.load(stats) as data:
+        assert data["mean"].shape == (19,) and (data["std"] > 0).all()
+    out = tmp_path / "eval"
+    assert main(["evaluate", "--run", str(demo_dir / "run"), "--dataset", "synthetic", "--path", "anomaly",
+                 "--frames", "2", "--stats", str(stats), "--methods", "msp,sml_post,cudam",
+                 "--out", str(out), "--pictures", "1"]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())["metrics"]
+    assert set(metrics) == {"msp", "sml_post", "cudam"}
+    assert (out / "frame_0.png").is_file()
+    assert "| sml_post |" in capsys.readouterr().out
+
+
+def test_evaluate_reads_real_road_anomaly_frames(demo_dir, tmp_path):
+    if not REALDATA.is_dir():
+        pytest.skip(f"real sample data not found at {REALDATA}")
+    out = tmp_path / "real"
+    assert main(["evaluate", "--run", str(demo_dir / "run"), "--dataset", "road-anomaly", "--path", str(REALDATA),
+                 "--methods", "msp,max_logit", "--out", str(out)]) == 0
+    result = json.loads((out / "metrics.json").read_text())
+    assert result["frames"] == 6
+    assert result["metrics"]["msp"]["num_positives"] > 0
+
+
+def test_evaluate_missing_dataset_folder_is_one_line(demo_dir, tmp_path, capsys):
+    code = main(["evaluate", "--run", str(demo_dir / "run"), "--dataset", "road-anomaly",
+                 "--path", str(tmp_path / "nowhere"), "--out", str(tmp_path / "o")])
+    error = capsys.readouterr().err.strip()
+    assert code == 2 and "nowhere" in error and len(error.splitlines()) == 1
+
+
+def _softmax_max(logits_nchw):
+    shifted = logits_nchw - logits_nchw.max(axis=1, keepdims=True)
+    probabilities = np.exp(shifted) / np.exp(shifted).sum(axis=1, keepdims=True)
+    return probabilities.max(axis=1)
+
+
+def test_score_logits_saved_by_numpy_match_scikit_learn(tmp_path):
+    rng = np.random.default_rng(0)
+    logits = rng.normal(size=(3, 5, 9, 11)).astype(np.float32)  # NCHW, as PyTorch saves them
+    labels = rng.choice(np.array([0, 1, 255], np.uint8), size=(3, 9, 11), p=[0.6, 0.3, 0.1])
+    np.save(tmp_path / "logits.npy", logits)
+    np.savez(tmp_path / "labels.npz", labels=labels)
+    out = tmp_path / "out"
+    assert main(["score", "--logits", str(tmp_path / "logits.npy"), "--labels", str(tmp_path / "labels.npz"),
+                 "--methods", "msp,max_logit", "--out", str(out)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())["metrics"]
+    valid = labels != 255
+    msp = -_softmax_max(logits.astype(np.float64))
+    assert metrics["msp"]["ap"] == pytest.approx(average_precision_score(labels[valid], msp[valid]), rel=1e-5)
+    assert metrics["msp"]["auroc"] == pytest.approx(roc_auc_score(labels[valid], msp[valid]), rel=1e-5)
+    max_logit = -logits.max(axis=1)
+    assert metrics["max_logit"]["auroc"] == pytest.approx(roc_auc_score(labels[valid], max_logit[valid]), rel=1e-6)
+    with np.load(out / "scores.npz") as maps:
+        np.testing.assert_allclose(maps["max_logit"], max_logit, rtol=1e-6)
+
+
+@pytest.mark.parametrize("problem, message", [
+    ("nan", "finite"), ("stats", "classes"), ("labels", "labels"), ("rank", "4 dimensions")])
+def test_score_bad_input_is_one_line(tmp_path, capsys, problem, message):
+    logits = np.zeros((2, 3, 4, 5), np.float32)
+    labels = np.zeros((2, 4, 5), np.uint8)
+    args = ["--methods", "msp"]
+    if problem == "nan":
+        logits[0, 0, 0, 0] = np.nan
+    if problem == "stats":
+        np.savez(tmp_path / "s.npz", mean=np.zeros(7, np.float32), std=np.ones(7, np.float32),
+                 counts=np.ones(7, np.int64))
+        args = ["--stats", str(tmp_path / "s.npz"), "--methods", "sml"]
+    if problem == "labels":
+        labels = labels[:, :3]
+    if problem == "rank":
+        logits = logits[0]
+    np.save(tmp_path / "l.npy", logits)
+    np.save(tmp_path / "y.npy", labels)
+    code = main(["score", "--logits", str(tmp_path / "l.npy"), "--labels", str(tmp_path / "y.npy"),
+                 "--out", str(tmp_path / "o"), *args])
+    error = capsys.readouterr().err.strip()
+    assert code == 2 and message in error and len(error.splitlines()) == 1, error
+
+
+def test_train_resume_continues_its_own_run(tmp_path, capsys):
+    config = tmp_path / "exp.py"
+    config.write_text(
+        "import dataclasses\n"
+        "from jaxanom.demo import DemoConfig\n"
+        "experiment = DemoConfig.quick().experiment\n")
+    run = tmp_path / "run"
+    assert main(["train", "--config", str(config), "--out", str(run), "--steps", "2", "--no-progress"]) == 0
+    assert main(["train", "--config", str(config), "--out", str(run), "--no-progress"]) == 2
+    assert "not empty" in capsys.readouterr().err
+    assert main(["train", "--resume", "--out", str(run), "--no-progress"]) == 0
+    lines = (run / "log.jsonl").read_text().splitlines()
+    assert [json.loads(line)["step"] for line in lines if "train/loss" in line] == [1, 2]
