@@ -25,6 +25,7 @@ from typing import Any, Iterable
 import jax
 import numpy as np
 
+from jaxanom.metrics.segmentation import miou, pixel_accuracy
 from jaxanom.train.checkpoint import Checkpointer
 from jaxanom.train.optim import OptimConfig, make_optimizer
 from jaxanom.train.runlog import RunLog
@@ -64,15 +65,6 @@ class TrainConfig:
                 raise ValueError(f"{name}: expected >= 1, got {getattr(self, name)}")
 
 
-def mean_iou(confusion: np.ndarray) -> float:
-    """Mean over classes present in labels or predictions of TP / (TP + FP + FN); NaN if none."""
-    confusion = np.asarray(confusion, np.float64)
-    true_positive = np.diag(confusion)
-    union = confusion.sum(0) + confusion.sum(1) - true_positive
-    present = union > 0
-    return float(np.mean(true_positive[present] / union[present])) if present.any() else math.nan
-
-
 def pad_batch(batch: dict, multiple: int, ignore: int) -> dict:
     """Pad a batch's leading axis to a multiple of ``multiple``: zero images, all-void labels."""
     size = len(batch["label"])
@@ -94,7 +86,7 @@ def evaluate(eval_step, variables, batches: Iterable[dict], mesh, ignore: int) -
     if total is None:
         raise ValueError("val_data: expected at least one batch, got none")
     confusion = np.asarray(jax.device_get(total))
-    return {"val/miou": mean_iou(confusion), "val/pixel_accuracy": float(np.trace(confusion) / max(confusion.sum(), 1))}
+    return {"val/miou": miou(confusion), "val/pixel_accuracy": pixel_accuracy(confusion)}
 
 
 def check_batch(batch: Any, num_classes: int, ignore: int) -> None:
