@@ -5,7 +5,8 @@ is any iterable of batches ``{"image": (B, H, W, 3) float32, "label": (B, H, W) 
 process's share of the global batch). When its iterator has ``get_state`` / ``set_state``
 (grain's ``DatasetIterator`` has them), the position is saved with each checkpoint as JSON and
 restored on resume; otherwise a resumed run skips as many batches as were already used, which
-is right for any deterministic input. A run folder that already holds checkpoints is resumed
+is right for any deterministic input. On multi-host runs the saved position is process 0's,
+right when every process's pipeline advances alike (grain with one shard per process). A run folder that already holds checkpoints is resumed
 from the newest one; a damaged newest checkpoint stops the run with a ValueError (nothing is
 silently restarted).
 
