@@ -1,14 +1,15 @@
 """The training driver: config, state set-up or resume, the step loop, logging, evaluation, checkpoints.
 
 ``train(config, model, train_data, val_data)`` runs ``config.steps`` train steps. ``train_data``
-is any iterable of batches ``{"image": (B, H, W, 3) float32, "label": (B, H, W) int32}`` (this
-process's share of the global batch). When its iterator has ``get_state`` / ``set_state``
-(grain's ``DatasetIterator`` has them), the position is saved with each checkpoint as JSON and
-restored on resume; otherwise a resumed run skips as many batches as were already used, which
-is right for any deterministic input. On multi-host runs the saved position is process 0's,
-right when every process's pipeline advances alike (grain with one shard per process). A run folder that already holds checkpoints is resumed
-from the newest one; a damaged newest checkpoint stops the run with a ValueError (nothing is
-silently restarted).
+is any iterable of batches ``{"image": (B, H, W, 3) uint8 RGB or float32 normalised, "label":
+(B, H, W) int32}`` (this process's share of the global batch). When its iterator has
+``get_state`` / ``set_state`` (grain's ``DatasetIterator`` has them), the position is saved
+with each checkpoint as JSON and restored on resume; otherwise a resumed run skips as many
+batches as were already used, which is right for any deterministic input. On multi-host runs
+the saved position is process 0's, right when every process's pipeline advances alike (grain
+with one shard per process). A run folder that already holds checkpoints is resumed from the
+newest one; a damaged newest checkpoint stops the run with a ValueError (nothing is silently
+restarted).
 
 On CPU a run that is killed and resumed ends with parameters bitwise equal to an uninterrupted
 run (tests/test_train_loop.py); on GPUs this holds as far as their kernels are deterministic.
