@@ -82,7 +82,12 @@ def training_anomaly_score(logits) -> jax.Array:
 
 
 def objective(out: dict, labels, key, cfg: LossConfig) -> tuple[jax.Array, dict]:
-    """The loss of one step from the model's outputs; ``(loss, aux metrics)``."""
+    """The loss of one step from the model's outputs; ``(loss, aux metrics)``.
+
+    CuDAM: ``L_seg`` on the (maybe) rewarded logits P; correctness for psi (Eq. 7) and lambda
+    (Eq. 9) is judged on the model's own logits P_a, since with the reward nearly every pixel is
+    "correct".
+    """
     logits = out["logits"].astype(jnp.float32)
     if cfg.method == "plain":
         return losses.cross_entropy(logits, labels, cfg.ignore, cfg.class_weights), {}
