@@ -78,11 +78,16 @@ def pad_batch(batch: dict, multiple: int, ignore: int) -> dict:
             for name, value in ((n, np.asarray(v)) for n, v in batch.items())}
 
 
+def step_inputs(batch: dict) -> dict:
+    """The arrays a step reads; other entries of a pipeline's batch (names, depth) stay on the host."""
+    return {"image": batch["image"], "label": batch["label"]}
+
+
 def evaluate(eval_step, variables, batches: Iterable[dict], mesh, ignore: int) -> dict[str, float]:
     """mIoU and pixel accuracy of ``variables`` over ``batches`` (summed confusion matrix)."""
     total = None
     for batch in batches:
-        batch = global_batch(pad_batch(batch, len(mesh.local_devices), ignore), mesh)
+        batch = global_batch(pad_batch(step_inputs(batch), len(mesh.local_devices), ignore), mesh)
         confusion = eval_step(variables, batch)
         total = confusion if total is None else total + confusion
     if total is None:
@@ -181,7 +186,7 @@ def _run(config: TrainConfig, model, train_data, val_data, variables, mesh, tx, 
     try:
         for step in range(start + 1, config.steps + 1):
             tick = time.perf_counter()
-            batch = global_batch(next(batches), mesh)
+            batch = global_batch(step_inputs(next(batches)), mesh)
             images = batch["image"].shape[0]
             state, metrics = train_step(state, batch)
             metrics = {name: float(value) for name, value in jax.device_get(metrics).items()}
