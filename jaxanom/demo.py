@@ -37,7 +37,7 @@ class DemoConfig:
 
     experiment: Experiment = Experiment(
         train_frames=256, height=128, width=256, crop=(128, 256), batch_size=8,
-        train=TrainConfig(run_dir="", steps=600, eval_every=200, save_every=200, keep=2,
+        train=TrainConfig(run_dir="", steps=1500, eval_every=500, save_every=500, keep=2,
                           loss=LossConfig(method="cudam", tau=equivalent_weight(
                               5e4, _ATTENTION_POSITIONS, PAPER_TRAIN_POSITIONS)),
                           optim=OptimConfig(name="adamw", lr=2e-3, weight_decay=1e-4, warmup_steps=30)))
