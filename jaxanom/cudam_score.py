@@ -41,10 +41,10 @@ def _ensemble(anomaly_score, attention_up, sigma):
     return anomaly_score + sigma * attention_up
 
 
-# CuDAM follows SML's set-up: 768 x 768 training crops and 1024 x 2048 Cityscapes frames, with the
-# attention map at stride 4 (after the decoder's concatenation), so tau and sigma were tuned for
-# maps of these many positions.
-PAPER_TRAIN_POSITIONS = (768 // 4) * (768 // 4)
+# CuDAM's attention map is 180 x 180 on its 720 x 720 training crops (Table V's text: "insert
+# location feature size is (304, 180, 180)") and 256 x 512 on 1024 x 2048 Cityscapes frames
+# (stride 4), so tau and sigma were tuned for maps of these many positions.
+PAPER_TRAIN_POSITIONS = 180 * 180
 PAPER_TEST_POSITIONS = (1024 // 4) * (2048 // 4)
 
 

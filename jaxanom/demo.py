@@ -32,7 +32,7 @@ class DemoConfig:
 
     The demo's frames are far smaller than the paper's, so CuDAM's tau and sigma are scaled to
     the attention map's number of positions (``equivalent_weight``): with the paper's raw
-    values, the reward and the ensemble would be 18x and 64x stronger than the paper's.
+    values, the reward and the ensemble would be 16x and 64x stronger than the paper's.
     """
 
     experiment: Experiment = Experiment(

@@ -52,7 +52,7 @@ def test_bad_shapes_raise_value_error():
 def test_equivalent_weight_keeps_weight_times_attention():
     from jaxanom.cudam_score import PAPER_TRAIN_POSITIONS, equivalent_weight
 
-    assert PAPER_TRAIN_POSITIONS == 192 * 192
+    assert PAPER_TRAIN_POSITIONS == 180 * 180
     # A uniform map of n positions has values 1/n: the product with the weight must not change.
     paper = 5e4 * (1 / PAPER_TRAIN_POSITIONS)
     for positions in (1, 2048, 36864, 131072):
