@@ -53,7 +53,7 @@ def _parser() -> argparse.ArgumentParser:
                                "results.json and pictures.")
     demo.add_argument("--out", default="jaxanom-demo", help="output folder (default: %(default)s)")
     demo.add_argument("--quick", action="store_true", help="a seconds-long smoke run of the same path")
-    demo.add_argument("--steps", type=int, help="training steps (default: 600; --quick: 3)")
+    demo.add_argument("--steps", type=int, help="training steps (default: 1500; --quick: 3)")
     _common(demo, progress=True)
     demo.set_defaults(handler=_demo)
 

@@ -39,3 +39,21 @@ def cudam_score(anomaly_score, attention_up, sigma: float = 2e4) -> jax.Array:
 @jax.jit
 def _ensemble(anomaly_score, attention_up, sigma):
     return anomaly_score + sigma * attention_up
+
+
+# CuDAM's attention map is 180 x 180 on its 720 x 720 training crops (Table V's text: "insert
+# location feature size is (304, 180, 180)") and 256 x 512 on 1024 x 2048 Cityscapes frames
+# (stride 4), so tau and sigma were tuned for maps of these many positions.
+PAPER_TRAIN_POSITIONS = 180 * 180
+PAPER_TEST_POSITIONS = (1024 // 4) * (2048 // 4)
+
+
+def equivalent_weight(weight: float, positions: int, paper_positions: int) -> float:
+    """The tau (Eq. 4) or sigma (Eq. 10) that has the paper's effect on a map of ``positions``.
+
+    Attention values are about 1 / positions, so ``weight * attention`` keeps its size when the
+    weight scales with the number of positions: ``weight * positions / paper_positions``.
+    """
+    if positions < 1 or paper_positions < 1:
+        raise ValueError(f"positions, paper_positions: expected >= 1, got {positions}, {paper_positions}")
+    return weight * positions / paper_positions

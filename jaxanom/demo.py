@@ -14,6 +14,7 @@ import numpy as np
 
 from jaxanom import methods as scoring
 from jaxanom import sml
+from jaxanom.cudam_score import PAPER_TEST_POSITIONS, PAPER_TRAIN_POSITIONS, equivalent_weight
 from jaxanom.evaluate import anomaly_results, predictions, predictor, segmentation_results
 from jaxanom.experiment import Experiment, build_network, frames, run_training
 from jaxanom.io import write_json_atomic, write_png_atomic
@@ -22,22 +23,30 @@ from jaxanom.train.optim import OptimConfig
 from jaxanom.train.step import LossConfig
 
 DEMO_METHODS = ("msp", "max_logit", "entropy", "energy", "sml", "sml_post", "cudam")
+_ATTENTION_POSITIONS = (128 // 4) * (256 // 4)  # CuDAM's map of a 128 x 256 demo frame (stride 4)
 
 
 @dataclasses.dataclass(frozen=True)
 class DemoConfig:
-    """Sizes of the demo; ``quick()`` is a seconds-long smoke run of the same path."""
+    """Sizes of the demo; ``quick()`` is a seconds-long smoke run of the same path.
+
+    The demo's frames are far smaller than the paper's, so CuDAM's tau and sigma are scaled to
+    the attention map's number of positions (``equivalent_weight``): with the paper's raw
+    values, the reward and the ensemble would be 16x and 64x stronger than the paper's.
+    """
 
     experiment: Experiment = Experiment(
         train_frames=256, height=128, width=256, crop=(128, 256), batch_size=8,
-        train=TrainConfig(run_dir="", steps=600, eval_every=200, save_every=200, keep=2,
-                          loss=LossConfig(method="cudam"),
+        train=TrainConfig(run_dir="", steps=1500, eval_every=500, save_every=500, keep=2,
+                          loss=LossConfig(method="cudam", tau=equivalent_weight(
+                              5e4, _ATTENTION_POSITIONS, PAPER_TRAIN_POSITIONS)),
                           optim=OptimConfig(name="adamw", lr=2e-3, weight_decay=1e-4, warmup_steps=30)))
     stats_frames: int = 64
     val_frames: int = 32
     anomaly_frames: int = 64
     anomaly_split: str = "anomaly"
     pictures: int = 4
+    cudam_sigma: float = equivalent_weight(2e4, _ATTENTION_POSITIONS, PAPER_TEST_POSITIONS)
 
     @classmethod
     def quick(cls) -> "DemoConfig":
@@ -78,7 +87,7 @@ def run_demo(out_dir: str | Path, config: DemoConfig = DemoConfig(), *, progress
         experiment.num_classes)
     anomaly_frames = frames(experiment, config.anomaly_split, config.anomaly_frames)
     metrics, curves = anomaly_results(predictions(predict, _batches(anomaly_frames, batch)), DEMO_METHODS,
-                                      stats=(mean, std), keep_curves=True)
+                                      stats=(mean, std), cudam_sigma=config.cudam_sigma, keep_curves=True)
 
     log("[4/4] writing pictures and results")
     _pictures(out_dir, predict, anomaly_frames, (mean, std), config.pictures)

@@ -108,9 +108,8 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
     augment = Augment(crop_hw=tuple(experiment.crop), scale_range=tuple(experiment.scale_range))
     batches = training_batches(frames(experiment, "train"), batch_size=experiment.batch_size,
                                augment=augment, seed=experiment.train.seed)
-    val = [{"image": b["image"], "label": b["label"]}
-           for b in evaluation_batches(frames(experiment, "val", max(experiment.batch_size, 8)),
-                                       batch_size=experiment.batch_size)]
+    val = list(evaluation_batches(frames(experiment, "val", max(experiment.batch_size, 8)),
+                                  batch_size=experiment.batch_size))
     config = dataclasses.replace(experiment.train, run_dir=str(run_dir), progress=progress)
     state = train(config, build_network(experiment), batches, val)
     return jax.device_get(state.variables)

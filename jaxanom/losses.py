@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import optax
 
 IGNORE = 255
 
@@ -49,8 +50,7 @@ def cross_entropy(logits, labels, ignore: int = IGNORE, class_weights=None) -> j
     num_classes = logits.shape[-1]
     valid = _valid(labels, ignore)
     safe = jnp.where(valid, labels, 0)
-    log_p = jax.nn.log_softmax(logits.astype(jnp.float32), axis=-1)
-    nll = -jnp.take_along_axis(log_p, safe[..., None], axis=-1)[..., 0]
+    nll = optax.softmax_cross_entropy_with_integer_labels(logits.astype(jnp.float32), safe)
     if class_weights is None:
         weight = valid.astype(jnp.float32)
     else:

@@ -119,14 +119,13 @@ def test_score_bad_input_is_one_line(tmp_path, capsys, problem, message):
 
 def test_train_resume_continues_its_own_run(tmp_path, capsys):
     config = tmp_path / "exp.py"
-    config.write_text(
-        "import dataclasses\n"
-        "from jaxanom.demo import DemoConfig\n"
-        "experiment = DemoConfig.quick().experiment\n")
+    config.write_text("from jaxanom.demo import DemoConfig\nexperiment = DemoConfig.quick().experiment\n")
     run = tmp_path / "run"
-    assert main(["train", "--config", str(config), "--out", str(run), "--steps", "2", "--no-progress"]) == 0
+    assert main(["train", "--config", str(config), "--out", str(run), "--no-progress"]) == 0
     assert main(["train", "--config", str(config), "--out", str(run), "--no-progress"]) == 2
     assert "not empty" in capsys.readouterr().err
+    assert main(["train", "--resume", "--out", str(run), "--steps", "4", "--no-progress"]) == 2
+    assert "different experiment" in capsys.readouterr().err
     assert main(["train", "--resume", "--out", str(run), "--no-progress"]) == 0
     lines = (run / "log.jsonl").read_text().splitlines()
-    assert [json.loads(line)["step"] for line in lines if "train/loss" in line] == [1, 2]
+    assert [json.loads(line)["step"] for line in lines if "train/loss" in line] == [1, 2, 3]

@@ -47,3 +47,15 @@ def test_bad_shapes_raise_value_error():
         cudam_score(np.zeros((4, 4)), np.zeros((2, 2)))
     with pytest.raises(ValueError, match="attention"):
         upsample_attention(np.zeros(4), (8, 8))
+
+
+def test_equivalent_weight_keeps_weight_times_attention():
+    from jaxanom.cudam_score import PAPER_TRAIN_POSITIONS, equivalent_weight
+
+    assert PAPER_TRAIN_POSITIONS == 180 * 180
+    # A uniform map of n positions has values 1/n: the product with the weight must not change.
+    paper = 5e4 * (1 / PAPER_TRAIN_POSITIONS)
+    for positions in (1, 2048, 36864, 131072):
+        assert equivalent_weight(5e4, positions, PAPER_TRAIN_POSITIONS) * (1 / positions) == pytest.approx(paper)
+    with pytest.raises(ValueError, match="positions"):
+        equivalent_weight(5e4, 0, PAPER_TRAIN_POSITIONS)

@@ -83,3 +83,18 @@ def test_arrays_sharded_over_the_four_devices():
     sharding = NamedSharding(jax.make_mesh((4,), ("data",)), PartitionSpec("data"))
     matrix = confusion_matrix(jax.device_put(prediction, sharding), jax.device_put(label, sharding), C)
     np.testing.assert_array_equal(matrix, reference_matrix(prediction, label))
+
+
+def test_confusion_counts_inside_jit_skips_void_and_out_of_range_labels():
+    import jax
+    from sklearn.metrics import confusion_matrix as sk_confusion
+
+    from jaxanom.metrics.segmentation import confusion_counts
+
+    rng = np.random.default_rng(6)
+    labels = rng.integers(0, 5, size=(3, 7, 9)).astype(np.int32)
+    labels[rng.random(labels.shape) < 0.2] = 255
+    prediction = rng.integers(0, 4, size=labels.shape).astype(np.int32)
+    got = np.asarray(jax.jit(lambda p, l: confusion_counts(p, l, 4))(prediction, labels))
+    keep = labels < 4
+    np.testing.assert_array_equal(got, sk_confusion(labels[keep], prediction[keep], labels=[0, 1, 2, 3]))

@@ -37,25 +37,30 @@ class TinySegNet(nn.Module):
         return out
 
 
-@functools.lru_cache(maxsize=None)
-def init_variables(head: str = "plain", num_classes: int = 3, size: int = 8) -> dict:
-    """Variables for ``TinySegNet(num_classes, head)`` on (1, size, size, 3) images, made with NumPy.
+def numpy_variables(model, size: int = 8) -> dict:
+    """Variables for ``model`` on (1, size, size, 3) images, made with NumPy.
 
     Same tree as ``model.init`` (taken from ``jax.eval_shape``), filled with He-normal kernels,
-    zero biases, unit scales and variances: compiling ``model.init`` costs seconds on 2 CPU cores.
+    zero biases and means, unit scales and variances: compiling ``model.init`` costs seconds on
+    2 CPU cores.
     """
-    model = TinySegNet(num_classes=num_classes, head=head)
-    shapes = jax.eval_shape(model.init, jax.random.key(0), jnp.zeros((1, size, size, 3)))
+    shapes = jax.eval_shape(lambda x: model.init(jax.random.key(0), x, train=False), jnp.zeros((1, size, size, 3)))
     rng = np.random.default_rng(0)
 
     def fill(path, leaf):
         name = path[-1].key
-        if name == "kernel":
+        if name.endswith("kernel"):
             fan_in = int(np.prod(leaf.shape[:-1]))
             return (rng.normal(size=leaf.shape) * np.sqrt(2.0 / fan_in)).astype(leaf.dtype)
         return np.full(leaf.shape, 1.0 if name in ("scale", "var") else 0.0, leaf.dtype)
 
     return jax.tree_util.tree_map_with_path(fill, shapes)
+
+
+@functools.lru_cache(maxsize=None)
+def init_variables(head: str = "plain") -> dict:
+    """``numpy_variables`` of ``TinySegNet(head=head)``, computed once."""
+    return numpy_variables(TinySegNet(head=head))
 
 
 def make_batch(seed: int, batch: int = 4, size: int = 8, num_classes: int = 3, void_fraction: float = 0.1) -> dict:

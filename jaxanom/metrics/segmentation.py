@@ -36,7 +36,7 @@ def confusion_matrix(prediction, label, num_classes: int, ignore: int = 255) -> 
     if bad_prediction or bad_label:
         name, count = ("prediction", bad_prediction) if bad_prediction else ("label", bad_label)
         raise ValueError(f"{name}: expected class indices in [0, {num_classes}), got {count} pixels outside")
-    return _confusion(prediction, label, int(num_classes), int(ignore))
+    return confusion_counts(prediction, label, int(num_classes), int(ignore))
 
 
 @partial(jax.jit, static_argnums=(2, 3))
@@ -47,9 +47,15 @@ def _out_of_range(prediction, label, num_classes, ignore):
 
 
 @partial(jax.jit, static_argnums=(2, 3))
-def _confusion(prediction, label, num_classes, ignore):
-    cell = label.astype(jnp.int32) * num_classes + prediction.astype(jnp.int32)
-    cell = jnp.where(label == ignore, num_classes * num_classes, cell)
+def confusion_counts(prediction, label, num_classes: int, ignore: int = 255) -> jax.Array:
+    """``confusion_matrix`` without input checks, for use inside ``jit`` (e.g. an eval step).
+
+    Pixels whose label is ``ignore`` or outside [0, num_classes) are skipped; predictions must
+    lie in [0, num_classes).
+    """
+    label = label.astype(jnp.int32)
+    skipped = (label == ignore) | (label < 0) | (label >= num_classes)
+    cell = jnp.where(skipped, num_classes * num_classes, label * num_classes + prediction.astype(jnp.int32))
     return jnp.bincount(cell.ravel(), length=num_classes**2 + 1)[:-1].reshape(num_classes, num_classes)
 
 

@@ -15,11 +15,13 @@ import orbax.checkpoint as ocp
 
 
 def _abstract(tree):
-    return jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding), tree)
+    """Shapes, dtypes and shardings to restore into; host arrays go to the first local device."""
+    default = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+    return jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=getattr(x, "sharding", default)), tree)
 
 
 class Checkpointer:
-    """Saves every ``save_every`` steps (and when forced), keeps the last ``keep``, restores.
+    """Knows when a step is due (every ``save_every``), saves, keeps the last ``keep``, restores.
 
     ``directory`` is created if missing. Use as a context manager, or call ``close()``:
     saves are asynchronous and ``close`` waits for them.
@@ -29,28 +31,27 @@ class Checkpointer:
         if save_every < 1 or keep < 1:
             raise ValueError(f"save_every, keep: expected >= 1, got {save_every}, {keep}")
         self.directory = os.path.abspath(directory)
-        options = ocp.CheckpointManagerOptions(
-            save_interval_steps=save_every, max_to_keep=keep, create=True, cleanup_tmp_directories=True)
+        self.save_every = save_every
+        options = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True, cleanup_tmp_directories=True)
         self._manager = ocp.CheckpointManager(self.directory, options=options)
 
     def latest_step(self) -> int | None:
         """The newest complete checkpoint's step, or None."""
         return self._manager.latest_step()
 
-    def should_save(self, step: int) -> bool:
-        """Whether ``step`` is on the ``save_every`` grid (and not saved yet)."""
-        return self._manager.should_save(step)
+    def is_due(self, step: int) -> bool:
+        """Whether ``step`` is on the ``save_every`` grid."""
+        return step % self.save_every == 0
 
-    def save(self, step: int, state: Any, data_state: Any = None, force: bool = False) -> bool:
+    def save(self, step: int, state: Any, data_state: Any = None) -> None:
         """Save ``state`` (a pytree of arrays) and ``data_state`` (JSON-able) as step ``step``.
 
-        Returns whether a checkpoint was started (steps off the ``save_every`` grid are skipped
-        unless ``force``). The arrays are copied to host before it returns, so ``state`` may be
-        donated to the next step; the files are written in the background.
+        The arrays are copied to host before it returns, so ``state`` may be donated to the next
+        step; the files are written in the background.
         """
         args = ocp.args.Composite(state=ocp.args.StandardSave(state),
                                   data=ocp.args.JsonSave({"iterator": data_state}))
-        return self._manager.save(step, args=args, force=force)
+        self._manager.save(step, args=args, force=True)
 
     def restore(self, template: Any, step: int | None = None) -> tuple[Any, Any]:
         """``(state, data_state)`` of ``step`` (default: the latest), shaped and sharded like ``template``.

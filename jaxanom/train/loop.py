@@ -1,20 +1,23 @@
 """The training driver: config, state set-up or resume, the step loop, logging, evaluation, checkpoints.
 
 ``train(config, model, train_data, val_data)`` runs ``config.steps`` train steps. ``train_data``
-is any iterable of batches ``{"image": (B, H, W, 3) float32, "label": (B, H, W) int32}`` (this
-process's share of the global batch). When its iterator has ``get_state`` / ``set_state``
-(grain's ``DatasetIterator`` has them), the position is saved with each checkpoint as JSON and
-restored on resume; otherwise a resumed run skips as many batches as were already used, which
-is right for any deterministic input. A run folder that already holds checkpoints is resumed
-from the newest one; a damaged newest checkpoint stops the run with a ValueError (nothing is
-silently restarted).
+is any iterable of batches ``{"image": (B, H, W, 3) uint8 RGB or float32 normalised, "label":
+(B, H, W) int32}`` (this process's share of the global batch). When its iterator has
+``get_state`` / ``set_state`` (grain's ``DatasetIterator`` has them), the position is saved
+with each checkpoint as JSON and restored on resume; otherwise a resumed run skips as many
+batches as were already used, which is right for any deterministic input. On multi-host runs
+the saved position is process 0's, right when every process's pipeline advances alike (grain
+with one shard per process). A run folder that already holds checkpoints is resumed from the
+newest one; a damaged newest checkpoint stops the run with a ValueError (nothing is silently
+restarted).
 
 On CPU a run that is killed and resumed ends with parameters bitwise equal to an uninterrupted
-run (tests/test_train_resume.py); on GPUs this holds as far as their kernels are deterministic.
+run (tests/test_train_loop.py); on GPUs this holds as far as their kernels are deterministic.
 """
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import math
 import os
@@ -24,6 +27,7 @@ from typing import Any, Iterable
 import jax
 import numpy as np
 
+from jaxanom.metrics.segmentation import miou, pixel_accuracy
 from jaxanom.train.checkpoint import Checkpointer
 from jaxanom.train.optim import OptimConfig, make_optimizer
 from jaxanom.train.runlog import RunLog
@@ -63,15 +67,6 @@ class TrainConfig:
                 raise ValueError(f"{name}: expected >= 1, got {getattr(self, name)}")
 
 
-def mean_iou(confusion: np.ndarray) -> float:
-    """Mean over classes present in labels or predictions of TP / (TP + FP + FN); NaN if none."""
-    confusion = np.asarray(confusion, np.float64)
-    true_positive = np.diag(confusion)
-    union = confusion.sum(0) + confusion.sum(1) - true_positive
-    present = union > 0
-    return float(np.mean(true_positive[present] / union[present])) if present.any() else math.nan
-
-
 def pad_batch(batch: dict, multiple: int, ignore: int) -> dict:
     """Pad a batch's leading axis to a multiple of ``multiple``: zero images, all-void labels."""
     size = len(batch["label"])
@@ -83,17 +78,44 @@ def pad_batch(batch: dict, multiple: int, ignore: int) -> dict:
             for name, value in ((n, np.asarray(v)) for n, v in batch.items())}
 
 
+def step_inputs(batch: dict) -> dict:
+    """The arrays a step reads; other entries of a pipeline's batch (names, depth) stay on the host."""
+    return {"image": batch["image"], "label": batch["label"]}
+
+
 def evaluate(eval_step, variables, batches: Iterable[dict], mesh, ignore: int) -> dict[str, float]:
     """mIoU and pixel accuracy of ``variables`` over ``batches`` (summed confusion matrix)."""
     total = None
     for batch in batches:
-        batch = global_batch(pad_batch(batch, len(mesh.local_devices), ignore), mesh)
+        batch = global_batch(pad_batch(step_inputs(batch), len(mesh.local_devices), ignore), mesh)
         confusion = eval_step(variables, batch)
         total = confusion if total is None else total + confusion
     if total is None:
         raise ValueError("val_data: expected at least one batch, got none")
     confusion = np.asarray(jax.device_get(total))
-    return {"val/miou": mean_iou(confusion), "val/pixel_accuracy": float(np.trace(confusion) / max(confusion.sum(), 1))}
+    return {"val/miou": miou(confusion), "val/pixel_accuracy": pixel_accuracy(confusion)}
+
+
+def check_batch(batch: Any, num_classes: int, ignore: int) -> None:
+    """ValueError unless ``batch`` is ``{"image": (B, H, W, 3) uint8 or float, "label": (B, H, W) int}``
+    with labels in [0, num_classes) or ``ignore``. The loop checks the first batch only."""
+    if not isinstance(batch, dict) or not {"image", "label"} <= set(batch):
+        got = sorted(batch) if isinstance(batch, dict) else type(batch).__name__
+        raise ValueError(f"train_data: expected batches as dicts with 'image' and 'label', got {got}")
+    image, label = np.asarray(batch["image"]), np.asarray(batch["label"])
+    if image.ndim != 4 or image.shape[-1] != 3 or not (image.dtype == np.uint8 or np.issubdtype(image.dtype, np.floating)):
+        raise ValueError(f"batch['image']: expected uint8 or float (B, H, W, 3), got {image.dtype} {image.shape}")
+    if label.shape != image.shape[:3] or not np.issubdtype(label.dtype, np.integer):
+        raise ValueError(f"batch['label']: expected int {image.shape[:3]}, got {label.dtype} {label.shape}")
+    bad = (label != ignore) & ((label < 0) | (label >= num_classes))
+    if bad.any():
+        raise ValueError(f"batch['label']: expected values in [0, {num_classes}) or {ignore} (the model has "
+                         f"{num_classes} classes), got {np.unique(label[bad])[:10].tolist()}")
+
+
+def _num_classes(model, image) -> int:
+    out = jax.eval_shape(lambda x: model.init_with_output(jax.random.key(0), model_input(x), train=False)[0], image[:1])
+    return out["logits"].shape[-1]
 
 
 def _data_state(batches) -> Any:
@@ -105,32 +127,43 @@ def _set_data_state(batches, state: Any) -> None:
     batches.set_state(state.encode() if isinstance(state, str) else state)
 
 
-def train(config: TrainConfig, model, train_data: Iterable[dict], val_data: Iterable[dict] | None = None) -> TrainState:
+def train(config: TrainConfig, model, train_data: Iterable[dict], val_data: Iterable[dict] | None = None,
+          variables: dict | None = None) -> TrainState:
     """Train ``model`` (the jaxanom.models contract) and return the final state.
 
     ``val_data`` must be re-iterable (a list, a grain dataset); it is evaluated every
-    ``config.eval_every`` steps. Raises NonFiniteLossError when the loss or gradient stops being
-    finite, leaving the last good checkpoint in ``run_dir/checkpoints``.
+    ``config.eval_every`` steps. ``variables`` (``{"params", "batch_stats"}``, e.g. with a
+    pretrained backbone) replace ``model.init`` for a fresh run; a resumed run ignores them.
+    Raises NonFiniteLossError when the loss or gradient stops being finite, leaving the last
+    good checkpoint in ``run_dir/checkpoints``.
     """
     if config.distributed:
         initialize_distributed()
-    mesh = make_mesh()
-    with jax.set_mesh(mesh):
-        return _run(config, model, train_data, val_data, mesh)
+    compiled = _compiled(model, config.loss, config.optim, config.steps, tuple(jax.devices()))
+    with jax.set_mesh(compiled[0]):
+        return _run(config, model, train_data, val_data, variables, *compiled)
 
 
-def _run(config: TrainConfig, model, train_data, val_data, mesh) -> TrainState:
+@functools.lru_cache(maxsize=4)
+def _compiled(model, loss: LossConfig, optim: OptimConfig, steps: int, devices: tuple):
+    """Mesh, optimizer, schedule and jitted steps; a later run with equal settings reuses them."""
+    mesh = make_mesh(devices)
+    tx, lr_at = make_optimizer(optim, steps)
+    return (mesh, tx, lr_at) + make_steps(model, tx, loss, mesh)
+
+
+def _run(config: TrainConfig, model, train_data, val_data, variables, mesh, tx, lr_at, train_step, eval_step) -> TrainState:
     os.makedirs(config.run_dir, exist_ok=True)
     source = iter(train_data)
     resumable = hasattr(source, "get_state") and hasattr(source, "set_state")
     first = next(source)
+    check_batch(first, _num_classes(model, np.asarray(first["image"])), config.loss.ignore)
 
-    tx, lr_at = make_optimizer(config.optim, config.steps)
     init_key, state_key = jax.random.split(jax.random.key(config.seed))
-    variables = jax.jit(model.init, static_argnames="train", out_shardings=replicated(mesh))(
-        init_key, model_input(np.asarray(first["image"][:1])), train=False)
+    if variables is None:
+        variables = jax.jit(model.init, static_argnames="train")(
+            init_key, model_input(np.asarray(first["image"][:1])), train=False)
     state = jax.device_put(TrainState.create(variables, tx, state_key), replicated(mesh))
-    train_step, eval_step = make_steps(model, tx, config.loss, mesh)
 
     checkpointer = Checkpointer(os.path.join(config.run_dir, "checkpoints"), config.save_every, config.keep)
     pending = [first]
@@ -153,7 +186,7 @@ def _run(config: TrainConfig, model, train_data, val_data, mesh) -> TrainState:
     try:
         for step in range(start + 1, config.steps + 1):
             tick = time.perf_counter()
-            batch = global_batch(next(batches), mesh)
+            batch = global_batch(step_inputs(next(batches)), mesh)
             images = batch["image"].shape[0]
             state, metrics = train_step(state, batch)
             metrics = {name: float(value) for name, value in jax.device_get(metrics).items()}
@@ -170,8 +203,8 @@ def _run(config: TrainConfig, model, train_data, val_data, mesh) -> TrainState:
             log.scalars(step, {f"train/{name}": value for name, value in metrics.items()})
             if val_data is not None and (step % config.eval_every == 0 or step == config.steps):
                 log.scalars(step, evaluate(eval_step, state.variables, val_data, mesh, config.loss.ignore))
-            if step == config.steps or checkpointer.should_save(step):
-                checkpointer.save(step, state, _data_state(source) if resumable else None, force=True)
+            if step == config.steps or checkpointer.is_due(step):
+                checkpointer.save(step, state, _data_state(source) if resumable else None)
         checkpointer.wait()
     finally:
         bar.close()

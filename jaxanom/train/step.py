@@ -19,6 +19,7 @@ import optax
 from jaxanom import losses
 from jaxanom.cudam_score import upsample_attention
 from jaxanom.data.transforms import normalize
+from jaxanom.metrics.segmentation import confusion_counts
 from jaxanom.train.sharding import batch_sharding, replicated
 from jaxanom.train.state import TrainState
 
@@ -82,7 +83,12 @@ def training_anomaly_score(logits) -> jax.Array:
 
 
 def objective(out: dict, labels, key, cfg: LossConfig) -> tuple[jax.Array, dict]:
-    """The loss of one step from the model's outputs; ``(loss, aux metrics)``."""
+    """The loss of one step from the model's outputs; ``(loss, aux metrics)``.
+
+    CuDAM: ``L_seg`` on the (maybe) rewarded logits P; correctness for psi (Eq. 7) and lambda
+    (Eq. 9) is judged on the model's own logits P_a, since with the reward nearly every pixel is
+    "correct".
+    """
     logits = out["logits"].astype(jnp.float32)
     if cfg.method == "plain":
         return losses.cross_entropy(logits, labels, cfg.ignore, cfg.class_weights), {}
@@ -123,19 +129,11 @@ def train_step(state: TrainState, batch: dict, *, model, tx: optax.GradientTrans
     return new_state, jax.tree.map(lambda x: x.astype(jnp.float32), metrics)
 
 
-def confusion_matrix(labels, prediction, num_classes: int, ignore: int = losses.IGNORE) -> jax.Array:
-    """(C, C) int32 counts, rows = ground truth, columns = prediction, over labels in [0, C)."""
-    valid = (labels != ignore) & (labels >= 0) & (labels < num_classes)
-    index = jnp.where(valid, labels * num_classes + prediction, 0).reshape(-1)
-    counts = jnp.bincount(index, weights=valid.reshape(-1).astype(jnp.int32), length=num_classes**2)
-    return counts.astype(jnp.int32).reshape(num_classes, num_classes)
-
-
 def eval_step(variables: dict, batch: dict, *, model, cfg: LossConfig) -> jax.Array:
     """Confusion matrix (C, C) of one batch, no reward, BatchNorm in inference mode."""
     out = _forward(model, variables, batch["image"], cfg, train=False)
     logits = out["logits"]
-    return confusion_matrix(batch["label"], jnp.argmax(logits, axis=-1), logits.shape[-1], cfg.ignore)
+    return confusion_counts(jnp.argmax(logits, axis=-1), batch["label"], logits.shape[-1], cfg.ignore)
 
 
 def jit_train_step(fn: Callable, mesh: jax.sharding.Mesh) -> Callable:

@@ -1,0 +1,159 @@
+"""The training loop: logs, evaluation, NaN stop, checkpoints, resume after a crash and after SIGKILL."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+from jaxanom.train.checkpoint import Checkpointer, restore_checkpoint
+from jaxanom.train.loop import NonFiniteLossError, TrainConfig, train
+from jaxanom.train.optim import OptimConfig
+from tiny_models import TinySegNet, init_variables, make_batch
+
+TESTS = Path(__file__).parent
+
+
+def config(run_dir, **kwargs):
+    defaults = dict(steps=6, save_every=3, eval_every=3, keep=2, progress=False, optim=OptimConfig(lr=0.05))
+    return TrainConfig(run_dir=str(run_dir), **{**defaults, **kwargs})
+
+
+def batches(n, crash_at=None):
+    """A plain generator (no get_state): batch i is make_batch(i); raises at ``crash_at``."""
+    for i in range(n):
+        if i == crash_at:
+            raise RuntimeError("simulated crash")
+        yield make_batch(i)
+
+
+def flat_params(state):
+    return [np.asarray(leaf) for leaf in jax.tree.leaves(jax.device_get(state.params))]
+
+
+def steps_on_disk(checkpoint_dir):
+    return sorted(int(p.name) for p in Path(checkpoint_dir).iterdir() if p.name.isdigit())
+
+
+def test_crash_and_resume_of_a_plain_iterable_is_bitwise_equal(tmp_path):
+    val = [make_batch(100, batch=3, void_fraction=0.3)]  # 3 images on 4 devices: padded with void
+    full = train(config(tmp_path / "full"), TinySegNet(), batches(6), val, variables=init_variables())
+    with pytest.raises(RuntimeError, match="simulated crash"):
+        train(config(tmp_path / "crash"), TinySegNet(), batches(6, crash_at=4), variables=init_variables())
+    assert steps_on_disk(tmp_path / "crash" / "checkpoints") == [3]
+    resumed = train(config(tmp_path / "crash"), TinySegNet(), batches(6), variables=init_variables())
+    assert int(resumed.step) == 6
+    for a, b in zip(flat_params(full), flat_params(resumed)):
+        np.testing.assert_array_equal(a, b)
+
+    lines = [json.loads(line) for line in (tmp_path / "full" / "log.jsonl").read_text().splitlines()]
+    train_lines = [line for line in lines if "train/loss" in line]
+    assert [line["step"] for line in train_lines] == [1, 2, 3, 4, 5, 6]
+    assert all({"train/loss", "train/lr", "train/images_per_s", "train/grad_norm"} <= set(line) for line in train_lines)
+    val_lines = [line for line in lines if "val/miou" in line]
+    assert [line["step"] for line in val_lines] == [3, 6] and all(0 <= l["val/miou"] <= 1 for l in val_lines)
+    assert any(name.startswith("events.out.tfevents") for name in os.listdir(tmp_path / "full" / "tensorboard"))
+    assert steps_on_disk(tmp_path / "full" / "checkpoints") == [3, 6]  # keep=2
+
+
+def test_nan_loss_stops_and_keeps_the_last_good_checkpoint(tmp_path):
+    def poisoned():
+        for i in range(6):
+            batch = make_batch(i)
+            if i == 4:
+                batch["image"][0, 0, 0, 0] = np.nan
+            yield batch
+
+    with pytest.raises(NonFiniteLossError, match=r"at step 5.*last good checkpoint: step 4"):
+        train(config(tmp_path, save_every=2), TinySegNet(), poisoned(), variables=init_variables())
+    assert steps_on_disk(tmp_path / "checkpoints")[-1] == 4
+    template = jax.device_get(train_state_template())
+    state, _ = restore_checkpoint(tmp_path / "checkpoints", template)
+    assert int(state.step) == 4
+    assert all(np.all(np.isfinite(leaf)) for leaf in flat_params(state))
+
+
+def train_state_template():
+    from jaxanom.train.optim import make_optimizer
+    from jaxanom.train.state import TrainState
+
+    tx, _ = make_optimizer(OptimConfig(lr=0.05), 10)
+    return jax.device_put(TrainState.create(init_variables(), tx, jax.random.key(0)))
+
+
+def test_missing_checkpoint_folder_is_a_clear_error(tmp_path):
+    with pytest.raises(ValueError, match="checkpoint directory.*no_such_run"):
+        restore_checkpoint(tmp_path / "no_such_run", train_state_template())
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match="expected at least one saved step"):
+        restore_checkpoint(tmp_path / "empty", train_state_template())
+
+
+def test_corrupt_checkpoint_is_a_clear_error_and_not_silently_restarted(tmp_path):
+    state = train_state_template()
+    with Checkpointer(tmp_path / "checkpoints", save_every=1) as checkpointer:
+        checkpointer.save(1, state, {"index": 1})
+    for path in (tmp_path / "checkpoints" / "1").rglob("*"):
+        if path.is_file():
+            path.write_bytes(b"\x00garbage")
+    with pytest.raises(ValueError, match=r"checkpoint directory .*checkpoints: step 1 cannot be read"):
+        restore_checkpoint(tmp_path / "checkpoints", state)
+    with pytest.raises(ValueError, match="step 1 cannot be read"):
+        train(config(tmp_path), TinySegNet(), batches(6), variables=init_variables())
+
+
+def run_script(run_dir, delay_s, env):
+    return subprocess.Popen([sys.executable, str(TESTS / "resume_script.py"), str(run_dir), str(delay_s)],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+
+
+def test_sigkill_and_resume_ends_with_bitwise_equal_parameters(tmp_path):
+    """A real SIGKILL of a training process after its first checkpoint; the rerun resumes from it.
+
+    All three runs are the same script in fresh processes (same compiled program, shared
+    through JAX's persistent compilation cache). On CPU the result is bitwise equal.
+    """
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(TESTS.parent), str(TESTS)]),
+               JAX_COMPILATION_CACHE_DIR=str(tmp_path / "jax_cache"),
+               JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0", JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES="0")
+    full = run_script(tmp_path / "full", 0.0, env)
+    output = full.communicate(timeout=300)[0].decode()
+    assert full.returncode == 0, output
+
+    victim = run_script(tmp_path / "killed", 0.25, env)
+    checkpoints = tmp_path / "killed" / "checkpoints"
+    deadline = time.monotonic() + 240
+    while not (checkpoints.is_dir() and steps_on_disk(checkpoints)):
+        assert victim.poll() is None, victim.communicate()[0].decode()
+        assert time.monotonic() < deadline, "no checkpoint appeared"
+        time.sleep(0.05)
+    victim.send_signal(signal.SIGKILL)
+    victim.communicate(timeout=60)
+    assert victim.returncode == -signal.SIGKILL
+    assert not (tmp_path / "killed" / "final.npz").exists()
+    killed_at = steps_on_disk(checkpoints)
+    assert killed_at[-1] < 12
+
+    resumed = run_script(tmp_path / "killed", 0.0, env)
+    output = resumed.communicate(timeout=300)[0].decode()
+    assert resumed.returncode == 0, output
+    expected, got = np.load(tmp_path / "full" / "final.npz"), np.load(tmp_path / "killed" / "final.npz")
+    assert sorted(expected.files) == sorted(got.files)
+    for name in expected.files:
+        np.testing.assert_array_equal(got[name], expected[name], err_msg=name)
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda b: {"image": b["image"]}, "'image' and 'label'"),
+    (lambda b: {**b, "image": b["image"][..., :2]}, r"batch\['image'\]"),
+    (lambda b: {**b, "label": b["label"].astype(np.float32)}, r"batch\['label'\]: expected int"),
+    (lambda b: {**b, "label": np.where(b["label"] == 0, 7, b["label"])}, r"model has 3 classes\), got \[7\]"),
+])
+def test_bad_first_batch_is_a_clear_error(tmp_path, change, message):
+    with pytest.raises(ValueError, match=message):
+        train(config(tmp_path), TinySegNet(), [change(make_batch(0))], variables=init_variables())
