@@ -13,7 +13,8 @@ for tens of thousands of steps), because the budget here is a few hundred steps.
 CuDAM's constants are per-pixel magnitudes for attention maps of the paper's size: tau = 5e4 for
 a 180 x 180 training map (720 x 720 crops, §IV-D) and sigma = 2e4 for 256 x 512 test maps
 (1024 x 2048 frames at stride 4). A map sums to 1, so its values scale as 1 / (h * w); the
-defaults here scale tau and sigma by the ratio of map sizes (``matched_tau``, ``matched_sigma``)
+defaults here scale tau and sigma by the ratio of map sizes (``matched_tau``, ``matched_sigma``,
+through ``jaxanom.cudam_score.equivalent_weight``)
 so that ``tau * M_att`` has the paper's magnitude. The paper's literal values are rows of their own
 (``cudam_fig6`` trains with tau = 5e4; the score ``cudam`` uses sigma = 2e4).
 """
@@ -32,7 +33,7 @@ import numpy as np
 
 from jaxanom import methods as scoring
 from jaxanom import sml
-from jaxanom.cudam_score import cudam_score
+from jaxanom.cudam_score import PAPER_TEST_POSITIONS, PAPER_TRAIN_POSITIONS, cudam_score, equivalent_weight
 from jaxanom.evaluate import predictions, predictor, segmentation_results
 from jaxanom.experiment import Experiment, frames
 from jaxanom.io import write_bytes_atomic, write_json_atomic
@@ -43,8 +44,6 @@ from jaxanom.train.step import LossConfig
 
 HERE = Path(__file__).parent
 RUNS = HERE / "runs"
-PAPER_TRAIN_POSITIONS = 180 * 180
-PAPER_TEST_POSITIONS = 256 * 512
 PAPER_TAU, PAPER_SIGMA = 5e4, 2e4
 ANOMALY_READERS = ("road_anomaly", "smiyc")
 # Scores every network gets; "<base>+att" is the CuDAM ensemble (Eq. 10) of <base> with the
@@ -56,7 +55,7 @@ ENSEMBLE_BASES = ("msp", "max_logit", "sml_post")
 
 @dataclasses.dataclass(frozen=True)
 class Scale:
-    """Sizes and data shared by every experiment; the defaults fit all tables in ~30 min on 2 CPU cores.
+    """Sizes and data shared by every experiment; the defaults fit all tables in ~25 min on 2 CPU cores.
 
     ``cityscapes_root``: train on Cityscapes (crops of ``height`` x ``width``) instead of synthetic
     scenes. ``anomaly``: ``"road_anomaly:<root>"`` or ``"smiyc:<track root>"`` to score a real
@@ -67,7 +66,7 @@ class Scale:
     height: int = 128
     width: int = 256
     batch_size: int = 8
-    steps: int = 300
+    steps: int = 500
     stats_frames: int = 64
     val_frames: int = 32
     anomaly_frames: int = 64
@@ -138,12 +137,12 @@ def attention_positions(height: int, width: int) -> int:
 
 def matched_tau(scale: Scale) -> float:
     """The reward weight whose ``tau * M_att`` matches the paper's tau = 5e4 on 180 x 180 maps."""
-    return PAPER_TAU * attention_positions(scale.height, scale.width) / PAPER_TRAIN_POSITIONS
+    return equivalent_weight(PAPER_TAU, attention_positions(scale.height, scale.width), PAPER_TRAIN_POSITIONS)
 
 
 def matched_sigma(height: int, width: int) -> float:
     """The ensemble weight matching the paper's sigma = 2e4 on 256 x 512 maps, for ``height`` x ``width`` frames."""
-    return PAPER_SIGMA * attention_positions(height, width) / PAPER_TEST_POSITIONS
+    return equivalent_weight(PAPER_SIGMA, attention_positions(height, width), PAPER_TEST_POSITIONS)
 
 
 def network(scale: Scale, attention: str | None = None, loss: LossConfig = LossConfig(),
