@@ -90,7 +90,7 @@ def run_demo(out_dir: str | Path, config: DemoConfig = DemoConfig(), *, progress
                                       stats=(mean, std), cudam_sigma=config.cudam_sigma, keep_curves=True)
 
     log("[4/4] writing pictures and results")
-    _pictures(out_dir, predict, anomaly_frames, (mean, std), config.pictures)
+    write_pictures(out_dir, predict, anomaly_frames, (mean, std), config.pictures)
     from jaxanom.viz import plot_curves
 
     plot_curves(out_dir / "roc.png", {n: c["roc"] for n, c in curves.items()}, kind="roc")
@@ -114,8 +114,9 @@ def results_table(metrics: dict, segmentation: dict | None = None) -> str:
     return "\n".join(lines)
 
 
-def _pictures(out_dir: Path, predict, source, stats, count: int) -> None:
-    """One panel per frame: image | prediction | anomaly label | SML score | CuDAM attention."""
+def write_pictures(out_dir: Path, predict, source, stats, count: int) -> None:
+    """``frame_<i>.png`` for the first ``count`` frames of ``source``: image | prediction |
+    anomaly label (red 1, blue void) | SML + post-processing score | CuDAM attention overlay."""
     from jaxanom.data.cityscapes_labels import colorize
     from jaxanom.viz import heatmap, overlay
 
