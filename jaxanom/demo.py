@@ -116,14 +116,15 @@ def results_table(metrics: dict, segmentation: dict | None = None) -> str:
 
 def write_pictures(out_dir: Path, predict, source, stats, count: int) -> None:
     """``frame_<i>.png`` for the first ``count`` frames of ``source``: image | prediction |
-    anomaly label (red 1, blue void) | SML + post-processing score | CuDAM attention overlay."""
+    anomaly label (red 1, blue void) | SML + post-processing score (MSP without ``stats``) |
+    CuDAM attention overlay (with an attention model)."""
     from jaxanom.data.cityscapes_labels import colorize
     from jaxanom.viz import heatmap, overlay
 
     for index in range(min(count, len(source))):
         frame = source[index]
         out = predict(frame["image"][None])
-        score = scoring.score_batch("sml_post", out["logits"], stats=stats)[0]
+        score = scoring.score_batch("sml_post" if stats else "msp", out["logits"], stats=stats)[0]
         label = frame["label"]
         truth = np.stack([np.where(label == 1, 255, 0), np.zeros_like(label), np.where(label == 255, 128, 0)], -1)
         panels = [frame["image"], colorize(np.asarray(out["logits"][0].argmax(-1))),
