@@ -247,9 +247,9 @@ def _evaluate(args) -> None:
     write_json_atomic(out / "metrics.json", {"dataset": args.dataset, "path": args.path, "frames": len(source),
                                              "metrics": metrics})
     if args.pictures:
-        from jaxanom.demo import _pictures
+        from jaxanom.demo import write_pictures
 
-        _pictures(out, predict, source, stats, args.pictures)
+        write_pictures(out, predict, source, stats, args.pictures)
     print(results_table(metrics))
 
 

@@ -90,7 +90,7 @@ def run_demo(out_dir: str | Path, config: DemoConfig = DemoConfig(), *, progress
                                       stats=(mean, std), cudam_sigma=config.cudam_sigma, keep_curves=True)
 
     log("[4/4] writing pictures and results")
-    _pictures(out_dir, predict, anomaly_frames, (mean, std), config.pictures)
+    write_pictures(out_dir, predict, anomaly_frames, (mean, std), config.pictures)
     from jaxanom.viz import plot_curves
 
     plot_curves(out_dir / "roc.png", {n: c["roc"] for n, c in curves.items()}, kind="roc")
@@ -114,15 +114,17 @@ def results_table(metrics: dict, segmentation: dict | None = None) -> str:
     return "\n".join(lines)
 
 
-def _pictures(out_dir: Path, predict, source, stats, count: int) -> None:
-    """One panel per frame: image | prediction | anomaly label | SML score | CuDAM attention."""
+def write_pictures(out_dir: Path, predict, source, stats, count: int) -> None:
+    """``frame_<i>.png`` for the first ``count`` frames of ``source``: image | prediction |
+    anomaly label (red 1, blue void) | SML + post-processing score (MSP without ``stats``) |
+    CuDAM attention overlay (with an attention model)."""
     from jaxanom.data.cityscapes_labels import colorize
     from jaxanom.viz import heatmap, overlay
 
     for index in range(min(count, len(source))):
         frame = source[index]
         out = predict(frame["image"][None])
-        score = scoring.score_batch("sml_post", out["logits"], stats=stats)[0]
+        score = scoring.score_batch("sml_post" if stats else "msp", out["logits"], stats=stats)[0]
         label = frame["label"]
         truth = np.stack([np.where(label == 1, 255, 0), np.zeros_like(label), np.where(label == 255, 128, 0)], -1)
         panels = [frame["image"], colorize(np.asarray(out["logits"][0].argmax(-1))),
