@@ -55,7 +55,7 @@ ENSEMBLE_BASES = ("msp", "max_logit", "sml_post")
 
 @dataclasses.dataclass(frozen=True)
 class Scale:
-    """Sizes and data shared by every experiment; the defaults fit all tables in ~25 min on 2 CPU cores.
+    """Sizes and data shared by every experiment; the defaults run all tables in ~20 min on 2 CPU cores.
 
     ``cityscapes_root``: train on Cityscapes (crops of ``height`` x ``width``) instead of synthetic
     scenes. ``anomaly``: ``"road_anomaly:<root>"`` or ``"smiyc:<track root>"`` to score a real
