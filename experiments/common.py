@@ -28,14 +28,13 @@ import time
 from pathlib import Path
 from typing import Callable, Sequence
 
-import jax
 import numpy as np
 
 from jaxanom import methods as scoring
 from jaxanom import sml
 from jaxanom.cudam_score import PAPER_TEST_POSITIONS, PAPER_TRAIN_POSITIONS, cudam_score, equivalent_weight
 from jaxanom.evaluate import predictions, predictor, segmentation_results
-from jaxanom.experiment import Experiment, frames
+from jaxanom.experiment import Experiment, build_network, frames, jsonable, run_training
 from jaxanom.io import write_bytes_atomic, write_json_atomic
 from jaxanom.metrics import AnomalyMetricAccumulator, pr_curve, roc_curve
 from jaxanom.train.loop import TrainConfig
@@ -89,15 +88,12 @@ class Scale:
 
 @dataclasses.dataclass(frozen=True)
 class Network:
-    """An ``Experiment`` plus the CuDAM position (a ``DeepLabV3Plus`` field ``Experiment`` has no slot for)."""
+    """A trainable ``Experiment``, named by the hash of its configuration."""
 
     experiment: Experiment
-    cudam_position: str = "deep"
 
     def to_dict(self) -> dict:
-        values = self.experiment.to_dict()
-        values["train"]["run_dir"] = ""
-        return json.loads(json.dumps({"experiment": values, "cudam_position": self.cudam_position}))
+        return jsonable(self.experiment)
 
     @property
     def key(self) -> str:
@@ -105,11 +101,7 @@ class Network:
         return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:12]
 
     def module(self):
-        from jaxanom.models import build_model
-
-        e = self.experiment
-        return build_model(e.model, num_classes=e.num_classes, attention=e.attention,
-                           output_stride=e.output_stride, cudam_position=self.cudam_position)
+        return build_network(self.experiment)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -155,8 +147,8 @@ def network(scale: Scale, attention: str | None = None, loss: LossConfig = LossC
                                           warmup_steps=max(1, min(30, scale.steps // 10))))
     experiment = Experiment(model="deeplabv3plus_tiny", attention=attention, train_frames=scale.train_frames,
                             height=scale.height, width=scale.width, crop=(scale.height, scale.width),
-                            batch_size=scale.batch_size, train=train, **data)
-    return Network(experiment, cudam_position)
+                            batch_size=scale.batch_size, cudam_position=cudam_position, train=train, **data)
+    return Network(experiment)
 
 
 def plain(scale: Scale) -> Network:
@@ -184,27 +176,18 @@ def msaam(scale: Scale) -> Network:
 def trained(net: Network, runs: Path, log: Callable = print) -> dict:
     """The network's final variables: trained into ``runs/<key>/``, or restored when already there.
 
-    The same data set-up as ``jaxanom.experiment.run_training``, which builds the module from the
-    ``Experiment`` alone and so cannot place CuDAM at the surface position. No validation during
-    training: ``evaluate`` measures mIoU afterwards.
+    No validation during training: ``evaluate`` measures mIoU afterwards.
     """
-    from jaxanom.data.pipeline import training_batches
-    from jaxanom.data.transforms import Augment
-    from jaxanom.train.loop import train
-
-    run_dir = runs / net.key
-    write_json_atomic(run_dir / "network.json", net.to_dict())
     e = net.experiment
+    run_dir = runs / net.key
     done = (run_dir / "checkpoints" / str(e.train.steps)).exists()
     log(f"  network {net.key}: {'restoring' if done else 'training'} {e.attention or 'plain'} "
         f"({e.train.loss.method} loss, {e.train.steps} steps)")
-    augment = Augment(crop_hw=tuple(e.crop), scale_range=tuple(e.scale_range))
-    batches = training_batches(frames(e, "train"), batch_size=e.batch_size, augment=augment, seed=e.train.seed)
     start = time.perf_counter()
-    state = train(dataclasses.replace(e.train, run_dir=str(run_dir)), net.module(), batches)
+    variables = run_training(e, run_dir, progress=False, validate=False)
     if not done:
         log(f"  trained in {time.perf_counter() - start:.0f} s")
-    return jax.device_get(state.variables)
+    return variables
 
 
 # ---------------------------------------------------------------- evaluation

@@ -28,6 +28,7 @@ class Experiment:
     """A network and its training data.
 
     ``model``: a ``jaxanom.models.build_model`` name; ``attention``: None, "cudam" or "msaam";
+    ``cudam_position``: "deep" or "surface" (CuDAM Table V);
     ``data``: "synthetic" (generated ``train_frames`` frames of ``height`` x ``width``) or
     "cityscapes" (``data_root`` in the official layout). Training crops are ``crop`` pixels
     after random scaling by ``scale_range``. ``train.seed`` seeds the network, the shuffling and
@@ -36,6 +37,7 @@ the synthetic scenes; ``train.run_dir`` is set when a run starts.
 
     model: str = "deeplabv3plus_tiny"
     attention: str | None = "cudam"
+    cudam_position: str = "deep"
     output_stride: int = 16
     num_classes: int = 19
     data: str = "synthetic"
@@ -78,8 +80,8 @@ def build_network(experiment: Experiment):
     """The Flax module of ``experiment``."""
     from jaxanom.models import build_model
 
-    return build_model(experiment.model, num_classes=experiment.num_classes,
-                       attention=experiment.attention, output_stride=experiment.output_stride)
+    return build_model(experiment.model, num_classes=experiment.num_classes, attention=experiment.attention,
+                       output_stride=experiment.output_stride, cudam_position=experiment.cudam_position)
 
 
 def frames(experiment: Experiment, split: str, num_frames: int | None = None) -> Sequence[dict]:
@@ -94,28 +96,35 @@ def frames(experiment: Experiment, split: str, num_frames: int | None = None) ->
     return Cityscapes(experiment.data_root, split)
 
 
-def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress: bool = True) -> dict:
-    """Train (or resume, if ``run_dir`` holds checkpoints) and return the final variables."""
+def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress: bool = True,
+                 validate: bool = True) -> dict:
+    """Train (or resume, if ``run_dir`` holds checkpoints) and return the final variables.
+
+    ``validate``: measure mIoU on validation frames every ``train.eval_every`` steps.
+    """
     from jaxanom.data.pipeline import evaluation_batches, training_batches
     from jaxanom.data.transforms import Augment
     from jaxanom.train.loop import train
 
     run_dir = Path(run_dir)
     config_file = run_dir / "experiment.json"
-    if config_file.exists() and json.loads(config_file.read_text()) != _jsonable(experiment):
+    if config_file.exists() and json.loads(config_file.read_text()) != jsonable(experiment):
         raise ValueError(f"run_dir: {run_dir} holds a run of a different experiment; choose another folder")
-    write_json_atomic(config_file, _jsonable(experiment))
+    write_json_atomic(config_file, jsonable(experiment))
     augment = Augment(crop_hw=tuple(experiment.crop), scale_range=tuple(experiment.scale_range))
     batches = training_batches(frames(experiment, "train"), batch_size=experiment.batch_size,
                                augment=augment, seed=experiment.train.seed)
-    val = list(evaluation_batches(frames(experiment, "val", max(experiment.batch_size, 8)),
-                                  batch_size=experiment.batch_size))
+    val = None
+    if validate:
+        val = list(evaluation_batches(frames(experiment, "val", max(experiment.batch_size, 8)),
+                                      batch_size=experiment.batch_size))
     config = dataclasses.replace(experiment.train, run_dir=str(run_dir), progress=progress)
     state = train(config, build_network(experiment), batches, val)
     return jax.device_get(state.variables)
 
 
-def _jsonable(experiment: Experiment) -> dict:
+def jsonable(experiment: Experiment) -> dict:
+    """``experiment`` as plain JSON values, without the run folder (which names where, not what)."""
     values = experiment.to_dict()
     values["train"]["run_dir"] = ""
     return json.loads(json.dumps(values))
