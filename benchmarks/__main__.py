@@ -79,8 +79,8 @@ def interpret(rows: list[dict]) -> str:
     for peer, ratios in peers.items():
         low, high = min(ratios), max(ratios)
         span = f"{low:.2g}x" if f"{low:.2g}" == f"{high:.2g}" else f"{low:.2g}x to {high:.2g}x"
-        verdict = ("jaxanom faster" if low > 1 else "jaxanom slower" if high < 1
-                   else "jaxanom faster in some cases, slower in others")
+        verdict = ("about the same speed" if 0.95 <= low and high <= 1.05 else "jaxanom faster" if low > 1
+                   else "jaxanom slower" if high < 1 else "jaxanom faster in some cases, slower in others")
         parts.append(f"{peer} takes {span} jaxanom's time ({verdict})")
     return "; ".join(parts) + "."
 
