@@ -33,7 +33,7 @@ import numpy as np
 from jaxanom import methods as scoring
 from jaxanom import sml
 from jaxanom.cudam_score import PAPER_TEST_POSITIONS, PAPER_TRAIN_POSITIONS, cudam_score, equivalent_weight
-from jaxanom.evaluate import predictions, predictor, segmentation_results
+from jaxanom.evaluate import class_statistics, predictions, predictor, segmentation_results
 from jaxanom.experiment import Experiment, build_network, frames, jsonable, run_training
 from jaxanom.io import write_bytes_atomic, write_json_atomic
 from jaxanom.metrics import AnomalyMetricAccumulator, pr_curve, roc_curve
@@ -203,25 +203,10 @@ def anomaly_source(scale: Scale, experiment: Experiment):
     return {"road_anomaly": RoadAnomaly, "smiyc": SegmentMeIfYouCan}[reader](root)
 
 
-class _Head:
-    """The first ``count`` frames of a random-access source (a Cityscapes split ignores ``num_frames``)."""
-
-    def __init__(self, source, count: int):
-        self.source, self.count = source, min(count, len(source))
-
-    def __len__(self) -> int:
-        return self.count
-
-    def __getitem__(self, index: int) -> dict:
-        if not 0 <= index < self.count:
-            raise IndexError(f"index {index} out of range for {self.count} frames")
-        return self.source[index]
-
-
-def _batches(source, batch_size: int, count: int | None = None):
+def _batches(source, batch_size: int):
     from jaxanom.data.pipeline import evaluation_batches
 
-    return evaluation_batches(source if count is None else _Head(source, count), batch_size=batch_size)
+    return evaluation_batches(source, batch_size=batch_size)
 
 
 def _scores(out: dict, stats) -> dict:
@@ -251,10 +236,10 @@ def evaluate(net: Network, variables: dict, scale: Scale, log: Callable = print)
     e = net.experiment
     predict = predictor(net.module(), variables)
     batch = e.batch_size if scale.anomaly is None else 1
-    train_frames = _batches(frames(e, "train", scale.stats_frames), e.batch_size, scale.stats_frames)
-    stats = sml.fit_stats(out["logits"] for out in predictions(predict, train_frames))
+    train_frames = _batches(frames(e, "train", scale.stats_frames), e.batch_size)
+    stats = class_statistics(predict, train_frames)
     mean_std = sml.stats_finalize(stats, missing="pooled")
-    val_frames = _batches(frames(e, "val", scale.val_frames), e.batch_size, scale.val_frames)
+    val_frames = _batches(frames(e, "val", scale.val_frames), e.batch_size)
     segmentation = segmentation_results(predictions(predict, val_frames), e.num_classes)
     accumulators, kept = {}, {}
     for out in predictions(predict, _batches(anomaly_source(scale, e), batch)):

@@ -196,7 +196,7 @@ def _override(experiment, args):
 def _fit_stats(args) -> None:
     from jaxanom import sml
     from jaxanom.data.pipeline import evaluation_batches
-    from jaxanom.evaluate import predictions, predictor
+    from jaxanom.evaluate import class_statistics, predictor
     from jaxanom.experiment import build_network, frames, load_variables
 
     out = Path(args.out)
@@ -206,7 +206,7 @@ def _fit_stats(args) -> None:
     source = frames(experiment, "train", args.frames)
     batches = evaluation_batches(source, batch_size=experiment.batch_size)
     predict = predictor(build_network(experiment), variables)
-    stats = sml.fit_stats(out["logits"] for out in predictions(predict, batches))
+    stats = class_statistics(predict, batches)
     mean, std = sml.stats_finalize(stats, missing=args.missing)
     out.parent.mkdir(parents=True, exist_ok=True)
     sml.save_stats(out, mean, std, stats.count)

@@ -15,7 +15,7 @@ import numpy as np
 from jaxanom import methods as scoring
 from jaxanom import sml
 from jaxanom.cudam_score import PAPER_TEST_POSITIONS, PAPER_TRAIN_POSITIONS, equivalent_weight
-from jaxanom.evaluate import anomaly_results, predictions, predictor, segmentation_results
+from jaxanom.evaluate import anomaly_results, class_statistics, predictions, predictor, segmentation_results
 from jaxanom.experiment import Experiment, build_network, frames, run_training
 from jaxanom.io import write_json_atomic, write_png_atomic
 from jaxanom.train.loop import TrainConfig
@@ -76,7 +76,7 @@ def run_demo(out_dir: str | Path, config: DemoConfig = DemoConfig(), *, progress
 
     log(f"[2/4] fitting SML class statistics on {config.stats_frames} training frames")
     train_frames = frames(experiment, "train", config.stats_frames)
-    stats = sml.fit_stats(out["logits"] for out in predictions(predict, _batches(train_frames, batch)))
+    stats = class_statistics(predict, _batches(train_frames, batch))
     mean, std = sml.stats_finalize(stats, missing="pooled")
     sml.save_stats(out_dir / "sml_stats.npz", mean, std, stats.count)
     never_predicted = np.flatnonzero(np.asarray(stats.count) < 2).tolist()

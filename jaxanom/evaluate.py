@@ -42,6 +42,13 @@ def predictions(predict: Callable, batches: Iterable[dict]) -> Iterator[dict]:
         yield {**batch, **predict(batch["image"])}
 
 
+def class_statistics(predict: Callable, batches: Iterable[dict]):
+    """SML class statistics (Eqs. 3-4, a ``sml.ClassStats``) of the network's logits over ``batches``."""
+    from jaxanom import sml
+
+    return sml.fit_stats(out["logits"] for out in predictions(predict, batches))
+
+
 def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, cudam_sigma: float = 2e4,
                     mode: str = "exact", fpr_convention: str = "first", ap_convention: str = "step",
                     keep_curves: bool = False) -> tuple[dict, dict]:

@@ -85,15 +85,21 @@ def build_network(experiment: Experiment):
 
 
 def frames(experiment: Experiment, split: str, num_frames: int | None = None) -> Sequence[dict]:
-    """A random-access source of the experiment's data: synthetic split name, or Cityscapes split."""
+    """A random-access source of the experiment's data: synthetic split name, or Cityscapes split.
+
+    ``num_frames``: how many frames (synthetic: generated; Cityscapes: the split's first ones);
+    default the experiment's ``train_frames`` for synthetic data, the whole split for Cityscapes.
+    """
     if experiment.data == "synthetic":
         from jaxanom.data import SyntheticScenes
 
         count = num_frames or experiment.train_frames
         return SyntheticScenes(split, count, experiment.train.seed, height=experiment.height, width=experiment.width)
     from jaxanom.data import Cityscapes
+    from jaxanom.data.frames import FirstFrames
 
-    return Cityscapes(experiment.data_root, split)
+    split_frames = Cityscapes(experiment.data_root, split)
+    return split_frames if num_frames is None else FirstFrames(split_frames, num_frames)
 
 
 def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress: bool = True,

@@ -250,3 +250,15 @@ def test_smiyc_errors(tmp_path):
     _write_label(tmp_path / "labels_masks" / "frame_7_labels_semantic.png", np.zeros((H + 1, W), np.uint8))
     with pytest.raises(ValueError, match="differs"):
         SegmentMeIfYouCan(tmp_path)[0]
+
+
+def test_first_frames_is_a_prefix_view():
+    from jaxanom.data.frames import FirstFrames
+
+    source = [{"name": str(i)} for i in range(5)]
+    assert [f["name"] for f in FirstFrames(source, 3)] == ["0", "1", "2"]
+    assert len(FirstFrames(source, 9)) == 5
+    with pytest.raises(IndexError):
+        FirstFrames(source, 3)[3]
+    with pytest.raises(ValueError, match="count"):
+        FirstFrames(source, 0)

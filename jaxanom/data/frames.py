@@ -43,3 +43,20 @@ class FrameReader:
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({len(self)} frames)"
+
+
+class FirstFrames:
+    """The first ``count`` frames of a random-access source (all of them if it has fewer)."""
+
+    def __init__(self, source, count: int):
+        if count < 1:
+            raise ValueError(f"count: expected >= 1, got {count}")
+        self.source, self.count = source, min(count, len(source))
+
+    def __len__(self) -> int:
+        return self.count
+
+    def __getitem__(self, index: int) -> dict[str, Any]:
+        if not 0 <= index < self.count:
+            raise IndexError(f"index {index} out of range for {self.count} frames")
+        return self.source[index]
