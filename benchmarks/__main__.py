@@ -23,6 +23,8 @@ import traceback
 from pathlib import Path
 from types import ModuleType
 
+from benchmarks.timing import Unavailable
+
 HERE = Path(__file__).parent
 PACKAGE = __package__ or "benchmarks"
 NOTES = "<!-- Hand-written notes: everything below this line is kept by `python -m benchmarks --write`. -->"
@@ -56,6 +58,8 @@ def run_all(names: list[str], quick: bool, directory: Path = HERE, log=print) ->
         try:
             module = load(name, directory)
             results[name] = {"rows": list(module.run(quick=quick)), "reader": getattr(module, "interpret", interpret)}
+        except Unavailable as reason:
+            results[name] = {"unavailable": str(reason)}
         except Exception:  # noqa: BLE001 -- one broken benchmark must not hide the others' results
             results[name] = {"error": traceback.format_exc(limit=3).strip()}
         results[name]["seconds"] = time.perf_counter() - start
@@ -103,6 +107,9 @@ def tables(results: dict[str, dict]) -> str:
         if "error" in result:
             lines += ["**failed:**", "", "```", result["error"], "```"]
             continue
+        if "unavailable" in result:
+            lines += [result["unavailable"]]
+            continue
         groups: dict[str, list[dict]] = {}
         for row in result["rows"]:
             groups.setdefault(str(row["benchmark"]), []).append(row)
@@ -146,7 +153,9 @@ def main(argv=None, directory: Path = HERE) -> int:
     parser.add_argument("--quick", action="store_true", help="each module's quick (small) variant")
     parser.add_argument("--only", nargs="+", choices=available, metavar="NAME",
                         help=f"modules to run (default: all of {', '.join(available)})")
-    parser.add_argument("--write", action="store_true", help="rewrite RESULTS.md beside the modules")
+    parser.add_argument("--write", action="store_true", help="rewrite the results file (see --results)")
+    parser.add_argument("--results", type=Path, default=Path(directory) / "RESULTS.md",
+                        help="the results file that --write rewrites (default: RESULTS.md beside the modules)")
     args = parser.parse_args(argv)
 
     from benchmarks.timing import environment
@@ -154,7 +163,7 @@ def main(argv=None, directory: Path = HERE) -> int:
     env = environment()
     print(", ".join(f"{k}: {v}" for k, v in env.items()))
     results = run_all(args.only or available, args.quick, directory)
-    path = Path(directory) / "RESULTS.md"
+    path = args.results
     text = results_markdown(results, env, args.quick, kept_notes(path))
     print(text)
     if args.write:

@@ -10,7 +10,7 @@ import sys
 
 import numpy as np
 
-from benchmarks.timing import environment, markdown_table, median_ms
+from benchmarks.timing import environment, markdown_table, median_ms, require
 from jaxanom.data.synthetic import SyntheticScenes, generate
 from jaxanom.data.transforms import Augment
 
@@ -65,6 +65,7 @@ def _pipeline_rows(quick: bool) -> list[dict]:
 
 
 def run(quick: bool = False) -> list[dict]:
+    require("grain")  # the GPU machines have no grain: this input-pipeline benchmark is for CPU hosts
     return _generation_rows(quick) + _pipeline_rows(quick)
 
 

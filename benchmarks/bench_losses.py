@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from benchmarks.timing import environment, markdown_table, median_ms
+from benchmarks.timing import environment, markdown_table, median_ms, torch_device
 from jaxanom import losses
 from jaxanom.train.step import LossConfig, objective
 
@@ -83,9 +83,10 @@ def run(quick: bool = False) -> list[dict]:
         jax_ms = median_ms(lambda: fn(*args), repeats=repeats)
         jax_loss = float(fn(*args)[0])
 
-        t_logits = torch.tensor(logits).permute(0, 3, 1, 2).contiguous().requires_grad_()
-        t_attention = torch.tensor(attention).requires_grad_()
-        t_labels = torch.tensor(labels).long()
+        device = torch_device()
+        t_logits = torch.tensor(logits, device=device).permute(0, 3, 1, 2).contiguous().requires_grad_()
+        t_attention = torch.tensor(attention, device=device).requires_grad_()
+        t_labels = torch.tensor(labels, device=device).long()
 
         def torch_step():
             t_logits.grad = t_attention.grad = None
@@ -99,7 +100,7 @@ def run(quick: bool = False) -> list[dict]:
                      "impl": "jaxanom (jit)", "median_ms": jax_ms, "ratio": torch_ms / jax_ms,
                      "note": f"loss {jax_loss:.6g} vs torch {torch_loss:.6g}"})
         rows.append({"benchmark": "loss+grad", "case": f"{'cudam' if cudam else 'cross-entropy'} {shape}",
-                     "impl": "pytorch (eager)", "median_ms": torch_ms, "ratio": 1.0, "note": ""})
+                     "impl": f"pytorch {device} (eager)", "median_ms": torch_ms, "ratio": 1.0, "note": ""})
     return rows
 
 

@@ -16,7 +16,7 @@ import argparse
 
 import numpy as np
 
-from benchmarks.timing import environment, markdown_table, median_ms
+from benchmarks.timing import environment, markdown_table, gb_per_s, median_ms, same_as_cpu, torch_device
 
 NUM_CLASSES = 19
 
@@ -39,23 +39,24 @@ class TorchSML:
     cross max-pools for the diamond, and a separable Gaussian from shifted slices.
     """
 
-    def __init__(self, mean, std, *, tuned, width=4, iterations=4, kernel_size=7, sigma=1.0, dilation=6):
+    def __init__(self, mean, std, *, tuned, device="cpu", width=4, iterations=4, kernel_size=7, sigma=1.0,
+                 dilation=6):
         import torch
 
         self.torch, self.tuned = torch, tuned
-        self.mean, self.std = torch.as_tensor(mean), torch.as_tensor(std)
+        self.mean, self.std = torch.as_tensor(mean, device=device), torch.as_tensor(std, device=device)
         self.width, self.iterations, self.dilation = width, iterations, dilation
-        self.ones3 = torch.ones(1, 1, 3, 3)
+        self.ones3 = torch.ones(1, 1, 3, 3, device=device)
         c = (kernel_size - 1) / 2
         g = np.exp(-((np.arange(kernel_size) - c) ** 2) / (2 * sigma**2))
         g /= g.sum()
         self.gauss_1d = [float(v) for v in g.astype(np.float32)]
-        self.gauss_2d = torch.tensor(np.outer(g, g), dtype=torch.float32)[None, None]
+        self.gauss_2d = torch.tensor(np.outer(g, g), dtype=torch.float32, device=device)[None, None]
         self.reach = dilation * (kernel_size // 2)
         self.diamonds = {}
         for r in range(1, width):
             yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
-            self.diamonds[r] = torch.tensor((np.abs(yy) + np.abs(xx) <= r).astype(np.float32))[None, None]
+            self.diamonds[r] = torch.tensor((np.abs(yy) + np.abs(xx) <= r).astype(np.float32), device=device)[None, None]
 
     def dilate_cross(self, x):
         f = self.torch.nn.functional
@@ -117,22 +118,28 @@ def run(quick: bool = False) -> list[dict]:
     rng = np.random.default_rng(1)
     mean = rng.normal(size=NUM_CLASSES).astype(np.float32) + 5
     std = (0.5 + rng.random(NUM_CLASSES)).astype(np.float32)
-    peers = {"torch (original ops)": TorchSML(mean, std, tuned=False), "torch (tuned)": TorchSML(mean, std, tuned=True)}
+    device = torch_device()
+    peers = {f"torch {device} (original ops)": TorchSML(mean, std, tuned=False, device=device),
+             f"torch {device} (tuned)": TorchSML(mean, std, tuned=True, device=device)}
     rows = []
-    repeats = lambda batch: 5 if quick else (3 if batch == 1 else 2)  # noqa: E731
+    gpu = jax.default_backend() == "gpu"
+    repeats = lambda batch: 5 if quick or gpu else (3 if batch == 1 else 2)  # noqa: E731
     for batch in batches:
         logits = make_logits(batch, height, width)
         logits_jax = jax.device_put(logits)
-        logits_torch = torch.from_numpy(np.ascontiguousarray(logits.transpose(0, 3, 1, 2)))
-        del logits
+        logits_torch = torch.from_numpy(np.ascontiguousarray(logits.transpose(0, 3, 1, 2))).to(device)
         ours = lambda: sml.sml_score_batch(logits_jax, mean, std)  # noqa: E731
         reference = np.asarray(ours())
+        cpu_check = same_as_cpu(lambda: sml.sml_score_batch(logits, mean, std), reference)
+        del logits
         jax_ms = median_ms(ours, repeats=repeats(batch), warmup=1)
         case = f"{batch}x{height}x{width}x{NUM_CLASSES}"
         rows.append(dict(benchmark="sml_postprocess", case=case, impl="jaxanom", median_ms=jax_ms,
-                         ms_per_frame=jax_ms / batch, ratio=1.0, note="sml_score_batch (jit(vmap))"))
+                         ms_per_frame=jax_ms / batch, ratio=1.0,
+                         note=f"sml_score_batch (jit(vmap)); logits read at {gb_per_s(logits_jax.nbytes, jax_ms)}"
+                              f"{cpu_check}"))
         for name, peer in peers.items():
-            diff = float(np.max(np.abs(peer(logits_torch).numpy() - reference)))
+            diff = float(np.max(np.abs(peer(logits_torch).cpu().numpy() - reference)))
             if diff > 1e-4:
                 raise AssertionError(f"jaxanom and {name} disagree by {diff} at batch {batch}")
             torch_ms = median_ms(lambda: peer(logits_torch), repeats=repeats(batch), warmup=1)

@@ -24,6 +24,25 @@ def _block(result: Any) -> Any:
     return jax.block_until_ready(result)
 
 
+class Unavailable(Exception):
+    """A benchmark that cannot run on this machine (a library it measures is missing): reported, not failed."""
+
+
+def require(module: str) -> None:
+    """Raise ``Unavailable`` unless ``module`` can be imported."""
+    import importlib.util
+
+    if importlib.util.find_spec(module) is None:
+        raise Unavailable(f"not run: {module} is not installed on this machine")
+
+
+def torch_device() -> str:
+    """Where the PyTorch peer runs: ``"cuda"`` when PyTorch sees a GPU, else ``"cpu"``."""
+    import torch
+
+    return "cuda" if torch.cuda.is_available() else "cpu"
+
+
 def median_ms(fn: Callable[[], Any], *, repeats: int = 7, warmup: int = 2) -> float:
     """Median wall time of ``fn()`` in milliseconds, after ``warmup`` untimed calls."""
     for _ in range(warmup):
@@ -34,6 +53,23 @@ def median_ms(fn: Callable[[], Any], *, repeats: int = 7, warmup: int = 2) -> fl
         _block(fn())
         times.append((time.perf_counter() - start) * 1e3)
     return statistics.median(times)
+
+
+def gb_per_s(nbytes: int, ms: float) -> str:
+    """Bytes moved per second, as text: the figure to hold against the device's memory bandwidth."""
+    return f"{nbytes / ms / 1e6:.0f} GB/s"
+
+
+def same_as_cpu(fn: Callable[[], Any], result: Any) -> str:
+    """On an accelerator, ``fn()`` run on the CPU compared with ``result``, as a note ("" on a CPU)."""
+    import jax
+    import numpy as np
+
+    if jax.default_backend() == "cpu":
+        return ""
+    with jax.default_device(jax.devices("cpu")[0]):
+        on_cpu = np.asarray(fn())
+    return f"; max |diff| to the CPU result {float(np.max(np.abs(on_cpu - np.asarray(result)))):.1e}"
 
 
 def environment() -> dict[str, str]:

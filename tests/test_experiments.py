@@ -136,3 +136,23 @@ def test_interpret_mixed_and_slower_peers():
             dict(case="b", impl="sk", median_ms=4.0)]
     assert interpret(rows) == ("torch takes 0.5x to 2x jaxanom's time (jaxanom faster in some cases, slower in "
                                "others); sk takes 0.4x jaxanom's time (jaxanom slower).")
+
+
+def test_benchmark_runner_reports_a_missing_library_and_writes_where_told(tmp_path, capsys):
+    (tmp_path / "bench_needs.py").write_text(
+        "from benchmarks.timing import require\n\ndef run(quick=False):\n"
+        "    require('no_such_library_xyz')\n    return []\n")
+    results = tmp_path / "elsewhere" / "GPU.md"
+    results.parent.mkdir()
+    assert bench_main(["--write", "--results", str(results)], directory=tmp_path) == 0
+    text = results.read_text()
+    assert "## bench_needs" in text and "not run: no_such_library_xyz is not installed on this machine" in text
+    assert not (tmp_path / "RESULTS.md").exists()
+    capsys.readouterr()
+
+
+def test_benchmark_helpers_bandwidth_and_cpu_check():
+    from benchmarks.timing import gb_per_s, same_as_cpu
+
+    assert gb_per_s(3 * 10**9, 1000.0) == "3 GB/s"
+    assert same_as_cpu(lambda: 1 / 0, 0.0) == ""  # on a CPU nothing is recomputed

@@ -24,6 +24,9 @@ def add_parser(commands) -> None:
     parser.add_argument("--steps", type=int, help="training steps")
     parser.add_argument("--batch-size", type=int, help="global batch size")
     parser.add_argument("--seed", type=int, help="random seed")
+    parser.add_argument("--distributed", action="store_true",
+                        help="multi-host: one process per host, joined by jax.distributed.initialize (SLURM, Open MPI "
+                        "and TPU pods are detected; see the README)")
     add_common(parser, progress=True, overwrite=False)
     parser.set_defaults(handler=run)
 
@@ -31,6 +34,10 @@ def add_parser(commands) -> None:
 def run(args) -> None:
     from jaxanom.experiment import Experiment, load_experiment, run_training
 
+    if args.distributed:  # before any JAX work: loading the data or the model may touch devices
+        from jaxanom.train.sharding import initialize_distributed
+
+        initialize_distributed()
     out = Path(args.out)
     if args.resume:
         if args.config:
@@ -41,7 +48,10 @@ def run(args) -> None:
         out_folder(args.out, overwrite=False)
     experiment = _override(experiment, args)
     run_training(experiment, out, progress=not args.no_progress)
-    print(f"trained {experiment.train.steps} steps; checkpoints in {out / 'checkpoints'}")
+    import jax
+
+    print(f"trained {experiment.train.steps} steps on {jax.device_count()} devices ({jax.process_count()} "
+          f"processes); checkpoints in {out / 'checkpoints'}")
 
 
 def load_config(path: str):
@@ -61,7 +71,7 @@ def _override(experiment, args):
     fields = {"model": args.model, "data": args.data, "data_root": args.data_root, "batch_size": args.batch_size}
     if args.attention is not None:
         fields["attention"] = None if args.attention == "none" else args.attention
-    train = {"steps": args.steps, "seed": args.seed}
+    train = {"steps": args.steps, "seed": args.seed, "distributed": args.distributed or None}
     train = {k: v for k, v in train.items() if v is not None}
     if "attention" in fields:
         method = {None: "plain"}.get(fields["attention"], fields["attention"])

@@ -21,9 +21,12 @@ def initialize_distributed() -> None:
     """Join a multi-host run (``jax.distributed.initialize``); call before any other JAX work.
 
     The coordinator, process count and id are detected from the cluster environment
-    (TPU pods, SLURM, Open MPI, ...), as ``jax.distributed.initialize`` documents.
+    (TPU pods, SLURM, Open MPI, ...), as ``jax.distributed.initialize`` documents. A second call
+    is a no-op, so a command may join early and the train loop still asks.
     """
-    jax.distributed.initialize()
+    if not jax.distributed.is_initialized():
+        jax.config.update("jax_cpu_collectives_implementation", "gloo")  # CPU hosts; GPUs use NCCL
+        jax.distributed.initialize()
 
 
 def make_mesh(devices: Sequence[jax.Device] | None = None) -> Mesh:
