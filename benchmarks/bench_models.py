@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from benchmarks.timing import environment, markdown_table, median_ms
+from benchmarks.timing import environment, flop_rate, markdown_table, median_ms
 from jaxanom.models import build_model
 
 NUM_CLASSES = 19
@@ -70,7 +70,8 @@ def _jax_forward_ms(name, attention, shape, dtype, repeats):
     variables = _host_variables(model, shape)
     images = jnp.asarray(np.random.default_rng(1).normal(size=(*shape, 3)).astype(np.float32))
     forward = jax.jit(lambda v, x: model.apply(v, x, train=False)["logits"])
-    return median_ms(lambda: forward(variables, images), repeats=repeats, warmup=2)
+    ms = median_ms(lambda: forward(variables, images), repeats=repeats, warmup=2)
+    return ms, flop_rate(forward, variables, images, ms=ms)
 
 
 def _jax_train_ms(name, shape, dtype, repeats):
@@ -99,7 +100,8 @@ def _jax_train_ms(name, shape, dtype, repeats):
         *state[:], loss = step(*state, images, labels)
         return loss
 
-    return median_ms(run, repeats=repeats, warmup=2)
+    ms = median_ms(run, repeats=repeats, warmup=2)
+    return ms, flop_rate(step, *state, images, labels, ms=ms)
 
 
 # ----------------------------------------------------------------------------- PyTorch peer
@@ -224,9 +226,9 @@ def run(quick: bool = False) -> list[dict]:
     fwd_case = f"{net} OS8 {'x'.join(map(str, sizes['forward']))} {dtype}"
     train_case = f"{net} OS8 + CuDAM {'x'.join(map(str, sizes['train']))} {dtype}"
     name = sizes["model"]
-    plain = _jax_forward_ms(name, None, sizes["forward"], dtype, repeats)
-    cudam = _jax_forward_ms(name, "cudam", sizes["forward"], dtype, repeats)
-    train = _jax_train_ms(name, sizes["train"], dtype, repeats)
+    plain, plain_rate = _jax_forward_ms(name, None, sizes["forward"], dtype, repeats)
+    cudam, cudam_rate = _jax_forward_ms(name, "cudam", sizes["forward"], dtype, repeats)
+    train, train_rate = _jax_train_ms(name, sizes["train"], dtype, repeats)
     peer = None if quick else _torch_rows(sizes)
     batch = sizes["train"][0]
 
@@ -237,11 +239,11 @@ def run(quick: bool = False) -> list[dict]:
         return {**r, **extra}
 
     rows = [
-        row("forward", fwd_case, "jaxanom", plain, peer and peer[None]),
+        row("forward", fwd_case, "jaxanom", plain, peer and peer[None], note=plain_rate),
         row("forward + CuDAM", fwd_case, "jaxanom", cudam, peer and peer["cudam"],
-            note=f"CuDAM overhead {100 * (cudam / plain - 1):.1f}%"),
+            note=f"CuDAM overhead {100 * (cudam / plain - 1):.1f}%; {cudam_rate}"),
         row("train step", train_case, "jaxanom", train, peer and peer["train"],
-            note=f"{1e3 * batch / train:.1f} images/s"),
+            note=f"{1e3 * batch / train:.1f} images/s; {train_rate}"),
     ]
     if peer is not None:
         rows += [

@@ -60,6 +60,14 @@ def gb_per_s(nbytes: int, ms: float) -> str:
     return f"{nbytes / ms / 1e6:.0f} GB/s"
 
 
+def flop_rate(jitted: Callable, *args: Any, ms: float) -> str:
+    """XLA's FLOP count of ``jitted(*args)`` over ``ms``, as text: to hold against the device's peak."""
+    cost = jitted.lower(*args).compile().cost_analysis()
+    cost = cost[0] if isinstance(cost, (list, tuple)) else cost
+    flops = (cost or {}).get("flops", 0.0)
+    return f"{flops / ms / 1e9:.2f} TFLOP/s (XLA's count)" if flops > 0 else "no FLOP count"
+
+
 def same_as_cpu(fn: Callable[[], Any], result: Any) -> str:
     """On an accelerator, ``fn()`` run on the CPU compared with ``result``, as a note ("" on a CPU)."""
     import jax
