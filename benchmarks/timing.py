@@ -65,7 +65,10 @@ def flop_rate(jitted: Callable, *args: Any, ms: float) -> str:
     cost = jitted.lower(*args).compile().cost_analysis()
     cost = cost[0] if isinstance(cost, (list, tuple)) else cost
     flops = (cost or {}).get("flops", 0.0)
-    return f"{flops / ms / 1e9:.2f} TFLOP/s (XLA's count)" if flops > 0 else "no FLOP count"
+    if flops <= 0:
+        return "no FLOP count"
+    gflops = flops / ms / 1e6
+    return f"{gflops / 1e3:.3g} TFLOP/s (XLA's count)" if gflops >= 1e3 else f"{gflops:.3g} GFLOP/s (XLA's count)"
 
 
 def same_as_cpu(fn: Callable[[], Any], result: Any) -> str:
