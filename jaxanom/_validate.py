@@ -31,7 +31,11 @@ def _all_finite(x) -> jax.Array:
 
 def check_finite(name: str, x) -> None:
     """No NaN or Inf in ``x`` (skipped for tracers); one compiled reduction, no host copy."""
-    if is_concrete(x) and not bool(_all_finite(jnp.asarray(x))):
+    if not is_concrete(x):
+        return
+    with jax.ensure_compile_time_eval():  # concrete even inside a caller's jit (closed-over arrays)
+        finite = bool(_all_finite(jnp.asarray(x)))
+    if not finite:
         bad = int(np.size(x) - np.count_nonzero(np.isfinite(np.asarray(x))))
         raise ValueError(f"{name} must be finite, got {bad} NaN/Inf value(s)")
 
