@@ -1,0 +1,45 @@
+"""The ``jaxanom`` command: demo, train, fit-stats, evaluate, score.
+
+Every command writes into an output folder that must be new or empty (``--overwrite`` allows
+a non-empty one), and ends with a non-zero exit and a one-line reason on bad input.
+One module per command; each has ``add_parser(commands)`` and ``run(args)``.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from jaxanom.cli import demo, evaluate, fit_stats, score, train
+from jaxanom.cli.common import CommandError
+
+COMMANDS = (demo, train, fit_stats, evaluate, score)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = _parser()
+    args = parser.parse_args(argv)
+    if not hasattr(args, "handler"):
+        parser.print_help()
+        return 2
+    try:
+        args.handler(args)
+    except (CommandError, ValueError, FileNotFoundError, FileExistsError) as error:
+        print(f"jaxanom {args.command}: error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"jaxanom {args.command}: interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="jaxanom", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for command in COMMANDS:
+        command.add_parser(commands)
+    return parser
+
+
+if __name__ == "__main__":
+    sys.exit(main())

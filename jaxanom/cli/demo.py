@@ -1,0 +1,30 @@
+"""``jaxanom demo``: train, fit SML statistics and evaluate on synthetic scenes."""
+from __future__ import annotations
+
+import dataclasses
+
+from jaxanom.cli.common import add_common, out_folder
+
+
+def add_parser(commands) -> None:
+    parser = commands.add_parser("demo", help="train, fit SML statistics and evaluate on synthetic scenes",
+                                 description="Train a small DeepLabV3+ with CuDAM on synthetic driving scenes, fit "
+                                 "SML statistics, evaluate MSP / max logit / entropy / energy / SML / SML + "
+                                 "post-processing / CuDAM on a synthetic anomaly split; write a table, "
+                                 "results.json and pictures.")
+    parser.add_argument("--out", default="jaxanom-demo", help="output folder (default: %(default)s)")
+    parser.add_argument("--quick", action="store_true", help="a seconds-long smoke run of the same path")
+    parser.add_argument("--steps", type=int, help="training steps (default: 1500; --quick: 3)")
+    add_common(parser, progress=True)
+    parser.set_defaults(handler=run)
+
+
+def run(args) -> None:
+    from jaxanom.demo import DemoConfig, run_demo
+
+    config = DemoConfig.quick() if args.quick else DemoConfig()
+    if args.steps is not None:
+        experiment = config.experiment
+        config = dataclasses.replace(config, experiment=dataclasses.replace(
+            experiment, train=dataclasses.replace(experiment.train, steps=args.steps)))
+    run_demo(out_folder(args.out, args.overwrite), config, progress=not args.no_progress)

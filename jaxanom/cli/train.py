@@ -1,0 +1,70 @@
+"""``jaxanom train``: train a network from a config file or flags; ``--resume`` continues."""
+from __future__ import annotations
+
+import dataclasses
+import runpy
+from pathlib import Path
+
+from jaxanom.cli.common import CommandError, add_common, out_folder
+
+
+def add_parser(commands) -> None:
+    parser = commands.add_parser("train", help="train a network (config file or flags); --resume continues",
+                                 description="Train a DeepLabV3+ (optionally with CuDAM or MSAAM). A config file is "
+                                 "a Python file that defines `experiment`, a jaxanom.experiment.Experiment; flags "
+                                 "override its fields.")
+    parser.add_argument("--out", required=True, help="run folder (checkpoints, logs, experiment.json); "
+                        "must be new or empty unless --resume")
+    parser.add_argument("--config", help="Python file defining `experiment = Experiment(...)`")
+    parser.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    parser.add_argument("--model", help="model preset, e.g. deeplabv3plus_tiny, deeplabv3plus_r101")
+    parser.add_argument("--attention", choices=["none", "cudam", "msaam"], help="attention module")
+    parser.add_argument("--data", choices=["synthetic", "cityscapes"], help="training data")
+    parser.add_argument("--data-root", help="dataset folder (Cityscapes layout)")
+    parser.add_argument("--steps", type=int, help="training steps")
+    parser.add_argument("--batch-size", type=int, help="global batch size")
+    parser.add_argument("--seed", type=int, help="random seed")
+    add_common(parser, progress=True, overwrite=False)
+    parser.set_defaults(handler=run)
+
+
+def run(args) -> None:
+    from jaxanom.experiment import Experiment, load_experiment, run_training
+
+    out = Path(args.out)
+    if args.resume:
+        if args.config:
+            raise CommandError("--resume continues the run's own experiment.json; do not pass --config")
+        experiment = load_experiment(out)
+    else:
+        experiment = load_config(args.config) if args.config else Experiment()
+        out_folder(args.out, overwrite=False)
+    experiment = _override(experiment, args)
+    run_training(experiment, out, progress=not args.no_progress)
+    print(f"trained {experiment.train.steps} steps; checkpoints in {out / 'checkpoints'}")
+
+
+def load_config(path: str):
+    """The ``experiment`` that a config file defines."""
+    from jaxanom.experiment import Experiment
+
+    if not Path(path).is_file():
+        raise CommandError(f"--config {path}: no such file")
+    experiment = runpy.run_path(path).get("experiment")
+    if not isinstance(experiment, Experiment):
+        raise CommandError(f"--config {path}: expected it to define `experiment = Experiment(...)`, "
+                           f"found {type(experiment).__name__}")
+    return experiment
+
+
+def _override(experiment, args):
+    fields = {"model": args.model, "data": args.data, "data_root": args.data_root, "batch_size": args.batch_size}
+    if args.attention is not None:
+        fields["attention"] = None if args.attention == "none" else args.attention
+    train = {"steps": args.steps, "seed": args.seed}
+    train = {k: v for k, v in train.items() if v is not None}
+    if "attention" in fields:
+        method = {None: "plain"}.get(fields["attention"], fields["attention"])
+        train["loss"] = dataclasses.replace(experiment.train.loss, method=method)
+    fields = {k: v for k, v in fields.items() if v is not None or k == "attention"}
+    return dataclasses.replace(experiment, **fields, train=dataclasses.replace(experiment.train, **train))
