@@ -136,3 +136,20 @@ def test_bad_input_raises(args, message):
 def test_batch_needs_rank_three():
     with pytest.raises(ValueError, match="anomaly must have rank 3"):
         superpixel_score_batch(np.zeros((4, 5)), np.zeros((4, 5)), np.zeros((4, 5), int), 3)
+
+
+@pytest.mark.parametrize("k,used", [(9, 9), (10, 6), (40, 33), (5, 1)])
+def test_median_distance_matches_numpy(k, used):
+    from jaxanom.mmf.postprocess import _median_distance
+
+    rng = np.random.default_rng(k)
+    centres = rng.integers(0, 6, (k, 2)).astype(np.float32) / 2  # repeated distances: ties
+    valid = np.zeros(k, bool)
+    valid[rng.choice(k, used, replace=False)] = True
+    i, j = np.triu_indices(k, 1)
+    pairs = np.linalg.norm(centres[i] - centres[j], axis=1)[valid[i] & valid[j]]
+    got = float(_median_distance(centres, valid))
+    if pairs.size:  # odd and even pair counts (36, 15, 528)
+        assert got == pytest.approx(np.median(pairs), rel=1e-6)
+    else:
+        assert np.isnan(got)

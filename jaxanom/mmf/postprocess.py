@@ -5,7 +5,7 @@ With Omega_j the pixels of superpixel j of an (H, W) image (MMF.md A2.8, decisio
 - n_j = |Omega_j| / (H W), alpha_j = mean anomaly a over Omega_j, p_j = mean road probability
   over Omega_j, c_j = centroid (y, x), r_ij = |c_i - c_j|;
 - omega = median of r_ij over the pairs i < j of non-empty superpixels (NumPy's median: the
-  mean of the two middle values for an even count);
+  mean of the two middle values for an even count; found by bisection, not a sort);
 - S_i = alpha_i sum_{j != i} p_j n_j exp(-r_ij^2 / (2 omega^2))  (j = i too with ``include_self``);
 - S_i is min-max normalised over the non-empty superpixels (all 0 when they are equal), and
   each pixel takes the score of its superpixel.
@@ -29,11 +29,33 @@ def _segment_means(values: jax.Array, labels: jax.Array, counts: jax.Array, k: i
     return sums / jnp.maximum(counts, 1.0).reshape((k,) + (1,) * (values.ndim - 1))
 
 
+def _order_statistics(values: jax.Array, keep: jax.Array, ranks: jax.Array) -> jax.Array:
+    """The ``ranks``-th smallest (0-based) of the kept non-negative float32 ``values``.
+
+    Bisection over the float bit patterns (whose integer order is the order of non-negative
+    floats): 32 counting passes, exact, and far faster on XLA:CPU than a float sort.
+    """
+    bits = jnp.where(keep, jax.lax.bitcast_convert_type(values, jnp.int32), jnp.iinfo(jnp.int32).max)
+
+    def halve(_, bounds):
+        low, high = bounds
+        middle = low + (high - low) // 2
+        enough = jnp.sum(bits[None, :] <= middle[:, None], axis=1) > ranks
+        return jnp.where(enough, low, middle + 1), jnp.where(enough, middle, high)
+
+    start = (jnp.zeros_like(ranks), jnp.full_like(ranks, 0x7F800000))  # [0.0, inf]
+    low, _ = jax.lax.fori_loop(0, 32, halve, start)
+    return jax.lax.bitcast_convert_type(low, jnp.float32)
+
+
 def _median_distance(centres: jax.Array, valid: jax.Array) -> jax.Array:
     """omega: median of |c_i - c_j| over pairs i < j of valid superpixels (NaN without pairs)."""
     i, j = np.triu_indices(centres.shape[0], 1)
     distance = jnp.sqrt(jnp.sum((centres[i] - centres[j]) ** 2, axis=-1))
-    return jnp.nanmedian(jnp.where(valid[i] & valid[j], distance, jnp.nan))
+    keep = valid[i] & valid[j]
+    count = jnp.sum(keep, dtype=jnp.int32)
+    middle = _order_statistics(distance, keep, jnp.stack([(count - 1) // 2, count // 2]))
+    return jnp.where(count > 0, (middle[0] + middle[1]) / 2, jnp.nan)
 
 
 def _superpixel_scores(anomaly, road, labels, num_segments: int, include_self: bool = False):
