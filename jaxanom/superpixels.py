@@ -137,11 +137,11 @@ def _update(lab: jax.Array, labels: jax.Array, centres: jax.Array) -> jax.Array:
     """Step 5: (K, 5) mean ``[l, a, b, y, x]`` per cluster; an empty cluster keeps its centre."""
     height, width = labels.shape
     ys, xs = jnp.meshgrid(jnp.arange(height), jnp.arange(width), indexing="ij")
-    features = jnp.concatenate([lab, jnp.stack([ys, xs], -1).astype(lab.dtype)], -1).reshape(-1, 5)
-    k = centres.shape[0]
-    sums = jax.ops.segment_sum(features, labels.ravel(), k)
-    counts = jax.ops.segment_sum(jnp.ones(height * width, lab.dtype), labels.ravel(), k)
-    return jnp.where(counts[:, None] > 0, sums / jnp.maximum(counts, 1)[:, None], centres)
+    ones = jnp.ones((height, width, 1), lab.dtype)  # a sixth column counts the pixels: one scatter
+    features = jnp.concatenate([lab, jnp.stack([ys, xs], -1).astype(lab.dtype), ones], -1).reshape(-1, 6)
+    sums = jax.ops.segment_sum(features, labels.ravel(), centres.shape[0])
+    counts = sums[:, 5:]
+    return jnp.where(counts > 0, sums[:, :5] / jnp.maximum(counts, 1), centres)
 
 
 def _slic(lab: jax.Array, compactness, step: int, iterations: int) -> jax.Array:
