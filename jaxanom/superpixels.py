@@ -174,7 +174,7 @@ def _check_slic(lab, step, compactness, iterations, batched: bool):
         raise ValueError(f"step must be an integer in [1, min(H, W)] = [1, {min(height, width)}], got {step!r}")
     if not isinstance(iterations, (int, np.integer)) or iterations < 0:
         raise ValueError(f"iterations must be an integer >= 0, got {iterations!r}")
-    if not (np.isfinite(compactness) and compactness > 0):
+    if is_concrete(compactness) and not (np.isfinite(compactness) and compactness > 0):
         raise ValueError(f"compactness must be finite and > 0, got {compactness}")
     check_finite("lab", lab)
     return jnp.asarray(lab, _work_dtype(lab)), int(step), int(iterations)

@@ -118,6 +118,8 @@ def test_slic_inside_the_callers_jit():
     lab = random_lab(np.random.default_rng(4), 20, 20).astype(np.float32)
     wrapped = jax.jit(lambda x: slic(x, 5, 10.0, 3))
     np.testing.assert_array_equal(np.asarray(wrapped(lab)), np.asarray(slic(lab, 5, 10.0, 3)))
+    traced_compactness = jax.jit(lambda m: slic(lab, 5, m, 3))  # lab closed over, m traced
+    np.testing.assert_array_equal(np.asarray(traced_compactness(10.0)), np.asarray(slic(lab, 5, 10.0, 3)))
 
 
 def test_slic_agrees_with_scikit_image_on_a_real_frame(road_anomaly_sample):
