@@ -13,7 +13,9 @@ clusters and returns int32 labels ``(H, W)`` in ``[0, K)``, one per pixel (MMF.m
    label where ``D < d(i)``. Done as a scatter-min of ``D``, then a scatter-min of ``k`` over
    the pixels attaining it (ties -> smallest k, as the sequential strict ``<``). ``d`` restarts
    at infinity every iteration; a pixel no window covers takes its initial grid cell;
-5. update: centre = mean ``[l, a, b, y, x]`` of its pixels; an empty cluster keeps its centre.
+5. update: centre = mean ``[l, a, b, y, x]`` of its pixels; an empty cluster keeps its centre;
+6. stop after ``iterations`` updates, or earlier once the residual E <= ``tol``; a last
+   assignment to the final centres gives the labels.
 
 ``round`` is half-to-even (NumPy's). There is no connectivity enforcement (not in Algorithm 1).
 The work dtype is float32, or float64 for float64 input under ``jax.enable_x64``.
@@ -144,13 +146,20 @@ def _update(lab: jax.Array, labels: jax.Array, centres: jax.Array) -> jax.Array:
     return jnp.where(counts > 0, sums[:, :5] / jnp.maximum(counts, 1), centres)
 
 
-def _slic(lab: jax.Array, compactness, step: int, iterations: int) -> jax.Array:
-    centres = _initial_centres(lab, step)
+def _slic(lab: jax.Array, compactness, tol, step: int, iterations: int) -> jax.Array:
+    """Steps 1-6: at most ``iterations`` updates, stopping once E = sum_k |dy_k| + |dx_k| <= tol."""
 
-    def one_iteration(_, centres):
-        return _update(lab, _assign(lab, centres, step, compactness), centres)
+    def going_on(state):
+        count, _, residual = state
+        return (count < iterations) & (residual > tol)
 
-    centres = jax.lax.fori_loop(0, iterations, one_iteration, centres)
+    def one_iteration(state):
+        count, centres, _ = state
+        moved = _update(lab, _assign(lab, centres, step, compactness), centres)
+        return count + 1, moved, jnp.sum(jnp.abs(moved[:, 3:] - centres[:, 3:]))
+
+    start = (0, _initial_centres(lab, step), jnp.asarray(jnp.inf, lab.dtype))
+    _, centres, _ = jax.lax.while_loop(going_on, one_iteration, start)
     return _assign(lab, centres, step, compactness)
 
 
@@ -159,11 +168,11 @@ _slic_jit = jax.jit(_slic, static_argnames=("step", "iterations"))
 
 
 @functools.partial(jax.jit, static_argnames=("step", "iterations"))
-def _slic_batch(lab: jax.Array, compactness, step: int, iterations: int) -> jax.Array:
-    return jax.vmap(_slic, in_axes=(0, None, None, None))(lab, compactness, step, iterations)
+def _slic_batch(lab: jax.Array, compactness, tol, step: int, iterations: int) -> jax.Array:
+    return jax.vmap(_slic, in_axes=(0, None, None, None, None))(lab, compactness, tol, step, iterations)
 
 
-def _check_slic(lab, step, compactness, iterations, batched: bool):
+def _check_slic(lab, step, compactness, iterations, tol, batched: bool):
     check_rank("lab", lab, 4 if batched else 3, "(B, H, W, 3)" if batched else "(H, W, 3)")
     if np.shape(lab)[-1] != 3:
         raise ValueError(f"lab must have 3 channels (L, a, b) in its last axis, got shape {np.shape(lab)}")
@@ -176,26 +185,33 @@ def _check_slic(lab, step, compactness, iterations, batched: bool):
         raise ValueError(f"iterations must be an integer >= 0, got {iterations!r}")
     if is_concrete(compactness) and not (np.isfinite(compactness) and compactness > 0):
         raise ValueError(f"compactness must be finite and > 0, got {compactness}")
+    if tol is not None and is_concrete(tol) and not (np.isfinite(tol) and tol >= 0):
+        raise ValueError(f"tol must be None or finite and >= 0, got {tol}")
     check_finite("lab", lab)
-    return jnp.asarray(lab, _work_dtype(lab)), int(step), int(iterations)
+    dtype = _work_dtype(lab)
+    tol = jnp.asarray(-1.0 if tol is None else tol, dtype)  # -1: E >= 0 never stops the loop early
+    return jnp.asarray(lab, dtype), jnp.asarray(compactness, dtype), tol, int(step), int(iterations)
 
 
-def slic(lab, step: int, compactness: float = 10.0, iterations: int = 10) -> jax.Array:
+def slic(lab, step: int, compactness: float = 10.0, iterations: int = 10, tol: float | None = None) -> jax.Array:
     """SLIC (MMF Algorithm 1) of one image: lab ``(H, W, 3)`` float -> labels ``(H, W)`` int32.
 
     Labels lie in ``[0, num_superpixels((H, W), step))``; every pixel has one. ``step`` S (grid
     step in pixels, 1 <= S <= min(H, W)) and ``iterations`` are static; ``compactness`` m weighs
-    the spatial distance (``D = d_lab^2 + (m/S)^2 d_xy^2``). Pass Lab from ``rgb_to_lab``
-    (MMF.md D3: the image, not the anomaly map, is segmented).
+    the spatial distance (``D = d_lab^2 + (m/S)^2 d_xy^2``). ``tol``: stop before ``iterations``
+    once the centres move by E = sum_k |dy_k| + |dx_k| <= tol (Algorithm 1's residual error);
+    None runs every iteration. Pass Lab from ``rgb_to_lab`` (MMF.md D3: the image, not the
+    anomaly map, is segmented).
     """
-    lab, step, iterations = _check_slic(lab, step, compactness, iterations, batched=False)
-    return _slic_jit(lab, jnp.asarray(compactness, lab.dtype), step=step, iterations=iterations)
+    *args, step, iterations = _check_slic(lab, step, compactness, iterations, tol, batched=False)
+    return _slic_jit(*args, step=step, iterations=iterations)
 
 
-def slic_batch(lab, step: int, compactness: float = 10.0, iterations: int = 10) -> jax.Array:
-    """``slic`` over a batch: lab ``(B, H, W, 3)`` -> labels ``(B, H, W)`` int32."""
-    lab, step, iterations = _check_slic(lab, step, compactness, iterations, batched=True)
-    return _slic_batch(lab, jnp.asarray(compactness, lab.dtype), step=step, iterations=iterations)
+def slic_batch(lab, step: int, compactness: float = 10.0, iterations: int = 10,
+               tol: float | None = None) -> jax.Array:
+    """``slic`` over a batch: lab ``(B, H, W, 3)`` -> labels ``(B, H, W)`` int32 (each image stops on its own)."""
+    *args, step, iterations = _check_slic(lab, step, compactness, iterations, tol, batched=True)
+    return _slic_batch(*args, step=step, iterations=iterations)
 
 
 __all__ = ["grid_shape", "num_superpixels", "rgb_to_lab", "slic", "slic_batch"]

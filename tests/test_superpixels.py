@@ -11,7 +11,7 @@ from sklearn.metrics import adjusted_rand_score
 from jaxanom.superpixels import grid_shape, num_superpixels, rgb_to_lab, slic, slic_batch
 
 
-def reference_slic(lab, step, compactness, iterations):
+def reference_slic(lab, step, compactness, iterations, tol=None):
     """Algorithm 1 as written: a loop over centres in index order, strict ``D < d(i)``."""
     lab = np.asarray(lab, np.float64)
     height, width, _ = lab.shape
@@ -54,10 +54,13 @@ def reference_slic(lab, step, compactness, iterations):
         if iteration == iterations:
             return label
         features = np.concatenate([lab, ys[..., None], xs[..., None]], -1)
+        previous = centres.copy()
         for k in range(len(centres)):
             members = features[label == k]
             if len(members):
                 centres[k] = members.mean(axis=0)
+        if tol is not None and np.sum(np.abs(centres[:, 3:] - previous[:, 3:])) <= tol:  # residual error E
+            iterations = iteration + 1  # one more assignment to the final centres, then stop
 
 
 def random_lab(rng, height, width):
@@ -82,6 +85,20 @@ def test_slic_equals_algorithm_1_loop(height, width, step, compactness, iteratio
         got = np.asarray(slic(jnp.asarray(lab), step, compactness, iterations))
     np.testing.assert_array_equal(got, expected)
     assert got.dtype == np.int32 and got.min() >= 0 and got.max() < num_superpixels((height, width), step)
+
+
+@pytest.mark.parametrize("tol", [0.0, 20.0, 1e9])
+def test_slic_stops_at_the_residual_error_like_the_loop(tol):
+    lab = random_lab(np.random.default_rng(11), 27, 35)
+    expected = reference_slic(lab, 6, 10.0, 10, tol)
+    with jax.enable_x64(True):
+        got = np.asarray(slic(jnp.asarray(lab), 6, 10.0, 10, tol=tol))
+        batch = np.asarray(slic_batch(jnp.asarray(np.stack([lab, lab[::-1]])), 6, 10.0, 10, tol=tol))
+    np.testing.assert_array_equal(got, expected)
+    np.testing.assert_array_equal(batch[0], expected)
+    np.testing.assert_array_equal(batch[1], reference_slic(lab[::-1], 6, 10.0, 10, tol))
+    if tol == 1e9:  # stops after the first update
+        np.testing.assert_array_equal(got, reference_slic(lab, 6, 10.0, 1))
 
 
 def test_slic_float32_agrees_with_the_loop():
@@ -151,6 +168,7 @@ def test_rgb_to_lab_matches_scikit_image(dtype):
     (lambda: slic(np.zeros((8, 12, 3)), 2, iterations=-1), "iterations must be"),
     (lambda: slic(np.zeros((8, 12, 3)), 2, compactness=0.0), "compactness must be"),
     (lambda: slic(np.full((8, 12, 3), np.nan), 2), "lab must be finite"),
+    (lambda: slic(np.zeros((8, 12, 3)), 2, tol=-1.0), "tol must be None or"),
     (lambda: slic_batch(np.zeros((8, 12, 3)), 2), "lab must have rank 4"),
     (lambda: rgb_to_lab(np.zeros((4, 4))), "image must have 3 channels"),
     (lambda: rgb_to_lab(np.full((4, 4, 3), 1.5)), "image must hold floats in"),
