@@ -148,8 +148,21 @@ def test_median_distance_matches_numpy(k, used):
     valid[rng.choice(k, used, replace=False)] = True
     i, j = np.triu_indices(k, 1)
     pairs = np.linalg.norm(centres[i] - centres[j], axis=1)[valid[i] & valid[j]]
-    got = float(_median_distance(centres, valid))
+    r2 = np.sum((centres[:, None] - centres[None]) ** 2, axis=-1)
+    got = float(_median_distance(r2, valid))
     if pairs.size:  # odd and even pair counts (36, 15, 528)
         assert got == pytest.approx(np.median(pairs), rel=1e-6)
     else:
         assert np.isnan(got)
+
+
+def test_smallest_at_rank_is_the_sorted_entry():
+    from jaxanom.mmf.postprocess import _smallest_at_rank
+
+    rng = np.random.default_rng(12)
+    values = np.concatenate([rng.random(3001) * 1e3, np.full(400, 0.25), [0.0, 0.0, np.inf, 1e-38]]).astype(np.float32)
+    bits = jax.lax.bitcast_convert_type(jax.numpy.asarray(rng.permutation(values)), jax.numpy.int32)
+    ordered = np.sort(values)
+    for rank in (0, 1, 2, 3, 250, 1700, 3404, values.size - 1):
+        got = jax.lax.bitcast_convert_type(_smallest_at_rank(bits, rank), jax.numpy.float32)
+        assert float(got) == ordered[rank], rank

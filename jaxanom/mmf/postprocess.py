@@ -5,7 +5,7 @@ With Omega_j the pixels of superpixel j of an (H, W) image (MMF.md A2.8, decisio
 - n_j = |Omega_j| / (H W), alpha_j = mean anomaly a over Omega_j, p_j = mean road probability
   over Omega_j, c_j = centroid (y, x), r_ij = |c_i - c_j|;
 - omega = median of r_ij over the pairs i < j of non-empty superpixels (NumPy's median: the
-  mean of the two middle values for an even count; found by bisection, not a sort);
+  mean of the two middle values for an even count; found by radix selection, not a sort);
 - S_i = alpha_i sum_{j != i} p_j n_j exp(-r_ij^2 / (2 omega^2))  (j = i too with ``include_self``);
 - S_i is min-max normalised over the non-empty superpixels (all 0 when they are equal), and
   each pixel takes the score of its superpixel.
@@ -29,32 +29,34 @@ def _segment_means(values: jax.Array, labels: jax.Array, counts: jax.Array, k: i
     return sums / jnp.maximum(counts, 1.0).reshape((k,) + (1,) * (values.ndim - 1))
 
 
-def _order_statistics(values: jax.Array, keep: jax.Array, ranks: jax.Array) -> jax.Array:
-    """The ``ranks``-th smallest (0-based) of the kept non-negative float32 ``values``.
+def _smallest_at_rank(bits: jax.Array, rank) -> jax.Array:
+    """The ``rank``-th smallest (0-based) of int32 ``bits`` >= 0, e.g. the bit patterns of
+    non-negative float32 values (whose integer order is the floats' order).
 
-    Bisection over the float bit patterns (whose integer order is the order of non-negative
-    floats): 32 counting passes, exact, and far faster on XLA:CPU than a float sort.
+    Radix selection: a histogram of the high 16 bits finds the value's bucket, a histogram of
+    the low 16 bits inside that bucket finds the value. Exact, two passes, and far faster on
+    XLA:CPU than a float sort.
     """
-    bits = jnp.where(keep, jax.lax.bitcast_convert_type(values, jnp.int32), jnp.iinfo(jnp.int32).max)
-
-    def halve(_, bounds):
-        low, high = bounds
-        middle = low + (high - low) // 2
-        enough = jnp.sum(bits[None, :] <= middle[:, None], axis=1) > ranks
-        return jnp.where(enough, low, middle + 1), jnp.where(enough, middle, high)
-
-    start = (jnp.zeros_like(ranks), jnp.full_like(ranks, 0x7F800000))  # [0.0, inf]
-    low, _ = jax.lax.fori_loop(0, 32, halve, start)
-    return jax.lax.bitcast_convert_type(low, jnp.float32)
+    bits = bits.ravel()
+    high = bits >> 16
+    below = jnp.cumsum(jnp.bincount(high, length=1 << 15))
+    bucket = jnp.sum(below <= rank)  # the first bucket whose running count passes rank
+    inside = rank - jnp.where(bucket > 0, below[jnp.maximum(bucket - 1, 0)], 0)
+    low = jnp.cumsum(jnp.bincount(bits & 0xFFFF, (high == bucket).astype(jnp.int32), length=1 << 16))
+    return (bucket << 16) | jnp.sum(low <= inside)
 
 
-def _median_distance(centres: jax.Array, valid: jax.Array) -> jax.Array:
-    """omega: median of |c_i - c_j| over pairs i < j of valid superpixels (NaN without pairs)."""
-    i, j = np.triu_indices(centres.shape[0], 1)
-    distance = jnp.sqrt(jnp.sum((centres[i] - centres[j]) ** 2, axis=-1))
-    keep = valid[i] & valid[j]
+def _median_distance(r2: jax.Array, valid: jax.Array) -> jax.Array:
+    """omega: median of r_ij = sqrt(r2_ij) over pairs i < j of valid superpixels (NaN without pairs)."""
+    k = valid.shape[0]
+    keep = (jnp.arange(k)[:, None] < jnp.arange(k)[None, :]) & valid[:, None] & valid[None, :]
+    unused = jnp.iinfo(jnp.int32).max  # above every float's bits: never counted
+    bits = jnp.where(keep, jax.lax.bitcast_convert_type(jnp.sqrt(r2), jnp.int32), unused)
     count = jnp.sum(keep, dtype=jnp.int32)
-    middle = _order_statistics(distance, keep, jnp.stack([(count - 1) // 2, count // 2]))
+    lower = _smallest_at_rank(bits, (count - 1) // 2)
+    # the next order statistic: the same value if it repeats, else the next larger one
+    upper = jnp.where(jnp.sum(bits <= lower) > count // 2, lower, jnp.min(jnp.where(bits > lower, bits, unused)))
+    middle = jax.lax.bitcast_convert_type(jnp.stack([lower, upper]), jnp.float32)
     return jnp.where(count > 0, (middle[0] + middle[1]) / 2, jnp.nan)
 
 
@@ -69,8 +71,8 @@ def _superpixel_scores(anomaly, road, labels, num_segments: int, include_self: b
     p = _segment_means(road.ravel().astype(jnp.float32), flat, counts, k)
     centres = _segment_means(jnp.stack([ys.ravel(), xs.ravel()], -1), flat, counts, k)
     n = counts / (height * width)
-    omega = _median_distance(centres, valid)
-    r2 = jnp.sum((centres[:, None] - centres[None]) ** 2, axis=-1)
+    r2 = (centres[:, None, 0] - centres[None, :, 0]) ** 2 + (centres[:, None, 1] - centres[None, :, 1]) ** 2
+    omega = _median_distance(r2, valid)
     weight = jnp.where(r2 == 0, 1.0, jnp.exp(-r2 / (2.0 * omega**2)))  # r = 0: weight 1 even if omega = 0
     pair = valid[None, :] & (True if include_self else ~jnp.eye(k, dtype=bool))
     score = alpha * jnp.sum(jnp.where(pair, p * n * weight, 0.0), axis=1)
