@@ -28,6 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxanom._batching import over_images
 from jaxanom._validate import check_finite, check_rank, dtype_of, is_concrete
 
 # sRGB (D65) -> XYZ and the D65 white point, as scikit-image's ``rgb2lab`` uses them.
@@ -176,7 +177,7 @@ _slic_jit = jax.jit(_slic, static_argnames=("step", "iterations"))
 
 @functools.partial(jax.jit, static_argnames=("step", "iterations"))
 def _slic_batch(lab: jax.Array, compactness, tol, step: int, iterations: int) -> jax.Array:
-    return jax.vmap(_slic, in_axes=(0, None, None, None, None))(lab, compactness, tol, step, iterations)
+    return over_images(lambda image: _slic(image, compactness, tol, step, iterations), lab)
 
 
 def _check_slic(lab, step, compactness, iterations, tol, batched: bool):

@@ -113,6 +113,8 @@ def test_batch_matches_single_and_callers_jit():
     batch = np.asarray(superpixel_score_batch(anomaly, road, labels, 16))
     for b in range(3):
         np.testing.assert_allclose(batch[b], np.asarray(superpixel_score(anomaly[b], road[b], labels[b], 16)), atol=1e-6)
+    vmapped = jax.vmap(lambda a, r, l: superpixel_score(a, r, l, 16))(anomaly, road, labels)  # the caller's vmap
+    np.testing.assert_allclose(np.asarray(vmapped), batch, atol=1e-6)
     wrapped = jax.jit(lambda a: superpixel_score(a, road[0], labels[0], 16))
     np.testing.assert_allclose(np.asarray(wrapped(anomaly[0])), batch[0], atol=1e-6)
 

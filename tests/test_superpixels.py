@@ -129,6 +129,8 @@ def test_every_pixel_labelled_and_batch_matches_single():
     assert batch.min() >= 0 and batch.max() < num_superpixels((30, 41), 7)
     for image, labels in zip(lab, batch):
         np.testing.assert_array_equal(labels, np.asarray(slic(image, 7, 5.0, 5)))
+    # the caller's own vmap (the batch twin loops over images on CPU; accelerators vmap)
+    np.testing.assert_array_equal(np.asarray(jax.vmap(lambda x: slic(x, 7, 5.0, 5))(lab)), batch)
 
 
 def test_slic_inside_the_callers_jit():

@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxanom._batching import over_images
 from jaxanom._validate import check_finite, check_integer, check_rank, is_concrete
 
 
@@ -95,7 +96,7 @@ _superpixel_score_jit = jax.jit(_superpixel_score, static_argnames=_STATIC)
 @functools.partial(jax.jit, static_argnames=_STATIC)
 def _superpixel_score_batch(anomaly, road, labels, num_segments: int, include_self: bool = False):
     one = functools.partial(_superpixel_score, num_segments=num_segments, include_self=include_self)
-    return jax.vmap(one)(anomaly, road, labels)
+    return over_images(one, anomaly, road, labels)
 
 
 def _check(anomaly, road_probability, labels, num_segments, batched: bool):
