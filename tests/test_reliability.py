@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from jaxanom import sml
+from jaxanom.cli import common
 from jaxanom.cli import main
-from jaxanom.cli.common import CLAIM, CommandError, StreamedArray, out_folder, release_claims
 from jaxanom.data.image_io import read_label, read_rgb
 from jaxanom.experiment import Experiment, frames
-from jaxanom.io import NpyWriter, write_bytes_atomic
+from jaxanom import io as atomic_io
 from jaxanom.metrics import anomaly_metrics
 
 
@@ -46,33 +46,33 @@ def test_truncated_image_is_an_error_naming_the_file(tmp_path, ext, reader):
 def test_two_claims_on_one_output_folder(tmp_path):
     out = tmp_path / "out"
     try:
-        out_folder(str(out), overwrite=False)
-        with pytest.raises(CommandError, match="another jaxanom command is writing there"):
-            out_folder(str(out), overwrite=True)
-        assert (out / CLAIM).is_file()
+        common.out_folder(str(out), overwrite=False)
+        with pytest.raises(common.CommandError, match="another jaxanom command is writing there"):
+            common.out_folder(str(out), overwrite=True)
+        assert (out / common.CLAIM).is_file()
     finally:
-        release_claims()
-    assert not (out / CLAIM).exists()
-    out_folder(str(out), overwrite=False)  # released: the (still empty) folder can be claimed again
-    release_claims()
+        common.release_claims()
+    assert not (out / common.CLAIM).exists()
+    common.out_folder(str(out), overwrite=False)  # released: the (still empty) folder can be claimed again
+    common.release_claims()
 
 
 def test_second_command_into_a_claimed_folder_fails_clearly(tmp_path, capsys):
     out = tmp_path / "out"
     out.mkdir()
-    (out / CLAIM).write_text("12345\n")  # a first command, still running
+    (out / common.CLAIM).write_text("12345\n")  # a first command, still running
     np.save(tmp_path / "l.npy", np.zeros((1, 3, 4, 5), np.float32))
     code = main(["score", "--logits", str(tmp_path / "l.npy"), "--methods", "msp", "--out", str(out)])
     _one_line_error(capsys, code, "another jaxanom command")
-    assert sorted(p.name for p in out.iterdir()) == [CLAIM]  # nothing written, its claim left alone
+    assert sorted(p.name for p in out.iterdir()) == [common.CLAIM]  # nothing written, its claim left alone
 
 
 @pytest.mark.parametrize("umask", [0o022, 0o002, 0o077])
 def test_atomic_files_honour_the_umask(tmp_path, umask):
     old = os.umask(umask)
     try:
-        write_bytes_atomic(tmp_path / "a.bin", b"x")
-        with NpyWriter(tmp_path / "b.npy", (1, 2), np.float32) as writer:
+        atomic_io.write_bytes_atomic(tmp_path / "a.bin", b"x")
+        with atomic_io.NpyWriter(tmp_path / "b.npy", (1, 2), np.float32) as writer:
             writer.write(np.ones(2))
     finally:
         os.umask(old)
@@ -83,7 +83,7 @@ def test_atomic_files_honour_the_umask(tmp_path, umask):
 
 def test_npy_writer_leaves_nothing_when_interrupted(tmp_path):
     with pytest.raises(RuntimeError):
-        with NpyWriter(tmp_path / "s.npy", (3, 2), np.float32) as writer:
+        with atomic_io.NpyWriter(tmp_path / "s.npy", (3, 2), np.float32) as writer:
             writer.write(np.ones(2))
             raise RuntimeError("stopped")
     assert list(tmp_path.iterdir()) == []
@@ -98,7 +98,7 @@ def test_streamed_array_reads_image_by_image(tmp_path, kind):
     else:
         save = np.savez_compressed if kind == "npz_compressed" else np.savez
         save(path, logits=np.asfortranarray(array) if kind == "npz_fortran" else array)
-    streamed = StreamedArray(str(path), "logits")
+    streamed = common.StreamedArray(str(path), "logits")
     assert streamed.shape == array.shape and streamed.dtype == array.dtype
     np.testing.assert_array_equal(np.stack(list(streamed)), array)
 
@@ -203,8 +203,8 @@ def test_failed_train_does_not_block_its_retry(tmp_path, capsys):
                  "--no-progress"])
     _one_line_error(capsys, code, "nowhere")
     assert list(run.iterdir()) == []  # nothing written: a retry into the same folder may start
-    out_folder(str(run), overwrite=False)
-    release_claims()
+    common.out_folder(str(run), overwrite=False)
+    common.release_claims()
 
 
 def test_fit_stats_refuses_zero_frames_and_a_folder_as_output(tmp_path, capsys):

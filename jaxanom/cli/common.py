@@ -99,9 +99,11 @@ def load_stats(path: str | None):
 class StreamedArray:
     """An array in a .npy file, or called ``name`` in a .npz file, read one image (leading index) at a time.
 
-    A .npy file is memory-mapped. A .npz member cannot be (it may be compressed), so it is
-    decompressed sequentially, one image at a time; an .npz array stored in Fortran order is the
-    one case read whole. Reading errors (empty, truncated or damaged files) become CommandError.
+    Both are read sequentially, one image's bytes after the other (a .npz member is decompressed
+    as it goes), so resident memory holds one image whatever the file's size: the pages of a
+    memory map would count as resident once touched. An array stored in Fortran order is
+    memory-mapped (.npy) or read whole (.npz). Reading errors (empty, truncated or damaged
+    files) become a one-line CommandError.
     """
 
     def __init__(self, path: str, name: str):
@@ -110,24 +112,28 @@ class StreamedArray:
         self.path, self.name = Path(path), name
         if not self.path.is_file():
             raise CommandError(f"--{name} {path}: no such file")
-        self._whole = self._member = None
+        self._whole = None
         with self._reading():
             with open(self.path, "rb") as f:
-                zipped = f.read(4) == b"PK\x03\x04"  # as np.load tells .npz from .npy
-            if not zipped:
-                self._whole = np.load(self.path, mmap_mode="r", allow_pickle=False)
-                self.shape, self.dtype = self._whole.shape, self._whole.dtype
-            else:
+                self._member = f"{name}.npy" if f.read(4) == b"PK\x03\x04" else None  # np.load's test for .npz
+            if self._member is not None:
                 with zipfile.ZipFile(self.path) as archive:
                     found = [m[:-4] for m in archive.namelist() if m.endswith(".npy")]
                     if name not in found:
                         raise CommandError(f"--{name} {path}: expected an array named {name!r}, found {found}")
-                    self._member = f"{name}.npy"
-                    with archive.open(self._member) as f:
-                        self.shape, fortran, self.dtype = _read_header(f)
-                if fortran:
-                    with np.load(self.path, allow_pickle=False) as data:
-                        self._whole = data[name]
+                    stored = archive.getinfo(self._member).file_size
+            else:
+                stored = self.path.stat().st_size
+            with self._open() as f:
+                self.shape, fortran, self.dtype = _read_header(f)
+                needed = f.tell() + int(np.prod(self.shape, dtype=np.int64)) * self.dtype.itemsize
+            if stored < needed:
+                raise EOFError(f"holds {stored} bytes, its header announces {needed}")
+            if fortran and self._member is None:
+                self._whole = np.load(self.path, mmap_mode="r", allow_pickle=False)
+            elif fortran:
+                with np.load(self.path, allow_pickle=False) as data:
+                    self._whole = data[name]
         self.ndim = len(self.shape)
 
     def __len__(self) -> int:
@@ -143,13 +149,23 @@ class StreamedArray:
                     yield np.array(self._whole[index])
                 return
             size = int(np.prod(self.shape[1:], dtype=np.int64)) * self.dtype.itemsize
-            with zipfile.ZipFile(self.path) as archive, archive.open(self._member) as f:
+            with self._open() as f:
                 _read_header(f)
                 for _ in range(len(self)):
                     data = f.read(size)
                     if len(data) != size:
                         raise EOFError("the array ends early")
                     yield np.frombuffer(data, self.dtype).reshape(self.shape[1:])
+
+    @contextlib.contextmanager
+    def _open(self):
+        """The .npy stream: the file, or the member of the .npz file."""
+        if self._member is None:
+            with open(self.path, "rb") as f:
+                yield f
+        else:
+            with zipfile.ZipFile(self.path) as archive, archive.open(self._member) as f:
+                yield f
 
     def _reading(self):
         return _converted_errors(f"--{self.name} {self.path}: not a readable .npy/.npz file")

@@ -71,7 +71,7 @@ def run(args) -> None:
                     accumulators[name].update(score, label)
     print(f"score maps of {len(logits)} images -> {out / 'scores'}/<method>.npy")
     if labels is not None:
-        metrics = {name: acc.compute(fpr_convention=args.fpr_convention, ap_convention=args.ap_convention)
-                   for name, acc in accumulators.items()}
+        metrics = {name: accumulators.pop(name).compute(fpr_convention=args.fpr_convention,  # freed in turn
+                                                        ap_convention=args.ap_convention) for name in names}
         write_json_atomic(out / "metrics.json", {"metrics": metrics})
         print(results_table(metrics))
