@@ -256,3 +256,20 @@ def test_demo_frame_pictures_have_panel_titles(tmp_path):
     for panel in range(5):  # each panel's title: dark text on white
         header = strip[:, panel * 48:(panel + 1) * 48]
         assert (header.min(axis=-1) < 100).any() and (header.min(axis=-1) == 255).mean() > 0.5
+
+
+def test_refused_writes_are_one_line(tmp_path, capsys, monkeypatch):
+    np.save(tmp_path / "l.npy", np.zeros((1, 3, 4, 5), np.float32))
+    args = ["score", "--logits", str(tmp_path / "l.npy"), "--methods", "msp"]
+    real_open = os.open
+
+    def refusing_open(path, *rest, **kwargs):  # a read-only or immutable --out (root ignores chmod)
+        if str(path).startswith(str(tmp_path / "ro")):
+            raise PermissionError(13, "Permission denied", str(path))
+        return real_open(path, *rest, **kwargs)
+
+    monkeypatch.setattr(os, "open", refusing_open)
+    _one_line_error(capsys, main([*args, "--out", str(tmp_path / "ro")]), "Permission denied")
+    monkeypatch.setattr(atomic_io.tempfile, "mkstemp", lambda **kw: (_ for _ in ()).throw(
+        OSError(30, "Read-only file system", kw["dir"])))  # the disk refuses a later write
+    _one_line_error(capsys, main([*args, "--out", str(tmp_path / "late")]), "Read-only file system")
