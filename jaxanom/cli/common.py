@@ -59,9 +59,11 @@ def out_folder(path: str, overwrite: bool, *, hint: str = "pass --overwrite") ->
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as error:
         raise CommandError(f"--out {folder}: cannot create the folder ({error.strerror})") from None
-    claim(folder / CLAIM, f"--out {folder}")
+    marker = folder / CLAIM
+    claim(marker, f"--out {folder}")
     if not overwrite and any(p.name != CLAIM for p in folder.iterdir()):
-        release_claims()
+        _claimed.remove(marker)
+        marker.unlink()
         raise CommandError(f"--out {folder}: folder exists and is not empty; choose another or {hint}")
     return folder
 
