@@ -125,7 +125,7 @@ def test_score_refuses_nan_at_any_size_with_one_line(tmp_path, capsys):
     np.save(tmp_path / "l.npy", logits)
     out = tmp_path / "o"
     code = main(["score", "--logits", str(tmp_path / "l.npy"), "--methods", "max_logit", "--out", str(out)])
-    _one_line_error(capsys, code, "finite")
+    _one_line_error(capsys, code, "image 1: logits must be finite, got 1 NaN")
     assert not (out / "scores" / "max_logit.npy").exists()
 
 

@@ -61,14 +61,17 @@ def run(args) -> None:
     with contextlib.ExitStack() as files:
         writers = {name: files.enter_context(NpyWriter(out / "scores" / f"{name}.npy", shape, np.float32))
                    for name in names}
-        for image in logits:
+        for index, image in enumerate(logits):
             image = np.moveaxis(image, 0, -1) if channels_first else image
             label = None if labels is None else next(label_images)
             for name in names:
-                score = np.asarray(scoring.score_batch(name, image[None], stats=stats))[0]
+                try:
+                    score = np.asarray(scoring.score_batch(name, image[None], stats=stats))[0]
+                    if label is not None:
+                        accumulators[name].update(score, label)
+                except ValueError as error:
+                    raise CommandError(f"image {index}: {error}") from None
                 writers[name].write(score)
-                if label is not None:
-                    accumulators[name].update(score, label)
     print(f"score maps of {len(logits)} images -> {out / 'scores'}/<method>.npy")
     if labels is not None:
         metrics = {name: accumulators.pop(name).compute(fpr_convention=args.fpr_convention,  # freed in turn
