@@ -25,15 +25,20 @@ def check_rank(name: str, x, rank: int, layout: str) -> None:
 
 @jax.jit
 def _all_finite(x) -> jax.Array:
-    # an all-reduction: XLA:CPU's vectorised max-reduction drops NaN above ~4096 entries
+    # an all-reduction of isfinite: a float max-reduction would miss NaN (XLA:CPU drops NaN
+    # from max-reductions of 4096 elements or more)
     return jnp.all(jnp.isfinite(x))
 
 
 def check_finite(name: str, x) -> None:
-    """No NaN or Inf in ``x`` (skipped for tracers); one compiled reduction, no host copy."""
-    if not is_concrete(x):
+    """No NaN or Inf in ``x`` (skipped for tracers); one compiled reduction, no host copy.
+
+    A concrete array closed over by a caller's ``jax.jit`` / ``vmap`` / ``grad`` is checked
+    too: the reduction runs eagerly (``ensure_compile_time_eval``) instead of being traced.
+    """
+    if not is_concrete(x) or not jnp.issubdtype(dtype_of(x), jnp.inexact):
         return
-    with jax.ensure_compile_time_eval():  # concrete even inside a caller's jit (closed-over arrays)
+    with jax.ensure_compile_time_eval():
         finite = bool(_all_finite(jnp.asarray(x)))
     if not finite:
         bad = int(np.size(x) - np.count_nonzero(np.isfinite(np.asarray(x))))
@@ -62,3 +67,10 @@ def check_integer(name: str, x) -> None:
     dtype = dtype_of(x)
     if not np.issubdtype(dtype, np.integer):
         raise ValueError(f"{name} must hold integer class indices, got dtype {dtype}")
+
+
+def check_real(name: str, x) -> None:
+    """``x`` must hold real numbers: an integer or floating dtype, not bool or complex."""
+    dtype = dtype_of(x)
+    if dtype == bool or not (jnp.issubdtype(dtype, jnp.integer) or jnp.issubdtype(dtype, jnp.floating)):
+        raise ValueError(f"{name} must have a real (integer or floating) dtype, got {dtype}")

@@ -119,7 +119,7 @@ def write_pictures(out_dir: Path, predict, source, stats, count: int) -> None:
     anomaly label (red 1, blue void) | SML + post-processing score (MSP without ``stats``) |
     CuDAM attention overlay (with an attention model)."""
     from jaxanom.data.cityscapes_labels import colorize
-    from jaxanom.viz import heatmap, overlay
+    from jaxanom.viz import heatmap, overlay, panel_row
 
     for index in range(min(count, len(source))):
         frame = source[index]
@@ -129,6 +129,8 @@ def write_pictures(out_dir: Path, predict, source, stats, count: int) -> None:
         truth = np.stack([np.where(label == 1, 255, 0), np.zeros_like(label), np.where(label == 255, 128, 0)], -1)
         panels = [frame["image"], colorize(np.asarray(out["logits"][0].argmax(-1))),
                   truth.astype(np.uint8), heatmap(np.asarray(score))]
+        titles = ["image", "prediction", "label (red anomaly, blue void)", "score: SML + post" if stats else "score: MSP"]
         if "attention_up" in out:
             panels.append(overlay(frame["image"], heatmap(np.asarray(out["attention_up"][0])), alpha=0.6))
-        write_png_atomic(out_dir / f"frame_{index}.png", np.concatenate(panels, axis=1))
+            titles.append("CuDAM attention")
+        write_png_atomic(out_dir / f"frame_{index}.png", panel_row(panels, titles))

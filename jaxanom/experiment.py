@@ -87,13 +87,19 @@ def build_network(experiment: Experiment):
 def frames(experiment: Experiment, split: str, num_frames: int | None = None) -> Sequence[dict]:
     """A random-access source of the experiment's data: synthetic split name, or Cityscapes split.
 
-    ``num_frames``: how many frames (synthetic: generated; Cityscapes: the split's first ones);
-    default the experiment's ``train_frames`` for synthetic data, the whole split for Cityscapes.
+    ``num_frames`` (>= 1): how many frames (synthetic: generated; Cityscapes: the split's first
+    ones), at most those that exist: the synthetic training split has ``train_frames`` (the
+    frames the network trains on), the others any number. Default: ``train_frames`` for
+    synthetic data, the whole split for Cityscapes.
     """
+    if num_frames is not None and num_frames < 1:
+        raise ValueError(f"num_frames: expected >= 1, got {num_frames}")
     if experiment.data == "synthetic":
         from jaxanom.data import SyntheticScenes
 
-        count = num_frames or experiment.train_frames
+        count = experiment.train_frames if num_frames is None else num_frames
+        if split == "train":
+            count = min(count, experiment.train_frames)
         return SyntheticScenes(split, count, experiment.train.seed, height=experiment.height, width=experiment.width)
     from jaxanom.data import Cityscapes
     from jaxanom.data.frames import FirstFrames
@@ -114,9 +120,9 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
 
     run_dir = Path(run_dir)
     config_file = run_dir / "experiment.json"
-    if config_file.exists() and json.loads(config_file.read_text()) != jsonable(experiment):
+    if config_file.exists() and _read_json(config_file) != jsonable(experiment):
         raise ValueError(f"run_dir: {run_dir} holds a run of a different experiment; choose another folder")
-    write_json_atomic(config_file, jsonable(experiment))
+    # data and network first: a config that fails there leaves the folder as it was, free for a retry
     augment = Augment(crop_hw=tuple(experiment.crop), scale_range=tuple(experiment.scale_range))
     batches = training_batches(frames(experiment, "train"), batch_size=experiment.batch_size,
                                augment=augment, seed=experiment.train.seed)
@@ -124,8 +130,10 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
     if validate:
         val = list(evaluation_batches(frames(experiment, "val", max(experiment.batch_size, 8)),
                                       batch_size=experiment.batch_size))
+    network = build_network(experiment)
+    write_json_atomic(config_file, jsonable(experiment))
     config = dataclasses.replace(experiment.train, run_dir=str(run_dir), progress=progress)
-    state = train(config, build_network(experiment), batches, val)
+    state = train(config, network, batches, val)
     return jax.device_get(state.variables)
 
 
@@ -141,7 +149,18 @@ def load_experiment(run_dir: str | os.PathLike) -> Experiment:
     config_file = Path(run_dir) / "experiment.json"
     if not config_file.is_file():
         raise ValueError(f"run_dir: expected a training run folder with experiment.json, got {os.fspath(run_dir)!r}")
-    return Experiment.from_dict(json.loads(config_file.read_text()))
+    values = _read_json(config_file)
+    try:
+        return Experiment.from_dict(values)
+    except (KeyError, TypeError, AttributeError) as error:
+        raise ValueError(f"{config_file}: not an experiment written by jaxanom ({type(error).__name__}: {error})") from None
+
+
+def _read_json(path: Path):
+    try:
+        return json.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError) as error:
+        raise ValueError(f"{path}: not valid JSON ({error})") from None
 
 
 def load_variables(run_dir: str | os.PathLike, step: int | None = None) -> tuple[Experiment, dict]:

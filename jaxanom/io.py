@@ -2,6 +2,8 @@
 
 Every writer puts the bytes in a temporary file beside the target and renames it into place
 (``os.replace`` is atomic on POSIX and Windows), so readers see the old file or the new one.
+The file gets the permissions of a plain ``open(path, "w")``, 0o666 less the umask (``mkstemp``
+alone would leave it 0o600, unreadable to colleagues).
 """
 from __future__ import annotations
 
@@ -15,8 +17,7 @@ from typing import Any
 def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> Path:
     """Write ``data`` to ``path`` atomically, creating parent folders; returns the path."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, tmp = _temporary(path)
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
@@ -27,6 +28,21 @@ def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> Path:
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+def _temporary(path: Path) -> tuple[int, str]:
+    """An open temporary file beside ``path`` (parents created) with the umask's permissions."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.fchmod(fd, 0o666 & ~_umask())
+    return fd, tmp
+
+
+def _umask() -> int:
+    """The process's umask (reading it means setting it; set straight back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def write_json_atomic(path: str | os.PathLike, obj: Any) -> Path:
@@ -47,3 +63,58 @@ def write_png_atomic(path: str | os.PathLike, rgb) -> Path:
     if not ok:
         raise ValueError(f"rgb: OpenCV could not encode an array of shape {array.shape} as PNG")
     return write_bytes_atomic(path, encoded.tobytes())
+
+
+class NpyWriter:
+    """An ``.npy`` file of known ``shape`` and ``dtype`` written one leading-axis slice at a time.
+
+    Slices go to a temporary file as they come (nothing is held in memory); ``close()`` renames
+    it to ``path`` once all ``shape[0]`` slices are written, and leaving a ``with`` block by an
+    exception removes it, so ``path`` holds a complete array or nothing.
+    """
+
+    def __init__(self, path: str | os.PathLike, shape: tuple[int, ...], dtype):
+        import numpy as np
+
+        self.path, self.shape, self.dtype = Path(path), tuple(int(n) for n in shape), np.dtype(dtype)
+        self.written = 0
+        fd, self._tmp = _temporary(self.path)
+        self._file = os.fdopen(fd, "wb")
+        header = {"descr": np.lib.format.dtype_to_descr(self.dtype), "fortran_order": False, "shape": self.shape}
+        np.lib.format.write_array_header_1_0(self._file, header)
+
+    def write(self, rows) -> None:
+        """Append one slice of shape ``shape[1:]``."""
+        import numpy as np
+
+        rows = np.ascontiguousarray(rows, self.dtype)
+        if rows.shape != self.shape[1:] or self.written >= self.shape[0]:
+            raise ValueError(f"rows: expected slice {self.written} of shape {self.shape[1:]} for "
+                             f"{self.path} of shape {self.shape}, got {rows.shape}")
+        self._file.write(rows.tobytes())
+        self.written += 1
+
+    def close(self) -> Path:
+        """Flush and move the complete file into place; ValueError if slices are missing."""
+        if self.written != self.shape[0]:
+            self.abort()
+            raise ValueError(f"{self.path}: expected {self.shape[0]} slices, got {self.written}")
+        self._file.flush()
+        os.fsync(self._file.fileno())
+        self._file.close()
+        os.replace(self._tmp, self.path)
+        return self.path
+
+    def abort(self) -> None:
+        """Drop the temporary file."""
+        self._file.close()
+        Path(self._tmp).unlink(missing_ok=True)
+
+    def __enter__(self) -> "NpyWriter":
+        return self
+
+    def __exit__(self, kind, *exc) -> None:
+        if kind is None:
+            self.close()
+        else:
+            self.abort()

@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_finite, check_rank
+from jaxanom._validate import check_finite, check_rank, check_real, is_concrete
 
 
 def _checked(logits, *, batched: bool = False, min_classes: int = 1) -> jax.Array:
@@ -22,12 +22,13 @@ def _checked(logits, *, batched: bool = False, min_classes: int = 1) -> jax.Arra
         check_rank("logits", logits, 3, "(H, W, C)")
     if np.shape(logits)[-1] < min_classes:
         raise ValueError(f"logits need C >= {min_classes} classes here, got C={np.shape(logits)[-1]}")
+    check_real("logits", logits)
     check_finite("logits", logits)
     return jnp.asarray(logits, jnp.float32)
 
 
 def _check_temperature(temperature) -> None:
-    if not temperature > 0:
+    if is_concrete(temperature) and not temperature > 0:
         raise ValueError(f"temperature must be > 0, got {temperature}")
 
 

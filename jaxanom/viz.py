@@ -56,6 +56,21 @@ def colorize(labels, palette: Sequence[Sequence[int]], *, void_colour=(0, 0, 0))
     return table[index]
 
 
+def panel_row(panels: Sequence[np.ndarray], titles: Sequence[str], *, strip: int = 18) -> np.ndarray:
+    """RGB uint8 panels (H, W_i, 3) side by side, each under a white strip with its title in black."""
+    import cv2
+
+    if len(panels) != len(titles) or not panels:
+        raise ValueError(f"panels, titles: expected equal non-zero counts, got {len(panels)} and {len(titles)}")
+    titled = []
+    for panel, title in zip(panels, titles):
+        header = np.full((strip, panel.shape[1], 3), 255, np.uint8)
+        scale = min(0.45, 0.9 * panel.shape[1] / max(1, 10 * len(title)))  # long titles on narrow panels shrink
+        cv2.putText(header, title, (3, strip - 5), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 1, cv2.LINE_AA)
+        titled.append(np.concatenate([header, np.asarray(panel, np.uint8)], axis=0))
+    return np.concatenate(titled, axis=1)
+
+
 def plot_curves(path: str | os.PathLike, curves: Mapping[str, tuple], *, kind: str = "roc") -> None:
     """Write a PNG with one line per method: ``curves[name] = (x, y)``.
 

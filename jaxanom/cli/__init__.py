@@ -10,7 +10,7 @@ import argparse
 import sys
 
 from jaxanom.cli import demo, evaluate, fit_stats, score, train
-from jaxanom.cli.common import CommandError
+from jaxanom.cli.common import CommandError, release_claims
 
 COMMANDS = (demo, train, fit_stats, evaluate, score)
 
@@ -26,9 +26,14 @@ def main(argv: list[str] | None = None) -> int:
     except (CommandError, ValueError, FileNotFoundError, FileExistsError) as error:
         print(f"jaxanom {args.command}: error: {error}", file=sys.stderr)
         return 2
+    except OSError as error:  # the file system refused (permissions, full disk, read-only): one line too
+        print(f"jaxanom {args.command}: error: {error.strerror or error}: {error.filename or ''}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print(f"jaxanom {args.command}: interrupted", file=sys.stderr)
         return 130
+    finally:
+        release_claims()
     return 0
 
 

@@ -1,11 +1,29 @@
 """What every command shares: the error type, output folders, flags and array loading."""
 from __future__ import annotations
 
+import argparse
+import contextlib
+import os
+import zipfile
+import zlib
 from pathlib import Path
+
+CLAIM = ".jaxanom-claim"  # marker of a command writing into a folder (or beside a file), removed at its end
+_claimed: list[Path] = []
+# what NumPy and zipfile raise for empty, truncated or damaged .npy / .npz files
+_UNREADABLE = (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error)
 
 
 class CommandError(Exception):
     """Bad input to a command: printed as one line, exit status 2."""
+
+
+def positive_int(text: str) -> int:
+    """argparse type of counts that must be >= 1."""
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
+    return value
 
 
 def add_common(parser, progress: bool, overwrite: bool = True) -> None:
@@ -30,15 +48,46 @@ def add_scoring(parser) -> None:
     parser.add_argument("--out", required=True, help="output folder")
 
 
-def out_folder(path: str, overwrite: bool) -> Path:
-    """An output folder that is new or empty, unless ``overwrite``."""
+def out_folder(path: str, overwrite: bool, *, hint: str = "pass --overwrite") -> Path:
+    """An output folder that is new or empty (unless ``overwrite``), claimed for this command.
+
+    The claim comes first and is atomic (see ``claim``), so of two commands started on one
+    folder, the second fails here instead of mixing its files with the first's.
+    """
     folder = Path(path)
     if folder.exists() and not folder.is_dir():
         raise CommandError(f"--out {folder}: exists and is not a folder")
-    if folder.is_dir() and any(folder.iterdir()) and not overwrite:
-        raise CommandError(f"--out {folder}: folder exists and is not empty; choose another or pass --overwrite")
-    folder.mkdir(parents=True, exist_ok=True)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise CommandError(f"--out {folder}: cannot create the folder ({error.strerror})") from None
+    marker = folder / CLAIM
+    claim(marker, f"--out {folder}")
+    if not overwrite and any(p.name != CLAIM for p in folder.iterdir()):
+        _claimed.remove(marker)
+        marker.unlink()
+        raise CommandError(f"--out {folder}: folder exists and is not empty; choose another or {hint}")
     return folder
+
+
+def claim(marker: Path, what: str) -> None:
+    """Create ``marker`` exclusively (``O_CREAT | O_EXCL``: atomic, one winner) until ``release_claims``."""
+    try:
+        fd = os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666)
+    except FileExistsError:
+        raise CommandError(f"{what}: another jaxanom command is writing there ({marker} exists); wait for it, "
+                           f"or delete that file if none is running") from None
+    except OSError as error:
+        raise CommandError(f"{what}: cannot write there ({error.strerror})") from None
+    with os.fdopen(fd, "w") as f:
+        f.write(f"{os.getpid()}\n")
+    _claimed.append(marker)
+
+
+def release_claims() -> None:
+    """Remove this process's claim markers (``main`` calls it when a command ends, however it ends)."""
+    while _claimed:
+        _claimed.pop().unlink(missing_ok=True)
 
 
 def load_stats(path: str | None):
@@ -51,20 +100,97 @@ def load_stats(path: str | None):
     return mean, std
 
 
-def load_array(path: str, name: str):
-    """The array in a .npy file, or the array called ``name`` in a .npz file."""
+class StreamedArray:
+    """An array in a .npy file, or called ``name`` in a .npz file, read one image (leading index) at a time.
+
+    Both are read sequentially, one image's bytes after the other (a .npz member is decompressed
+    as it goes), so resident memory holds one image whatever the file's size: the pages of a
+    memory map would count as resident once touched. An array stored in Fortran order is
+    memory-mapped (.npy) or read whole (.npz). Reading errors (empty, truncated or damaged
+    files) become a one-line CommandError.
+    """
+
+    def __init__(self, path: str, name: str):
+        import numpy as np
+
+        self.path, self.name = Path(path), name
+        if not self.path.is_file():
+            raise CommandError(f"--{name} {path}: no such file")
+        self._whole = None
+        with self._reading():
+            with open(self.path, "rb") as f:
+                self._member = f"{name}.npy" if f.read(4) == b"PK\x03\x04" else None  # np.load's test for .npz
+            if self._member is not None:
+                with zipfile.ZipFile(self.path) as archive:
+                    found = [m[:-4] for m in archive.namelist() if m.endswith(".npy")]
+                    if name not in found:
+                        raise CommandError(f"--{name} {path}: expected an array named {name!r}, found {found}")
+                    stored = archive.getinfo(self._member).file_size
+            else:
+                stored = self.path.stat().st_size
+            with self._open() as f:
+                self.shape, fortran, self.dtype = _read_header(f)
+                needed = f.tell() + int(np.prod(self.shape, dtype=np.int64)) * self.dtype.itemsize
+            if stored < needed:
+                raise EOFError(f"holds {stored} bytes, its header announces {needed}")
+            if fortran and self._member is None:
+                self._whole = np.load(self.path, mmap_mode="r", allow_pickle=False)
+            elif fortran:
+                with np.load(self.path, allow_pickle=False) as data:
+                    self._whole = data[name]
+        self.ndim = len(self.shape)
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __iter__(self):
+        """The images ``array[i]`` in order, each an in-memory ndarray."""
+        import numpy as np
+
+        with self._reading():
+            if self._whole is not None:
+                for index in range(len(self)):
+                    yield np.array(self._whole[index])
+                return
+            size = int(np.prod(self.shape[1:], dtype=np.int64)) * self.dtype.itemsize
+            with self._open() as f:
+                _read_header(f)
+                for _ in range(len(self)):
+                    data = f.read(size)
+                    if len(data) != size:
+                        raise EOFError("the array ends early")
+                    yield np.frombuffer(data, self.dtype).reshape(self.shape[1:])
+
+    @contextlib.contextmanager
+    def _open(self):
+        """The .npy stream: the file, or the member of the .npz file."""
+        if self._member is None:
+            with open(self.path, "rb") as f:
+                yield f
+        else:
+            with zipfile.ZipFile(self.path) as archive, archive.open(self._member) as f:
+                yield f
+
+    def _reading(self):
+        return _converted_errors(f"--{self.name} {self.path}: not a readable .npy/.npz file")
+
+
+def _read_header(f):
+    """``(shape, fortran_order, dtype)`` of the .npy stream ``f``, refusing object arrays."""
     import numpy as np
 
-    file = Path(path)
-    if not file.is_file():
-        raise CommandError(f"--{name} {path}: no such file")
+    major, _ = np.lib.format.read_magic(f)
+    read = np.lib.format.read_array_header_1_0 if major == 1 else np.lib.format.read_array_header_2_0
+    shape, fortran, dtype = read(f)
+    if dtype.hasobject:
+        raise ValueError("it holds Python objects (pickles are not read)")
+    return shape, fortran, dtype
+
+
+@contextlib.contextmanager
+def _converted_errors(prefix: str):
+    """Reading errors inside the block become a one-line CommandError starting with ``prefix``."""
     try:
-        loaded = np.load(file, allow_pickle=False)
-    except (OSError, ValueError) as error:
-        raise CommandError(f"--{name} {path}: not a readable .npy/.npz file ({error})") from None
-    if isinstance(loaded, np.lib.npyio.NpzFile):
-        with loaded:
-            if name not in loaded.files:
-                raise CommandError(f"--{name} {path}: expected an array named {name!r}, found {loaded.files}")
-            return loaded[name]
-    return loaded
+        yield
+    except _UNREADABLE as error:
+        raise CommandError(f"{prefix} ({type(error).__name__}: {error})") from None

@@ -5,7 +5,7 @@ import dataclasses
 import runpy
 from pathlib import Path
 
-from jaxanom.cli.common import CommandError, add_common, out_folder
+from jaxanom.cli.common import CLAIM, CommandError, add_common, claim, out_folder
 
 
 def add_parser(commands) -> None:
@@ -43,9 +43,10 @@ def run(args) -> None:
         if args.config:
             raise CommandError("--resume continues the run's own experiment.json; do not pass --config")
         experiment = load_experiment(out)
+        claim(out / CLAIM, f"--out {out}")
     else:
         experiment = load_config(args.config) if args.config else Experiment()
-        out_folder(args.out, overwrite=False)
+        out_folder(args.out, overwrite=False, hint="continue the run there with --resume")
     experiment = _override(experiment, args)
     run_training(experiment, out, progress=not args.no_progress)
     import jax
@@ -60,7 +61,13 @@ def load_config(path: str):
 
     if not Path(path).is_file():
         raise CommandError(f"--config {path}: no such file")
-    experiment = runpy.run_path(path).get("experiment")
+    try:
+        experiment = runpy.run_path(path).get("experiment")
+    except SystemExit as stop:
+        raise CommandError(f"--config {path}: called sys.exit({stop.code!r}) instead of defining `experiment`") from None
+    except Exception as error:  # the config is the user's Python: any failure is a bad config, in one line
+        where = f" (line {error.lineno})" if isinstance(error, SyntaxError) else ""
+        raise CommandError(f"--config {path}: {type(error).__name__}{where}: {error}") from None
     if not isinstance(experiment, Experiment):
         raise CommandError(f"--config {path}: expected it to define `experiment = Experiment(...)`, "
                            f"found {type(experiment).__name__}")

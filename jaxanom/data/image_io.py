@@ -1,8 +1,10 @@
 """Reading images and label masks from disk with errors that name the file.
 
-``cv2.imread`` returns ``None`` for missing or undecodable files instead of raising; every
-reader goes through these functions so that a bad file gives a ``FileNotFoundError`` or a
-``ValueError`` with its path.
+``cv2.imread`` returns ``None`` for missing or undecodable files instead of raising, and fills
+the missing part of a truncated JPEG with grey (libjpeg only warns). Every reader goes through
+these functions, which read the bytes and decode them strictly (``cv2.imdecode`` fails on a
+truncated stream; a JPEG must also hold its end-of-image marker after the scan), so that a bad
+file gives a ``FileNotFoundError`` or a ``ValueError`` with its path.
 """
 from __future__ import annotations
 
@@ -29,19 +31,24 @@ def require_file(path: Path, what: str) -> Path:
     return path
 
 
+def _decode(path: Path, what: str, flags: int) -> np.ndarray:
+    """Decode the file strictly: ValueError naming it when truncated, corrupt or unsupported."""
+    data = require_file(path, what).read_bytes()
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), flags) if data else None
+    jpeg = data[:2] == b"\xff\xd8"
+    if image is None or (jpeg and data.find(b"\xff\xd9", data.find(b"\xff\xda")) < 0):
+        raise ValueError(f"{what}: cannot decode {path} (truncated, corrupt or unsupported format)")
+    return image
+
+
 def read_rgb(path: Path) -> np.ndarray:
     """An image file -> (H, W, 3) uint8 RGB."""
-    image = cv2.imread(str(require_file(path, "image")), cv2.IMREAD_COLOR)
-    if image is None:
-        raise ValueError(f"image: cannot decode {path} (corrupt or unsupported format)")
-    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+    return cv2.cvtColor(_decode(path, "image", cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
 
 
 def read_label(path: Path) -> np.ndarray:
     """A single-channel 8-bit label PNG -> (H, W) uint8, values unchanged."""
-    label = cv2.imread(str(require_file(path, "label")), cv2.IMREAD_UNCHANGED)
-    if label is None:
-        raise ValueError(f"label: cannot decode {path} (corrupt or unsupported format)")
+    label = _decode(path, "label", cv2.IMREAD_UNCHANGED)
     if label.ndim != 2 or label.dtype != np.uint8:
         raise ValueError(f"label: expected a single-channel 8-bit image in {path}, "
                          f"got shape {label.shape} dtype {label.dtype}")

@@ -103,7 +103,8 @@ class AnomalyMetricAccumulator:
             keys = (self.num_bins - 1 - bins).astype(np.uint32)
             positives, negatives = self.histogram[bins, 1], self.histogram[bins, 0]
         with jax.enable_x64(True):
-            summary = curve_summary(*_pad_to_power_of_two(keys, positives, negatives), jnp.float64(tpr))
+            padded = _pad_to_few_sizes(keys, positives, negatives, self._count_dtype())
+            summary = curve_summary(*padded, jnp.float64(tpr))
             metrics = summary_to_metrics(summary, self.counts, fpr_convention, ap_convention, tpr,
                                          bool(self.float64_keys))
         if self.mode == "binned":
@@ -113,6 +114,10 @@ class AnomalyMetricAccumulator:
             metrics["best_f1_threshold"] = edge(summary["best_f1_key"])
             metrics.update(binned_error_bounds(positives, negatives, tpr, fpr_convention, ap_convention))
         return metrics
+
+    def _count_dtype(self):
+        """int32 for the cumulative counts below 2**31 non-void pixels (as ``anomaly_metrics``), else int64."""
+        return np.int32 if self.counts["num_positives"] + self.counts["num_negatives"] < 2**31 else np.int64
 
 
 def binned_error_bounds(positives: np.ndarray, negatives: np.ndarray, tpr: float,
@@ -163,14 +168,17 @@ def _merge(images):
     return unique, total(1), total(2)
 
 
-def _pad_to_power_of_two(keys, positives, negatives):
+def _pad_to_few_sizes(keys, positives, negatives, count_dtype):
     """Pad with empty entries under the largest key (no score has it) so that few array sizes,
-    hence few compilations, occur."""
-    pad = (1 << max(int(keys.size - 1).bit_length(), 4)) - keys.size
+    hence few compilations, occur: 16 sizes per power of two, so at most 1/16 more entries
+    (``curve_summary`` holds ~100 bytes per entry: a power of two would cost up to 2x memory)."""
+    size = max(int(keys.size), 1024)
+    step = 1 << max(size.bit_length() - 5, 0)
+    pad = -(-size // step) * step - keys.size
     keys = np.concatenate([keys, np.full(pad, np.iinfo(keys.dtype).max, keys.dtype)])
-    zeros = np.zeros(pad, np.int64)
-    return (jnp.asarray(keys), jnp.asarray(np.concatenate([positives, zeros]).astype(np.int64)),
-            jnp.asarray(np.concatenate([negatives, zeros]).astype(np.int64)))
+    zeros = np.zeros(pad, count_dtype)
+    return (jnp.asarray(keys), jnp.asarray(np.concatenate([positives.astype(count_dtype), zeros])),
+            jnp.asarray(np.concatenate([negatives.astype(count_dtype), zeros])))
 
 
 _sort_pixels = jax.jit(sort_pixels)

@@ -36,6 +36,8 @@ def check_scores_labels(scores, labels) -> tuple[jnp.ndarray, jnp.ndarray, dict]
         raise ValueError(f"labels: expected an integer dtype (uint8 0/1/255), got {labels.dtype}")
     if scores.shape != labels.shape:
         raise ValueError(f"labels: expected the shape of scores {scores.shape}, got {labels.shape}")
+    if jnp.iinfo(labels.dtype).max < 255:  # int8: 255 would wrap to -1, so -1 would pass as void
+        labels = labels.astype(jnp.int16)
     bad_labels, nan_scores, positives, negatives = (int(x) for x in _audit(scores, labels))
     if bad_labels:
         raise ValueError(f"labels: expected values in {{0, 1, 255}}, got {bad_labels} other pixels")

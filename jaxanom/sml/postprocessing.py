@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_finite, check_rank
+from jaxanom._validate import check_finite, check_rank, check_real
 from jaxanom.sml.boundaries import _boundary_distance, _find_boundaries, check_border, check_prediction
 
 
@@ -83,6 +83,7 @@ def check_smoothing(kernel_size: int, sigma: float, dilation: int) -> None:
 
 def check_score(score) -> None:
     check_rank("score", score, 2, "(H, W)")
+    check_real("score", score)
     check_finite("score", score)
 
 

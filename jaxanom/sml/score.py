@@ -5,7 +5,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_finite, check_integer, check_positive, check_rank
+from jaxanom._validate import check_finite, check_integer, check_positive, check_rank, check_real
 from jaxanom.sml.boundaries import check_prediction
 from jaxanom.sml.postprocessing import (
     _smooth,
@@ -69,6 +69,8 @@ def _check_logits_stats(logits, mean, std, batched: bool) -> None:
     for name, x in (("mean", mean), ("std", std)):
         if np.shape(x) != (np.shape(logits)[-1],):
             raise ValueError(f"{name} must have shape (C,) = ({np.shape(logits)[-1]},) like the logits' classes, got {np.shape(x)}")
+    for name, x in (("logits", logits), ("mean", mean), ("std", std)):
+        check_real(name, x)
     check_finite("logits", logits)
     check_finite("mean", mean)
     check_positive("std", std)
@@ -102,6 +104,7 @@ def postprocess_batch(score, prediction, *, suppress=True, smooth=True, width=4,
                       kernel_size=7, sigma=1.0, dilation=6) -> jax.Array:
     """``postprocess`` over a batch: score float ``(B, H, W)``, prediction int ``(B, H, W)``."""
     check_rank("score", score, 3, "(B, H, W)")
+    check_real("score", score)
     check_finite("score", score)
     check_rank("prediction", prediction, 3, "(B, H, W)")
     check_integer("prediction", prediction)

@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_finite, check_rank, dtype_of
+from jaxanom._validate import check_finite, check_rank, check_real, dtype_of
 from jaxanom.io import write_bytes_atomic
 
 
@@ -103,6 +103,7 @@ def _check_logits_for(stats: ClassStats, logits, rank: int, layout: str) -> None
     num_classes = stats.count.shape[0]
     if np.shape(logits)[-1] != num_classes:
         raise ValueError(f"logits must have C={num_classes} classes (as the statistics), got C={np.shape(logits)[-1]}")
+    check_real("logits", logits)
     check_finite("logits", logits)
 
 
@@ -147,6 +148,9 @@ def stats_finalize(stats: ClassStats, *, missing: str = "error") -> tuple[jax.Ar
     if missing not in ("error", "pooled"):
         raise ValueError(f'missing must be "error" or "pooled", got {missing!r}')
     count, mean, m2 = (np.asarray(x, np.float64) for x in stats)
+    if not all(np.isfinite(x).all() for x in (count, mean, m2)):
+        raise ValueError("stats hold NaN/Inf: NaN or Inf logits were counted (stats_update checks its input; "
+                         "statistics merged or built by hand do not)")
     var = np.divide(m2, count - 1, out=np.zeros_like(m2), where=count > 1)
     degenerate = (count < 2) | ~(var > 0)
     if degenerate.any():
@@ -186,9 +190,27 @@ def load_stats(path) -> tuple[jax.Array, jax.Array, np.ndarray]:
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {name: data[name] for name in data.files}
-    except (OSError, ValueError, zipfile.BadZipFile) as error:
-        raise ValueError(f"path {str(path)!r} is not a readable .npz file: {error}") from error
+    except (OSError, ValueError, EOFError, AttributeError, TypeError, zipfile.BadZipFile) as error:
+        # a .npy file loads as an ndarray, which is no context manager (AttributeError / TypeError)
+        raise ValueError(f"path {str(path)!r} is not a readable .npz file: {type(error).__name__}: {error}") from None
     absent = {"mean", "std", "counts"} - set(arrays)
     if absent:
         raise ValueError(f"{str(path)!r} must hold arrays mean, std, counts; missing {sorted(absent)}")
-    return jnp.asarray(arrays["mean"]), jnp.asarray(arrays["std"]), arrays["counts"]
+    _check_saved_stats(str(path), **{name: arrays[name] for name in ("mean", "std", "counts")})
+    return jnp.asarray(arrays["mean"], jnp.float32), jnp.asarray(arrays["std"], jnp.float32), arrays["counts"]
+
+
+def _check_saved_stats(path: str, mean, std, counts) -> None:
+    """What ``save_stats`` writes: three (C,) arrays, real numbers, mean finite, std > 0, counts >= 0."""
+    shapes = {"mean": mean.shape, "std": std.shape, "counts": counts.shape}
+    if len(set(shapes.values())) != 1 or mean.ndim != 1 or mean.size == 0:
+        raise ValueError(f"{path!r}: mean, std and counts must all have one shape (C,), got {shapes}")
+    for name, values, kind in (("mean", mean, "f"), ("std", std, "f"), ("counts", counts, "iu")):
+        if values.dtype.kind not in kind:
+            raise ValueError(f"{path!r}: {name} must be {'floating' if kind == 'f' else 'integer'}, got dtype {values.dtype}")
+    if not np.isfinite(mean).all():
+        raise ValueError(f"{path!r}: mean must be finite, got {mean.tolist()}")
+    if not (np.isfinite(std) & (std > 0)).all():
+        raise ValueError(f"{path!r}: std must be finite and > 0, got {std.tolist()}")
+    if (counts < 0).any():
+        raise ValueError(f"{path!r}: counts must be >= 0, got {counts.tolist()}")

@@ -11,6 +11,7 @@ import os
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import orbax.checkpoint as ocp
 
 
@@ -23,16 +24,22 @@ def _abstract(tree):
 class Checkpointer:
     """Knows when a step is due (every ``save_every``), saves, keeps the last ``keep``, restores.
 
-    ``directory`` is created if missing. Use as a context manager, or call ``close()``:
-    saves are asynchronous and ``close`` waits for them.
+    ``directory`` is created if missing, and unfinished saves of an earlier, killed writer are
+    removed. With ``read_only=True`` (readers of a run that may be training) nothing is created,
+    removed or written: the folder may be read-only and a live writer's temporary folders survive.
+    Use as a context manager, or call ``close()``: saves are asynchronous and ``close`` waits.
     """
 
-    def __init__(self, directory: str | os.PathLike, save_every: int = 1000, keep: int = 3):
+    def __init__(self, directory: str | os.PathLike, save_every: int = 1000, keep: int = 3, *,
+                 read_only: bool = False):
         if save_every < 1 or keep < 1:
             raise ValueError(f"save_every, keep: expected >= 1, got {save_every}, {keep}")
         self.directory = os.path.abspath(directory)
         self.save_every = save_every
-        options = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True, cleanup_tmp_directories=True)
+        if read_only:
+            options = ocp.CheckpointManagerOptions(read_only=True, create=False, cleanup_tmp_directories=False)
+        else:
+            options = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True, cleanup_tmp_directories=True)
         self._manager = ocp.CheckpointManager(self.directory, options=options)
 
     def latest_step(self) -> int | None:
@@ -56,7 +63,9 @@ class Checkpointer:
     def restore(self, template: Any, step: int | None = None) -> tuple[Any, Any]:
         """``(state, data_state)`` of ``step`` (default: the latest), shaped and sharded like ``template``.
 
-        Raises ValueError naming the folder when there is no checkpoint or it cannot be read.
+        Raises ValueError naming the folder when there is no checkpoint, it cannot be read, or
+        its floating-point arrays hold NaN/Inf (damaged files; training never saves those, see
+        docs/decisions/reliability.md).
         """
         step = self.latest_step() if step is None else step
         if step is None:
@@ -65,11 +74,17 @@ class Checkpointer:
         try:
             restored = self._manager.restore(step, args=args)
         except Exception as error:  # orbax raises many types for damaged files; name the step instead
-            raise ValueError(
-                f"checkpoint directory {self.directory}: step {step} cannot be read "
-                f"({type(error).__name__}: {error}); delete that step's folder to fall back to an "
-                f"earlier one") from error
+            raise ValueError(self._damaged(step, f"cannot be read ({type(error).__name__}: "
+                                                 f"{_first_line(error)})")) from error
+        bad = [jax.tree_util.keystr(path) for path, leaf in jax.tree_util.tree_leaves_with_path(restored["state"])
+               if jnp.issubdtype(leaf.dtype, jnp.inexact) and not bool(jnp.all(jnp.isfinite(leaf)))]
+        if bad:
+            raise ValueError(self._damaged(step, f"holds NaN/Inf in {len(bad)} array(s), e.g. {bad[0]}"))
         return restored["state"], restored["data"]["iterator"]
+
+    def _damaged(self, step: int, problem: str) -> str:
+        return (f"checkpoint directory {self.directory}: step {step} {problem}; delete that step's folder "
+                f"to fall back to an earlier one")
 
     def wait(self) -> None:
         """Block until pending asynchronous saves are on disk."""
@@ -89,5 +104,11 @@ def restore_checkpoint(directory: str | os.PathLike, template: Any, step: int | 
     """Restore from an existing checkpoint folder; ValueError if it is missing, empty or damaged."""
     if not os.path.isdir(directory):
         raise ValueError(f"checkpoint directory: expected an existing folder, got {os.fspath(directory)!r}")
-    with Checkpointer(directory) as checkpointer:
+    with Checkpointer(directory, read_only=True) as checkpointer:
         return checkpointer.restore(template, step)
+
+
+def _first_line(error: Exception, limit: int = 300) -> str:
+    """The first line of an error's message, at most ``limit`` characters (TensorStore's run to 60 lines)."""
+    lines = str(error).strip().splitlines() or [""]
+    return lines[0][:limit] + (" ..." if len(lines) > 1 or len(lines[0]) > limit else "")

@@ -1,0 +1,54 @@
+"""Readers of a run never touch it; damaged checkpoints are checkpoint errors (issue 10, items 3, 8, 12)."""
+import numpy as np
+import pytest
+
+import jax.numpy as jnp
+
+from jaxanom.train.checkpoint import Checkpointer, restore_checkpoint
+
+
+def _tree(root):
+    return sorted((str(p.relative_to(root)), p.stat().st_mtime_ns) for p in root.rglob("*"))
+
+
+def _saved(tmp_path, weights):
+    folder = tmp_path / "checkpoints"
+    with Checkpointer(folder, save_every=1) as checkpointer:
+        checkpointer.save(1, {"w": weights}, {"index": 1})
+    return folder
+
+
+def test_reading_a_live_run_leaves_its_unfinished_save_alone(tmp_path):
+    folder = _saved(tmp_path, jnp.arange(6.0))
+    unfinished = folder / "2.orbax-checkpoint-tmp"  # a writer's save in progress
+    unfinished.mkdir()
+    (unfinished / "part").write_bytes(b"in progress")
+    before = _tree(tmp_path)
+    state, data = restore_checkpoint(folder, {"w": jnp.zeros(6)})
+    np.testing.assert_array_equal(state["w"], np.arange(6.0))
+    assert data == {"index": 1}
+    assert unfinished.is_dir() and _tree(tmp_path) == before  # nothing created, removed or touched
+
+
+def test_a_reader_creates_no_folder(tmp_path):
+    folder = _saved(tmp_path, jnp.arange(3.0))
+    with Checkpointer(tmp_path / "elsewhere", read_only=True) as reader:
+        assert reader.latest_step() is None
+    assert not (tmp_path / "elsewhere").exists()
+    with Checkpointer(folder, read_only=True) as reader:
+        assert reader.latest_step() == 1
+
+
+def test_nan_in_restored_parameters_is_a_checkpoint_error(tmp_path):
+    folder = _saved(tmp_path, jnp.array([1.0, jnp.nan, 3.0]))
+    with pytest.raises(ValueError, match=r"step 1 holds NaN/Inf in 1 array\(s\).*'w'.*delete that step"):
+        restore_checkpoint(folder, {"w": jnp.zeros(3)})
+
+
+def test_truncated_checkpoint_data_is_a_one_line_checkpoint_error(tmp_path):
+    folder = _saved(tmp_path, jnp.arange(5000.0))
+    data = max((p for p in (folder / "1").rglob("*") if p.is_file()), key=lambda p: p.stat().st_size)
+    data.write_bytes(data.read_bytes()[: data.stat().st_size // 2])  # TensorStore's error spans ~60 lines
+    with pytest.raises(ValueError, match="step 1 cannot be read") as error:
+        restore_checkpoint(folder, {"w": jnp.zeros(5000)})
+    assert len(str(error.value).splitlines()) == 1 and "delete that step" in str(error.value)
