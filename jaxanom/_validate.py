@@ -59,3 +59,17 @@ def check_integer(name: str, x) -> None:
     dtype = dtype_of(x)
     if not np.issubdtype(dtype, np.integer):
         raise ValueError(f"{name} must hold integer class indices, got dtype {dtype}")
+
+
+@jax.jit
+def _no_nan_or_inf(x) -> jax.Array:
+    # an all-reduction over isfinite: sees a NaN at any size (a max-reduction on XLA:CPU can
+    # skip one, e.g. in a 4097-element array)
+    return jnp.isfinite(x).all()
+
+
+def check_all_finite(name: str, x) -> None:
+    """No NaN or Inf in ``x`` (skipped for tracers), by an all-reduction that never misses one."""
+    if is_concrete(x) and not bool(_no_nan_or_inf(jnp.asarray(x))):
+        bad = int(np.size(x) - np.count_nonzero(np.isfinite(np.asarray(x))))
+        raise ValueError(f"{name} must be finite, got {bad} NaN/Inf value(s)")
