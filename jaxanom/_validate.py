@@ -70,6 +70,10 @@ def _no_nan_or_inf(x) -> jax.Array:
 
 def check_all_finite(name: str, x) -> None:
     """No NaN or Inf in ``x`` (skipped for tracers), by an all-reduction that never misses one."""
-    if is_concrete(x) and not bool(_no_nan_or_inf(jnp.asarray(x))):
+    if not is_concrete(x):
+        return
+    with jax.ensure_compile_time_eval():  # a concrete array closed over by a caller's jit: still eager
+        finite = bool(_no_nan_or_inf(jnp.asarray(x)))
+    if not finite:
         bad = int(np.size(x) - np.count_nonzero(np.isfinite(np.asarray(x))))
         raise ValueError(f"{name} must be finite, got {bad} NaN/Inf value(s)")
