@@ -119,18 +119,19 @@ def build_lattice(features: jax.Array) -> Lattice:
     half = jnp.int64(1) << (bits - 1)
     codes = jnp.sum((keys + half) * base, axis=-1).reshape(-1)
     size = n * (d + 1)
-    unique, inverse = jnp.unique(codes, size=size, fill_value=jnp.iinfo(jnp.int64).max, return_inverse=True)
+    empty = jnp.iinfo(jnp.int64).max
+    order = jnp.argsort(codes)
+    ordered = codes[order]
+    slot = jnp.cumsum(jnp.concatenate([jnp.ones((1,), jnp.int32), (ordered[1:] != ordered[:-1]).astype(jnp.int32)])) - 1
+    inverse = jnp.zeros((size,), jnp.int32).at[order].set(slot)
+    unique = jnp.full((size,), empty, jnp.int64).at[slot].set(ordered)  # sorted; unused slots hold `empty`
     # neighbour along direction j: key - 1 everywhere and + d at j (j < d); the opposite one: its negative
     step = -jnp.sum(base) + (d + 1) * jnp.concatenate([base, jnp.zeros((1,), jnp.int64)])
-
-    def find(code):
-        at = jnp.clip(jnp.searchsorted(unique, code), 0, size - 1)
-        return jnp.where(unique[at] == code, at, size)
-
-    valid = unique != jnp.iinfo(jnp.int64).max
-    neighbours = jnp.stack([jnp.stack([find(unique + s), find(unique - s)]) for s in step])
-    neighbours = jnp.where(valid[None, None], neighbours, size)
-    return Lattice(inverse.reshape(n, d + 1).astype(jnp.int32), bary, neighbours.astype(jnp.int32),
+    queries = unique[None, None, :] + jnp.stack([step, -step], axis=1)[:, :, None]  # (d+1, 2, S)
+    at = jnp.clip(jnp.searchsorted(unique, queries.reshape(-1), method="sort"), 0, size - 1).reshape(queries.shape)
+    found = (unique[at] == queries) & (unique != empty)[None, None, :]
+    neighbours = jnp.where(found, at, size)
+    return Lattice(inverse.reshape(n, d + 1), bary, neighbours.astype(jnp.int32),
                    jnp.max(jnp.abs(keys)))
 
 
