@@ -71,15 +71,16 @@ def test_zero_weights_or_iterations_return_the_input(method):
 
 
 def test_permutohedral_close_to_exact():
-    # measured: 98-99 % equal labels and Q within 0.1 at this size; the bounds leave margin
+    # measured here: 100 % equal labels, |Q_lattice - Q_exact| / |Q_exact| = 4e-4 (and 99.98 %, 0.8 %
+    # on a 64x96 five-label scene); the bounds leave margin for other BLAS / XLA builds
     rng = np.random.default_rng(2)
     probs, image, truth = two_region_scene(rng, 40, 56, 3)
     kwargs = dict(sxy_b=20.0, srgb=13.0, w_b=10.0, sxy_g=3.0, w_g=3.0, iters=5)
     exact = np.asarray(dense_crf(probs, image, method="exact", **kwargs))
     lattice = np.asarray(dense_crf(probs, image, method="permutohedral", **kwargs))
     agree = np.mean(exact.argmax(-1) == lattice.argmax(-1))
-    assert agree >= 0.95, agree
-    assert np.linalg.norm(lattice - exact) / np.linalg.norm(exact) <= 0.15
+    assert agree >= 0.99, agree
+    assert np.linalg.norm(lattice - exact) / np.linalg.norm(exact) <= 0.02
     # and the CRF does what it is for: it cleans the noisy input
     assert np.mean(exact.argmax(-1) == truth) > np.mean(probs.argmax(-1) == truth) + 0.05
 
@@ -113,5 +114,7 @@ def test_bad_input_raises_naming_the_argument():
         dense_crf(probs, image, method="bilateral_grid")
     with pytest.raises(ValueError, match="normalization must be"):
         dense_crf(probs, image, normalization="before")
+    with pytest.raises(ValueError, match="features too far apart"):
+        dense_crf(probs, image, sxy_b=0.001, srgb=1.0)
     with pytest.raises(ValueError, match="sxy_b must be > 0"):
         dense_crf(probs, image, sxy_b=0.0)

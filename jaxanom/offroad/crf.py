@@ -70,12 +70,13 @@ def exact_filter(features: jax.Array, values: jax.Array) -> jax.Array:
 
 class Lattice(NamedTuple):
     """A built lattice: per point and vertex the vertex id ``(N, d+1)`` and weight ``(N, d+1)``;
-    per lattice direction the two neighbours of every vertex ``(d+1, 2, S)`` (S = empty slot)."""
+    per lattice direction the two neighbours of every vertex ``(d+1, 2, S)`` (S = empty slot);
+    ``fits``: whether every key fitted the int64 packing (else the lattice is wrong)."""
 
     vertex: jax.Array
     weight: jax.Array
     neighbours: jax.Array
-    max_key: jax.Array
+    fits: jax.Array
 
 
 def _elevate(features: jax.Array) -> jax.Array:
@@ -131,8 +132,8 @@ def build_lattice(features: jax.Array) -> Lattice:
     at = jnp.clip(jnp.searchsorted(unique, queries.reshape(-1), method="sort"), 0, size - 1).reshape(queries.shape)
     found = (unique[at] == queries) & (unique != empty)[None, None, :]
     neighbours = jnp.where(found, at, size)
-    return Lattice(inverse.reshape(n, d + 1), bary, neighbours.astype(jnp.int32),
-                   jnp.max(jnp.abs(keys)))
+    fits = jnp.max(jnp.abs(keys)) < half - (d + 2)  # neighbours' digits stay inside their field too
+    return Lattice(inverse.reshape(n, d + 1), bary, neighbours.astype(jnp.int32), fits)
 
 
 def lattice_filter(lattice: Lattice, values: jax.Array) -> jax.Array:
@@ -171,13 +172,13 @@ def _dense_crf(probs, image, sxy_b, srgb, w_b, sxy_g, w_g, iters: int, symmetric
     f_b, f_g = crf_features(image, sxy_b, srgb, sxy_g)
     if exact:
         filters = [lambda v: exact_filter(f_b, v), lambda v: exact_filter(f_g, v)]
-        max_key = jnp.int32(0)
+        fits = jnp.asarray(True)
     else:
         lat_b, lat_g = build_lattice(f_b), build_lattice(f_g)
         filters = [lambda v: lattice_filter(lat_b, v), lambda v: lattice_filter(lat_g, v)]
-        max_key = jnp.maximum(lat_b.max_key, lat_g.max_key)
+        fits = lat_b.fits & lat_g.fits
     q = _mean_field(unary, filters, (w_b, w_g), iters, symmetric)
-    return q.reshape(h, w, num_labels), max_key
+    return q.reshape(h, w, num_labels), fits
 
 
 _dense_crf_jit = jax.jit(_dense_crf, static_argnums=(7, 8, 9))
@@ -212,10 +213,10 @@ def dense_crf(probs, image, *, sxy_b: float = 80.0, srgb: float = 13.0, w_b: flo
         raise ValueError(f"method must be 'permutohedral' or 'exact', got {method!r}")
     scale = 1.0 if reference_width is None else np.shape(probs)[1] / float(reference_width)
     with jax.enable_x64(True):
-        q, max_key = _dense_crf_jit(jnp.asarray(probs, jnp.float32), jnp.asarray(image, jnp.float32),
+        q, fits = _dense_crf_jit(jnp.asarray(probs, jnp.float32), jnp.asarray(image, jnp.float32),
                                     jnp.float32(sxy_b * scale), jnp.float32(srgb), jnp.float32(w_b),
                                     jnp.float32(sxy_g * scale), jnp.float32(w_g), int(iters),
                                     normalization == "symmetric", method == "exact")
-        if int(max_key) >= 2 ** (62 // 5 - 1) - 8:
+        if not bool(fits):
             raise ValueError("features too far apart for the lattice's key packing: increase sxy_b / srgb or use method='exact'")
         return jnp.asarray(np.asarray(q))
