@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from jaxanom.offroad.crf import dense_crf
+from jaxanom.offroad.crf import dense_crf, dense_crf_batch
 
 
 def numpy_dense_crf(probs, image, sxy_b, srgb, w_b, sxy_g, w_g, iters, symmetric):
@@ -83,6 +83,17 @@ def test_permutohedral_close_to_exact():
     assert np.linalg.norm(lattice - exact) / np.linalg.norm(exact) <= 0.02
     # and the CRF does what it is for: it cleans the noisy input
     assert np.mean(exact.argmax(-1) == truth) > np.mean(probs.argmax(-1) == truth) + 0.05
+
+
+def test_batch_twin_equals_single_images():
+    rng = np.random.default_rng(4)
+    scenes = [two_region_scene(rng, 12, 20, 3)[:2] for _ in range(2)]
+    probs, images = np.stack([p for p, _ in scenes]), np.stack([i for _, i in scenes])
+    batch = dense_crf_batch(probs, images, sxy_b=10.0)
+    for k in range(2):
+        np.testing.assert_allclose(batch[k], dense_crf(probs[k], images[k], sxy_b=10.0), atol=1e-6)
+    with pytest.raises(ValueError, match="probs must have rank 4"):
+        dense_crf_batch(probs[0], images[0])
 
 
 def test_matches_pydensecrf2_where_installed():

@@ -182,6 +182,7 @@ def _dense_crf(probs, image, sxy_b, srgb, w_b, sxy_g, w_g, iters: int, symmetric
 
 
 _dense_crf_jit = jax.jit(_dense_crf, static_argnums=(7, 8, 9))
+_dense_crf_batch = jax.jit(jax.vmap(_dense_crf, in_axes=(0, 0) + (None,) * 8), static_argnums=(7, 8, 9))
 
 
 def dense_crf(probs, image, *, sxy_b: float = 80.0, srgb: float = 13.0, w_b: float = 10.0, sxy_g: float = 3.0,
@@ -194,11 +195,25 @@ def dense_crf(probs, image, *, sxy_b: float = 80.0, srgb: float = 13.0, w_b: flo
     Defaults are pydensecrf's common settings. ``reference_width``: if given, ``sxy_b`` and
     ``sxy_g`` are meant for an image that wide and are scaled by ``W / reference_width``.
     """
-    check_rank("probs", probs, 3, "(H, W, L)")
-    check_rank("image", image, 3, "(H, W, C)")
-    if np.shape(image)[:2] != np.shape(probs)[:2]:
-        raise ValueError(f"image must have the height and width of probs {np.shape(probs)[:2]}, got {np.shape(image)}")
-    if np.shape(probs)[-1] < 1 or np.shape(probs)[0] * np.shape(probs)[1] < 1:
+    return _run(_dense_crf_jit, probs, image, False, sxy_b, srgb, w_b, sxy_g, w_g, iters, normalization, method,
+                reference_width)
+
+
+def dense_crf_batch(probs, image, *, sxy_b: float = 80.0, srgb: float = 13.0, w_b: float = 10.0, sxy_g: float = 3.0,
+                    w_g: float = 3.0, iters: int = 5, normalization: str = "symmetric", method: str = "permutohedral",
+                    reference_width: int | None = None) -> jax.Array:
+    """``dense_crf`` over a batch: ``probs (B, H, W, L)``, ``image (B, H, W, C)`` -> ``(B, H, W, L)``."""
+    return _run(_dense_crf_batch, probs, image, True, sxy_b, srgb, w_b, sxy_g, w_g, iters, normalization, method,
+                reference_width)
+
+
+def _run(fn, probs, image, batched, sxy_b, srgb, w_b, sxy_g, w_g, iters, normalization, method, reference_width):
+    lead = "B, " if batched else ""
+    check_rank("probs", probs, 3 + batched, f"({lead}H, W, L)")
+    check_rank("image", image, 3 + batched, f"({lead}H, W, C)")
+    if np.shape(image)[:-1] != np.shape(probs)[:-1]:
+        raise ValueError(f"image must have the {lead}height and width of probs {np.shape(probs)[:-1]}, got {np.shape(image)}")
+    if min(np.shape(probs)) < 1:
         raise ValueError(f"probs must hold at least one pixel and one label, got shape {np.shape(probs)}")
     check_all_finite("probs", probs)
     check_all_finite("image", image)
@@ -211,12 +226,11 @@ def dense_crf(probs, image, *, sxy_b: float = 80.0, srgb: float = 13.0, w_b: flo
         raise ValueError(f"normalization must be 'symmetric' or 'none', got {normalization!r}")
     if method not in ("permutohedral", "exact"):
         raise ValueError(f"method must be 'permutohedral' or 'exact', got {method!r}")
-    scale = 1.0 if reference_width is None else np.shape(probs)[1] / float(reference_width)
+    scale = 1.0 if reference_width is None else np.shape(probs)[-2] / float(reference_width)
     with jax.enable_x64(True):
-        q, fits = _dense_crf_jit(jnp.asarray(probs, jnp.float32), jnp.asarray(image, jnp.float32),
-                                    jnp.float32(sxy_b * scale), jnp.float32(srgb), jnp.float32(w_b),
-                                    jnp.float32(sxy_g * scale), jnp.float32(w_g), int(iters),
-                                    normalization == "symmetric", method == "exact")
-        if not bool(fits):
+        q, fits = fn(jnp.asarray(probs, jnp.float32), jnp.asarray(image, jnp.float32), jnp.float32(sxy_b * scale),
+                     jnp.float32(srgb), jnp.float32(w_b), jnp.float32(sxy_g * scale), jnp.float32(w_g), int(iters),
+                     normalization == "symmetric", method == "exact")
+        if not bool(jnp.all(fits)):
             raise ValueError("features too far apart for the lattice's key packing: increase sxy_b / srgb or use method='exact'")
         return jnp.asarray(np.asarray(q))
