@@ -122,8 +122,8 @@ def _kmeans(key, z: jax.Array, m: int, steps: int) -> jax.Array:
 
     centres, _ = jax.lax.fori_loop(1, m, seed, (centres, dist))
 
-    def assign(centres):
-        return jnp.argmin(jnp.sum((z[:, None, :] - centres[None]) ** 2, axis=-1), axis=-1)
+    def assign(centres):  # nearest centre by |c|^2 - 2 z.c (|z|^2 is the same for every centre)
+        return jnp.argmin(jnp.sum(centres**2, axis=-1)[None] - 2 * z @ centres.T, axis=-1)
 
     def lloyd(_, centres):
         onehot = jax.nn.one_hot(assign(centres), m, dtype=z.dtype)
