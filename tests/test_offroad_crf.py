@@ -108,7 +108,7 @@ def test_matches_pydensecrf2_where_installed():
     model.addPairwiseBilateral(sxy=80, srgb=13, rgbim=np.ascontiguousarray((image * 255).round().astype(np.uint8)), compat=10)
     theirs = np.asarray(model.inference(5)).reshape(num_labels, h, w).argmax(0)
     ours = np.asarray(dense_crf(probs, (image * 255).round() / 255)).argmax(-1)
-    assert np.mean(ours == theirs) >= 0.95
+    assert np.mean(ours == theirs) >= 0.99  # measured 100 % here (99.97 % on a 64x96 five-label scene)
 
 
 def test_bad_input_raises_naming_the_argument():

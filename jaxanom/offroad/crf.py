@@ -129,7 +129,7 @@ def build_lattice(features: jax.Array) -> Lattice:
     # neighbour along direction j: key - 1 everywhere and + d at j (j < d); the opposite one: its negative
     step = -jnp.sum(base) + (d + 1) * jnp.concatenate([base, jnp.zeros((1,), jnp.int64)])
     queries = unique[None, None, :] + jnp.stack([step, -step], axis=1)[:, :, None]  # (d+1, 2, S)
-    at = jnp.clip(jnp.searchsorted(unique, queries.reshape(-1), method="sort"), 0, size - 1).reshape(queries.shape)
+    at = jnp.clip(jnp.searchsorted(unique, queries.reshape(-1)), 0, size - 1).reshape(queries.shape)
     found = (unique[at] == queries) & (unique != empty)[None, None, :]
     neighbours = jnp.where(found, at, size)
     fits = jnp.max(jnp.abs(keys)) < half - (d + 2)  # neighbours' digits stay inside their field too
