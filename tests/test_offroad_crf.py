@@ -129,3 +129,21 @@ def test_bad_input_raises_naming_the_argument():
         dense_crf(probs, image, sxy_b=0.001, srgb=1.0)
     with pytest.raises(ValueError, match="sxy_b must be > 0"):
         dense_crf(probs, image, sxy_b=0.0)
+
+
+def test_tightly_sized_lattice_filters_like_the_full_one():
+    import jax
+    import jax.numpy as jnp
+
+    from jaxanom.offroad.crf import build_lattice, lattice_filter, vertex_count
+
+    rng = np.random.default_rng(5)
+    with jax.enable_x64(True):
+        features = jnp.asarray(rng.random((300, 3)) * 4, jnp.float32)
+        values = jnp.asarray(rng.random((300, 2)), jnp.float32)
+        count = int(vertex_count(features))
+        full = build_lattice(features)
+        tight = build_lattice(features, count)
+        assert bool(full.fits) and bool(tight.fits) and not bool(build_lattice(features, count - 1).fits)
+        assert count < 300 * 4 and tight.neighbours.shape == (4, 2, count)
+        np.testing.assert_allclose(lattice_filter(tight, values), lattice_filter(full, values), rtol=1e-6)
