@@ -59,3 +59,21 @@ def check_integer(name: str, x) -> None:
     dtype = dtype_of(x)
     if not np.issubdtype(dtype, np.integer):
         raise ValueError(f"{name} must hold integer class indices, got dtype {dtype}")
+
+
+@jax.jit
+def _no_nan_or_inf(x) -> jax.Array:
+    # an all-reduction over isfinite: sees a NaN at any size (a max-reduction on XLA:CPU can
+    # skip one, e.g. in a 4097-element array)
+    return jnp.isfinite(x).all()
+
+
+def check_all_finite(name: str, x) -> None:
+    """No NaN or Inf in ``x`` (skipped for tracers), by an all-reduction that never misses one."""
+    if not is_concrete(x):
+        return
+    with jax.ensure_compile_time_eval():  # a concrete array closed over by a caller's jit: still eager
+        finite = bool(_no_nan_or_inf(jnp.asarray(x)))
+    if not finite:
+        bad = int(np.size(x) - np.count_nonzero(np.isfinite(np.asarray(x))))
+        raise ValueError(f"{name} must be finite, got {bad} NaN/Inf value(s)")

@@ -1,0 +1,275 @@
+"""Full-covariance Gaussian mixtures in JAX: densities, EM, k-means++ fitting and BIC.
+
+The category model of the off-road paper (seed 001, Eqs. 3-5). ``em`` follows scikit-learn's
+``GaussianMixture`` step for step, so the same initial parameters give the same parameters,
+lower bound and iteration count:
+
+1. E-step: ``log r = log pi + log gamma - logsumexp``; the lower bound is the mean of the
+   logsumexp (the log-likelihood per point of the parameters *before* this iteration's M-step);
+2. M-step: ``n_k = sum_i r_ik + 10 eps``, means, centred covariances ``+ reg_covar I``,
+   weights ``n_k / sum n_k``;
+3. stop after the first iteration whose lower bound changed by less than ``tol`` (or at
+   ``max_iter``).
+
+``em``, ``fit_gmm`` and ``bic`` run in float64 under a local ``jax.enable_x64`` (inputs are
+cast; results are float64 arrays). ``log_gaussian``, ``log_responsibilities`` and
+``score_samples`` are pure and keep their inputs' dtype, so they work inside a caller's jit.
+The choice of the component count (``select_components``) is host-side: one compile per m.
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxanom._validate import check_all_finite, check_rank
+
+
+class GaussianMixture(NamedTuple):
+    """Mixture parameters (a pytree): weights ``(m,)``, means ``(m, D)``, covariances ``(m, D, D)``."""
+
+    weights: jax.Array
+    means: jax.Array
+    covariances: jax.Array
+
+
+class EMResult(NamedTuple):
+    """A fitted mixture, sklearn's ``lower_bound_`` and ``n_iter_``, and whether ``tol`` was met."""
+
+    mixture: GaussianMixture
+    lower_bound: jax.Array
+    n_iter: jax.Array
+    converged: jax.Array
+
+
+# ---- pure functions (any float dtype) -------------------------------------------------------
+
+
+def _precision_cholesky(covariances: jax.Array) -> jax.Array:
+    """``inv(chol(Sigma_k)).T`` per component ``(m, D, D)``: ``z @ P`` whitens (NaN if not SPD)."""
+    chol = jnp.linalg.cholesky(covariances)
+    eye = jnp.broadcast_to(jnp.eye(covariances.shape[-1], dtype=covariances.dtype), covariances.shape)
+    return jnp.swapaxes(jax.scipy.linalg.solve_triangular(chol, eye, lower=True), -1, -2)
+
+
+def log_gaussian(z: jax.Array, means: jax.Array, covariances: jax.Array) -> jax.Array:
+    """Eq. 3 in log form, ``log gamma(z_i; c_k)``: ``(N, D), (m, D), (m, D, D) -> (N, m)``.
+
+    ``-1/2 (D log 2 pi + log|Sigma_k| + |L_k^-1 (z - mu_k)|^2)`` with ``L_k = chol(Sigma_k)``.
+    """
+    prec = _precision_cholesky(covariances)
+    log_det = jnp.sum(jnp.log(jnp.diagonal(prec, axis1=-2, axis2=-1)), axis=-1)  # -1/2 log|Sigma|
+    y = jnp.einsum("nd,kde->nke", z, prec) - jnp.einsum("kd,kde->ke", means, prec)[None]
+    return -0.5 * (z.shape[-1] * math.log(2 * math.pi) + jnp.sum(y * y, axis=-1)) + log_det
+
+
+def log_responsibilities(z: jax.Array, mixture: GaussianMixture) -> tuple[jax.Array, jax.Array]:
+    """``(log sum_k pi_k gamma_k (N,), log r (N, m))``: the E-step."""
+    weighted = log_gaussian(z, mixture.means, mixture.covariances) + jnp.log(mixture.weights)
+    norm = jax.nn.logsumexp(weighted, axis=-1)
+    return norm, weighted - norm[:, None]
+
+
+def score_samples(z: jax.Array, mixture: GaussianMixture) -> jax.Array:
+    """Per-point log-likelihood ``log sum_k pi_k gamma(z_i; c_k)`` ``(N,)`` (Eq. 4 with weights, D-B3)."""
+    return log_responsibilities(z, mixture)[0]
+
+
+def _m_step(z: jax.Array, resp: jax.Array, reg_covar) -> GaussianMixture:
+    nk = jnp.sum(resp, axis=0) + 10 * jnp.finfo(resp.dtype).eps
+    means = resp.T @ z / nk[:, None]
+
+    def covariance(r, mu, n):
+        diff = z - mu
+        return (r[:, None] * diff).T @ diff / n + reg_covar * jnp.eye(z.shape[-1], dtype=z.dtype)
+
+    covariances = jax.vmap(covariance)(resp.T, means, nk)
+    return GaussianMixture(nk / jnp.sum(nk), means, covariances)
+
+
+def _em_loop(z, mixture: GaussianMixture, reg_covar, tol, max_iter) -> EMResult:
+    def body(state):
+        mixture, bound, n_iter, _ = state
+        norm, log_resp = log_responsibilities(z, mixture)
+        new_bound = jnp.mean(norm)
+        return _m_step(z, jnp.exp(log_resp), reg_covar), new_bound, n_iter + 1, jnp.abs(new_bound - bound) < tol
+
+    def cond(state):
+        return (state[2] < max_iter) & ~state[3]
+
+    start = (mixture, jnp.asarray(-jnp.inf, z.dtype), jnp.asarray(0, jnp.int32), jnp.asarray(False))
+    return EMResult(*jax.lax.while_loop(cond, body, start))
+
+
+_em_jit = jax.jit(_em_loop)
+
+
+def _kmeans(key, z: jax.Array, m: int, steps: int) -> jax.Array:
+    """k-means++ seeding (D^2 sampling) then ``steps`` Lloyd steps: labels ``(N,)``."""
+    first, rest = jax.random.split(key)
+    centres = jnp.zeros((m, z.shape[-1]), z.dtype).at[0].set(z[jax.random.randint(first, (), 0, z.shape[0])])
+    dist = jnp.sum((z - centres[0]) ** 2, axis=-1)
+
+    def seed(k, carry):
+        centres, dist = carry
+        p = dist / jnp.sum(dist)
+        pick = jax.random.choice(jax.random.fold_in(rest, k), z.shape[0], p=jnp.where(jnp.sum(dist) > 0, p, 1.0 / z.shape[0]))
+        centres = centres.at[k].set(z[pick])
+        return centres, jnp.minimum(dist, jnp.sum((z - z[pick]) ** 2, axis=-1))
+
+    centres, _ = jax.lax.fori_loop(1, m, seed, (centres, dist))
+
+    def assign(centres):
+        return jnp.argmin(jnp.sum((z[:, None, :] - centres[None]) ** 2, axis=-1), axis=-1)
+
+    def lloyd(_, centres):
+        onehot = jax.nn.one_hot(assign(centres), m, dtype=z.dtype)
+        count = jnp.sum(onehot, axis=0)
+        mean = onehot.T @ z / jnp.maximum(count, 1)[:, None]
+        return jnp.where(count[:, None] > 0, mean, centres)  # an empty cluster keeps its centre
+
+    return assign(jax.lax.fori_loop(0, steps, lloyd, centres))
+
+
+def _fit_one(key, z, m: int, lloyd_steps: int, reg_covar, tol, max_iter) -> EMResult:
+    resp = jax.nn.one_hot(_kmeans(key, z, m, lloyd_steps), m, dtype=z.dtype)
+    return _em_loop(z, _m_step(z, resp, reg_covar), reg_covar, tol, max_iter)
+
+
+_fit_many = jax.jit(jax.vmap(_fit_one, in_axes=(0, None, None, None, None, None, None)), static_argnums=(2, 3))
+
+
+# ---- public, validated, float64 --------------------------------------------------------------
+
+
+def _check_points(z, min_points: int = 1) -> np.ndarray:
+    check_rank("z", z, 2, "(N, D)")
+    if np.shape(z)[0] < min_points or np.shape(z)[1] < 1:
+        raise ValueError(f"z must hold at least {min_points} point(s) of dimension >= 1, got shape {np.shape(z)}")
+    check_all_finite("z", z)
+    return np.asarray(z, np.float64)
+
+
+def _check_mixture(weights, means, covariances, dim: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    check_rank("weights", weights, 1, "(m,)")
+    m = np.shape(weights)[0]
+    if m < 1:
+        raise ValueError("weights must hold at least one component, got none")
+    if np.shape(means) != (m, dim):
+        raise ValueError(f"means must have shape (m, D) = {(m, dim)}, got {np.shape(means)}")
+    if np.shape(covariances) != (m, dim, dim):
+        raise ValueError(f"covariances must have shape (m, D, D) = {(m, dim, dim)}, got {np.shape(covariances)}")
+    for name, x in (("weights", weights), ("means", means), ("covariances", covariances)):
+        check_all_finite(name, x)
+    w = np.asarray(weights, np.float64)
+    if (w <= 0).any():
+        raise ValueError(f"weights must be > 0, got {w.tolist()}")
+    return w, np.asarray(means, np.float64), np.asarray(covariances, np.float64)
+
+
+def _check_fit_options(reg_covar, tol, max_iter) -> None:
+    if not reg_covar >= 0:
+        raise ValueError(f"reg_covar must be >= 0, got {reg_covar}")
+    if not tol >= 0:
+        raise ValueError(f"tol must be >= 0, got {tol}")
+    if int(max_iter) < 1:
+        raise ValueError(f"max_iter must be >= 1, got {max_iter}")
+
+
+def _checked_result(result: EMResult) -> EMResult:
+    if not np.isfinite(np.asarray(result.mixture.covariances)).all() or not np.isfinite(np.asarray(result.lower_bound)).all():
+        raise ValueError("EM met an ill-defined covariance (not positive definite); increase reg_covar or give fewer components")
+    return result
+
+
+def em(z, weights, means, covariances, *, reg_covar: float = 1e-6, tol: float = 1e-3, max_iter: int = 100) -> EMResult:
+    """EM from the given parameters, as sklearn's ``GaussianMixture(covariance_type="full")``.
+
+    ``z (N, D)``; ``weights (m,)``, ``means (m, D)``, ``covariances (m, D, D)``: the initial
+    parameters (sklearn's ``weights_init``, ``means_init`` and ``inv(precisions_init)``).
+    Returns float64 ``EMResult``; ``lower_bound`` and ``n_iter`` are sklearn's ``lower_bound_``
+    and ``n_iter_``. Host entry point (validates, switches on float64).
+    """
+    x = _check_points(z)
+    start = _check_mixture(weights, means, covariances, x.shape[1])
+    _check_fit_options(reg_covar, tol, max_iter)
+    with jax.enable_x64(True):
+        result = _em_jit(jnp.asarray(x), GaussianMixture(*map(jnp.asarray, start)),
+                         jnp.float64(reg_covar), jnp.float64(tol), jnp.int32(max_iter))
+    return _checked_result(result)
+
+
+def fit_gmm(key, z, m: int, *, n_init: int = 3, lloyd_steps: int = 10, reg_covar: float = 1e-6,
+            tol: float = 1e-3, max_iter: int = 100) -> EMResult:
+    """Fit ``m`` components: per init, k-means++ seeding + ``lloyd_steps`` Lloyd steps, then EM.
+
+    The ``n_init`` initialisations (keys split from ``key``) run vmapped; the one with the
+    highest lower bound is kept (the first on ties), as in sklearn. ``z (N, D)`` with N >= m.
+    """
+    if int(m) < 1:
+        raise ValueError(f"m must be >= 1 component, got {m}")
+    x = _check_points(z, min_points=int(m))
+    if int(n_init) < 1:
+        raise ValueError(f"n_init must be >= 1, got {n_init}")
+    if int(lloyd_steps) < 0:
+        raise ValueError(f"lloyd_steps must be >= 0, got {lloyd_steps}")
+    _check_fit_options(reg_covar, tol, max_iter)
+    keys = jax.random.split(key, int(n_init))
+    with jax.enable_x64(True):
+        results = _fit_many(keys, jnp.asarray(x), int(m), int(lloyd_steps), jnp.float64(reg_covar),
+                            jnp.float64(tol), jnp.int32(max_iter))
+    bounds = np.asarray(results.lower_bound)
+    best = int(np.argmax(np.where(np.isnan(bounds), -np.inf, bounds)))
+    return _checked_result(jax.tree_util.tree_map(lambda a: a[best], results))
+
+
+def n_parameters(m: int, dim: int) -> int:
+    """Free parameters of a full-covariance mixture: ``mD + mD(D+1)/2 + m - 1`` (sklearn's count)."""
+    return m * dim + m * dim * (dim + 1) // 2 + m - 1
+
+
+def bic(z, mixture: GaussianMixture) -> float:
+    """Eq. 5: ``-2 log L + u log N``, with L including the mixing weights (D-B3); sklearn's ``.bic``."""
+    x = _check_points(z)
+    w, mu, cov = _check_mixture(*mixture, x.shape[1])
+    with jax.enable_x64(True):
+        log_l = float(jnp.sum(jax.jit(score_samples)(jnp.asarray(x), GaussianMixture(*map(jnp.asarray, (w, mu, cov))))))
+    return -2.0 * log_l + n_parameters(len(w), x.shape[1]) * math.log(x.shape[0])
+
+
+def decisive_minimum(counts: Sequence[int], bics: Sequence[float], threshold: float = 10.0) -> int:
+    """The component count at the first decisive local minimum of a BIC curve (D-B4).
+
+    ``counts`` ascending, consecutive candidates; ``bics`` their BIC values. The smallest m with
+    ``BIC(m) <= BIC(m-1)`` (vacuous for the first candidate) and ``BIC(m+1) - BIC(m) >= threshold``
+    (Kass-Raftery "very strong" evidence against the next count); if none, the argmin (first on ties).
+    """
+    counts, values = list(map(int, counts)), np.asarray(bics, np.float64)
+    if len(counts) < 1 or values.shape != (len(counts),):
+        raise ValueError(f"bics must be one value per count, got {values.shape} for {len(counts)} counts")
+    if any(b - a != 1 for a, b in zip(counts, counts[1:])):
+        raise ValueError(f"counts must be consecutive and ascending, got {counts}")
+    if not np.isfinite(values).all():
+        raise ValueError(f"bics must be finite, got {values.tolist()}")
+    for i in range(len(counts) - 1):
+        if (i == 0 or values[i] <= values[i - 1]) and values[i + 1] - values[i] >= threshold:
+            return counts[i]
+    return counts[int(np.argmin(values))]
+
+
+def select_components(key, z, counts: Sequence[int] = tuple(range(2, 13)), *, threshold: float = 10.0,
+                      **fit_options) -> tuple[int, dict[int, EMResult], dict[int, float]]:
+    """Fit every count in ``counts`` (default 2..12, D-B1) and pick one by ``decisive_minimum``.
+
+    Returns ``(m, {m: EMResult}, {m: BIC})``; ``fit_options`` go to ``fit_gmm``. Host-side.
+    """
+    counts = [int(c) for c in counts]
+    if len(counts) < 2 or min(counts) < 1:
+        raise ValueError(f"counts must hold at least two component counts >= 1, got {counts}")
+    x = _check_points(z, min_points=max(counts))
+    fits = {m: fit_gmm(jax.random.fold_in(key, m), x, m, **fit_options) for m in counts}
+    bics = {m: bic(x, fits[m].mixture) for m in counts}
+    return decisive_minimum(counts, [bics[m] for m in counts], threshold), fits, bics

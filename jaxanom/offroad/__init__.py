@@ -1,0 +1,1 @@
+"""Active + contrastive off-road segmentation (seed 001): InfoNCE, risk, frame selection, dense CRF."""

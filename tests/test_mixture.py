@@ -1,0 +1,145 @@
+"""Gaussian mixtures (jaxanom.mixture) against scipy and scikit-learn's GaussianMixture."""
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.stats import multivariate_normal
+from sklearn.mixture import GaussianMixture as SklearnGMM
+
+from jaxanom import mixture as mx
+
+
+def random_spd(rng, m, d, scale=1.0):
+    a = rng.normal(size=(m, d, d))
+    return scale * (a @ np.swapaxes(a, 1, 2) / d + 0.3 * np.eye(d))
+
+
+def blobs(rng, m, d, n, spread=6.0):
+    centres = rng.normal(size=(m, d)) * spread
+    return np.concatenate([c + rng.normal(size=(n, d)) @ np.linalg.cholesky(random_spd(rng, 1, d)[0]).T for c in centres])
+
+
+def test_log_gaussian_matches_scipy():
+    rng = np.random.default_rng(0)
+    z, means, cov = rng.normal(size=(37, 5)) * 3, rng.normal(size=(3, 5)), random_spd(rng, 3, 5)
+    expected = np.stack([multivariate_normal(means[k], cov[k]).logpdf(z) for k in range(3)], axis=1)
+    with jax.enable_x64(True):
+        got = mx.log_gaussian(jnp.asarray(z), jnp.asarray(means), jnp.asarray(cov))
+    assert got.dtype == jnp.float64
+    np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-10)
+    got32 = mx.log_gaussian(jnp.asarray(z, jnp.float32), jnp.asarray(means, jnp.float32), jnp.asarray(cov, jnp.float32))
+    np.testing.assert_allclose(got32, expected, rtol=1e-4, atol=1e-3)
+
+
+@pytest.mark.parametrize("m, d, tol, max_iter", [(3, 2, 1e-3, 100), (4, 5, 1e-6, 300), (1, 3, 1e-3, 100), (5, 4, 1e-3, 3)])
+def test_em_matches_sklearn_from_same_start(m, d, tol, max_iter):
+    rng = np.random.default_rng(m * 10 + d)
+    z = blobs(rng, max(m, 2), d, 60 + 7 * m, spread=2.5)
+    w0 = rng.dirichlet(np.ones(m) * 3)
+    mu0 = z[rng.choice(len(z), m, replace=False)]
+    cov0 = random_spd(rng, m, d, scale=2.0)
+    sk = SklearnGMM(m, covariance_type="full", weights_init=w0, means_init=mu0,
+                    precisions_init=np.linalg.inv(cov0), tol=tol, max_iter=max_iter)
+    if max_iter < 10:  # stopped before convergence: sklearn warns
+        with pytest.warns(Warning, match="did not converge"):
+            sk.fit(z)
+    else:
+        sk.fit(z)
+    got = mx.em(z, w0, mu0, cov0, tol=tol, max_iter=max_iter)
+    assert int(got.n_iter) == sk.n_iter_
+    assert bool(got.converged) == sk.converged_
+    np.testing.assert_allclose(got.mixture.weights, sk.weights_, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(got.mixture.means, sk.means_, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(got.mixture.covariances, sk.covariances_, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(float(got.lower_bound), sk.lower_bound_, rtol=1e-12)
+    np.testing.assert_allclose(mx.bic(z, got.mixture), sk.bic(z), rtol=1e-12)
+    with jax.enable_x64(True):
+        _, log_resp = mx.log_responsibilities(jnp.asarray(z), got.mixture)
+        log_l = mx.score_samples(jnp.asarray(z), got.mixture)
+    np.testing.assert_allclose(np.exp(log_resp), sk.predict_proba(z), atol=1e-8)
+    np.testing.assert_allclose(log_l, sk.score_samples(z), rtol=1e-10)
+
+
+def test_n_parameters_is_sklearns_count():
+    for m, d in [(1, 1), (3, 16), (12, 16), (5, 2)]:
+        sk = SklearnGMM(m)
+        sk.means_ = np.zeros((m, d))
+        assert mx.n_parameters(m, d) == sk._n_parameters()
+
+
+def test_fit_gmm_deterministic_and_not_worse_than_sklearn_kmeans_start():
+    rng = np.random.default_rng(3)
+    z = blobs(rng, 4, 3, 80)
+    a = mx.fit_gmm(jax.random.key(7), z, 4)
+    b = mx.fit_gmm(jax.random.key(7), z, 4)
+    np.testing.assert_array_equal(a.mixture.means, b.mixture.means)
+    sk = SklearnGMM(4, n_init=3, random_state=0).fit(z)
+    assert float(a.lower_bound) >= sk.lower_bound_ - 1e-6  # well separated: both find the global optimum
+    assert bool(a.converged)
+    np.testing.assert_allclose(np.sort(a.mixture.weights), np.full(4, 0.25), atol=1e-6)
+
+
+def test_select_components_recovers_separated_blobs():
+    rng = np.random.default_rng(5)
+    z = blobs(rng, 3, 2, 120, spread=8.0)
+    m, fits, bics = mx.select_components(jax.random.key(0), z, range(2, 6))
+    assert m == 3
+    assert set(fits) == set(bics) == {2, 3, 4, 5}
+    assert bics[3] == min(bics.values())
+
+
+@pytest.mark.parametrize("curve, expected", [
+    ([100, 80, 60, 75, 50], 4),        # first decisive local minimum, not the global one (6)
+    ([100, 80, 60, 65, 50, 40], 7),    # a shallow dip (rise 5 < 10) is skipped; falls back to argmin
+    ([50, 70, 40, 60], 2),             # the first candidate, rising by 20 after it
+    ([100, 90, 80, 70], 5),            # monotone: argmin (the last)
+    ([60, 60, 60, 60], 2),             # flat: argmin, first on ties
+    ([100, 60, 60, 75], 4),            # equal to its left neighbour counts as a minimum
+    ([100, 60, 69.9, 40], 5),          # rise just under the threshold
+    ([100, 60, 70.0, 40], 3),          # rise exactly at the threshold
+])
+def test_decisive_minimum_on_hand_made_curves(curve, expected):
+    assert mx.decisive_minimum(list(range(2, 2 + len(curve))), curve) == expected
+
+
+def test_decisive_minimum_threshold_option():
+    assert mx.decisive_minimum([2, 3, 4], [100, 60, 63], threshold=2.0) == 3
+    assert mx.decisive_minimum([2, 3, 4], [100, 60, 63]) == 3  # argmin anyway
+    assert mx.decisive_minimum([2, 3, 4, 5], [100, 60, 63, 20], threshold=2.0) == 3
+    assert mx.decisive_minimum([2, 3, 4, 5], [100, 60, 63, 20]) == 5
+
+
+def test_bad_input_raises_naming_the_argument():
+    rng = np.random.default_rng(0)
+    z = rng.normal(size=(5000, 2))
+    w, mu, cov = np.full(2, 0.5), z[:2], np.stack([np.eye(2)] * 2)
+    bad = z.copy()
+    bad[4096, 1] = np.nan  # beyond the reach of a max-reduction's NaN detection on XLA:CPU
+    with pytest.raises(ValueError, match="z must be finite"):
+        mx.em(bad, w, mu, cov)
+    with pytest.raises(ValueError, match="z must hold at least 1"):
+        mx.em(np.zeros((0, 2)), w, mu, cov)
+    with pytest.raises(ValueError, match="z must have rank 2"):
+        mx.fit_gmm(jax.random.key(0), z[:, 0], 2)
+    with pytest.raises(ValueError, match="means must have shape"):
+        mx.em(z, w, mu[:, :1], cov)
+    with pytest.raises(ValueError, match="weights must be > 0"):
+        mx.em(z, np.array([1.0, 0.0]), mu, cov)
+    with pytest.raises(ValueError, match="m must be >= 1"):
+        mx.fit_gmm(jax.random.key(0), z, 0)
+    with pytest.raises(ValueError, match="z must hold at least 3"):
+        mx.fit_gmm(jax.random.key(0), z[:2], 3)
+    with pytest.raises(ValueError, match="max_iter"):
+        mx.em(z, w, mu, cov, max_iter=0)
+    with pytest.raises(ValueError, match="counts must hold at least two"):
+        mx.select_components(jax.random.key(0), z, [3])
+    with pytest.raises(ValueError, match="consecutive"):
+        mx.decisive_minimum([2, 4], [1.0, 2.0])
+    with pytest.raises(ValueError, match="bics must be finite"):
+        mx.decisive_minimum([2, 3], [1.0, np.nan])
+
+
+def test_ill_defined_covariance_raises():
+    z = np.repeat(np.array([[0.0, 0.0], [1.0, 1.0]]), 10, axis=0)  # every cluster is a single point
+    with pytest.raises(ValueError, match="ill-defined covariance"):
+        mx.em(z, np.full(2, 0.5), np.array([[0.0, 0.0], [1.0, 1.0]]), np.stack([np.eye(2)] * 2), reg_covar=0.0)
