@@ -77,18 +77,22 @@ class OffroadDemoConfig:
         if unknown:
             raise ValueError(f"config: unknown field(s) {sorted(unknown)} in {path}; expected some of {sorted(fields)}")
         base = cls()
-        pipeline = dict(raw.pop("pipeline", {}))
-        encoder = dataclasses.replace(base.pipeline.encoder, **pipeline.pop("encoder", {}))
-        for key in ("components", "widths"):
-            if key in pipeline:
-                pipeline[key] = tuple(pipeline[key])
-        changes = {"pipeline": dataclasses.replace(base.pipeline, encoder=encoder, **pipeline)}
-        if "train" in raw:
-            changes["train"] = tuple(Source(**s) for s in raw.pop("train"))
-        for key in ("active", "test"):
-            if key in raw:
-                changes[key] = Source(**raw.pop(key))
-        return dataclasses.replace(base, **changes, **raw)
+        try:
+            pipeline = dict(raw.pop("pipeline", {}))
+            encoder = dict(pipeline.pop("encoder", {}))
+            for fields_, key in ((encoder, "widths"), (pipeline, "components")):
+                if key in fields_:
+                    fields_[key] = tuple(fields_[key])
+            encoder = dataclasses.replace(base.pipeline.encoder, **encoder)
+            changes = {"pipeline": dataclasses.replace(base.pipeline, encoder=encoder, **pipeline)}
+            if "train" in raw:
+                changes["train"] = tuple(Source(**s) for s in raw.pop("train"))
+            for key in ("active", "test"):
+                if key in raw:
+                    changes[key] = Source(**raw.pop(key))
+            return dataclasses.replace(base, **changes, **raw)
+        except TypeError as error:  # an unknown or missing nested field
+            raise ValueError(f"config: {error} in {path}") from None
 
 
 def _frames(source: Source, config: OffroadDemoConfig) -> list[dict]:
