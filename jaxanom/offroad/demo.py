@@ -15,6 +15,7 @@ import json
 import time
 from pathlib import Path
 
+import cv2
 import jax
 import numpy as np
 
@@ -32,13 +33,35 @@ _PALETTE = [(140, 100, 60), (160, 160, 160), (230, 150, 40), (235, 235, 210), (1
 
 @dataclasses.dataclass(frozen=True)
 class Source:
-    """Frames of one synthetic sequence: ``domain``, ``sequence``, ``frames`` from ``start`` every ``step``."""
+    """``frames`` frames from ``start`` every ``step`` of a sequence.
 
-    domain: str
-    sequence: int
-    frames: int
+    ``reader="synthetic"``: sequence ``sequence`` of domain ``domain`` (``jaxanom.data.offroad``);
+    ``"deepscene"``: split ``name`` of the DeepScene folder ``root``; ``"rugd"``: sequence
+    ``name`` of the RUGD folder ``root``. Real frames are resized to the demo's size; their
+    ground truth drives the simulated annotator and the evaluation.
+    """
+
+    domain: str = "A"
+    sequence: int = 0
+    frames: int = 1
     start: int = 0
     step: int = 1
+    reader: str = "synthetic"
+    root: str = ""
+    name: str = ""
+
+    def __post_init__(self):
+        if self.reader not in ("synthetic", "deepscene", "rugd"):
+            raise ValueError(f"reader: expected 'synthetic', 'deepscene' or 'rugd', got {self.reader!r}")
+        if self.frames < 1 or self.step < 1 or self.start < 0:
+            raise ValueError(f"frames, step, start: expected >= 1, >= 1, >= 0, got {self.frames}, {self.step}, {self.start}")
+
+    def open(self):
+        """The real reader of this source (not for ``"synthetic"``)."""
+        from jaxanom.data.deepscene import DeepScene
+        from jaxanom.data.rugd import RUGD
+
+        return DeepScene(self.root, self.name or "train") if self.reader == "deepscene" else RUGD(self.root, self.name)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -96,16 +119,31 @@ class OffroadDemoConfig:
 
 
 def _frames(source: Source, config: OffroadDemoConfig) -> list[dict]:
+    if source.reader != "synthetic":
+        reader = source.open()
+        picked = range(source.start, min(len(reader), source.start + source.frames * source.step), source.step)
+        if not picked:
+            raise ValueError(f"{source.reader} source: start {source.start} is past its {len(reader)} frames")
+        size = (config.width, config.height)
+        return [{"image": cv2.resize(f["image"], size, interpolation=cv2.INTER_AREA),
+                 "label": cv2.resize(f["label"], size, interpolation=cv2.INTER_NEAREST)} for f in map(reader.__getitem__, picked)]
     seq = OffroadSequence(source.domain, source.sequence, (source.frames - 1) * source.step + 1, config.seed,
                           start=source.start, granularity=config.granularity, height=config.height, width=config.width)
     return [seq[i] for i in range(0, len(seq), source.step)]
 
 
+def num_classes(config: OffroadDemoConfig) -> int:
+    """Reference classes of the evaluation: the granularity's, DeepScene's 5 or RUGD's colour map."""
+    source = config.train[0]
+    if source.reader == "synthetic":
+        return len(GRANULARITIES[config.granularity][0])
+    return 5 if source.reader == "deepscene" else len(source.open().class_names)
+
+
 def _annotate(frames: list[dict], config: OffroadDemoConfig, salt: int) -> AnnotatedFrames:
     size = config.pipeline.encoder.size
-    num_classes = len(GRANULARITIES[config.granularity][0])
     anns = [annotate(f["label"], np.random.default_rng([config.seed, salt, i]), k=config.anchors, size=size,
-                     num_classes=num_classes) for i, f in enumerate(frames)]
+                     num_classes=num_classes(config)) for i, f in enumerate(frames)]
     return stack_annotations([f["image"] for f in frames], anns, slots=config.anchors)
 
 
@@ -113,22 +151,23 @@ def _as_float(frames: list[dict]) -> np.ndarray:
     return np.stack([f["image"] for f in frames]).astype(np.float32) / 255.0
 
 
-def _colour(classes: np.ndarray, num_classes: int) -> np.ndarray:
-    palette = np.array(_PALETTE[:num_classes] + [(0, 0, 0)] * (256 - num_classes), np.uint8)
-    return palette[np.clip(classes, 0, 255)]
+def _colour(labels: np.ndarray, count: int) -> np.ndarray:
+    """Class ids -> RGB (the LV3-like palette, cycled beyond 10 classes); ``count`` (unknown) and void black."""
+    palette = np.array([_PALETTE[i % len(_PALETTE)] for i in range(count)] + [(0, 0, 0)] * (256 - count), np.uint8)
+    return palette[np.clip(labels, 0, 255)]
 
 
-def _window_panel(seg: dict, index: int, model: OffroadModel, num_classes: int, shape, stride: int) -> np.ndarray:
+def _window_panel(seg: dict, index: int, model: OffroadModel, classes: int, shape, stride: int) -> np.ndarray:
     """Each window's label painted as a stride x stride square at its centre (black: unknown)."""
     panel = np.full((*shape, 3), 255, np.uint8)
-    colours = _colour(to_classes(seg["window_labels"][index], model, num_classes), num_classes)
+    colours = _colour(to_classes(seg["window_labels"][index], model, classes), classes)
     for (r, c), colour in zip(seg["centers"], colours):
         panel[max(r - stride // 2, 0):r + (stride + 1) // 2, max(c - stride // 2, 0):c + (stride + 1) // 2] = colour
     return panel
 
 
 def _evaluate(model: OffroadModel, test: list[dict], config: OffroadDemoConfig, progress) -> tuple[dict, dict]:
-    pipe, num_classes = config.pipeline, len(GRANULARITIES[config.granularity][0])
+    pipe, classes = config.pipeline, num_classes(config)
     images = _as_float(test)
     flr = sequence_risk_sweep(model, images, pipe, progress=progress)
     picked = np.linspace(0, len(test) - 1, config.segmented).round().astype(int)
@@ -136,7 +175,7 @@ def _evaluate(model: OffroadModel, test: list[dict], config: OffroadDemoConfig, 
     truth = np.stack([test[i]["label"] for i in picked])
     scores = {"mflr": mean_frame_risk(flr), "coverage": scene_coverage(flr, pipe.epsilon), "clusters": model.num_clusters}
     for name, labels in (("votes", seg["labels"]), ("crf", seg["crf_labels"])):
-        s = segmentation_scores(to_classes(labels, model, num_classes), truth, num_classes)
+        s = segmentation_scores(to_classes(labels, model, classes), truth, classes)
         scores[name] = {"pixel_accuracy": s["pixel_accuracy"], "miou": s["miou"]}
     return scores, {"flr": flr, "segments": seg, "picked": picked}
 
@@ -145,14 +184,14 @@ def _write_pictures(out_dir: Path, tag: str, model: OffroadModel, test: list[dic
                     config: OffroadDemoConfig) -> None:
     from jaxanom.viz import heatmap
 
-    num_classes = len(GRANULARITIES[config.granularity][0])
+    classes = num_classes(config)
     seg = detail["segments"]
     for j in range(min(config.pictures, len(detail["picked"]))):
         frame = test[detail["picked"][j]]
-        panels = [frame["image"], _window_panel(seg, j, model, num_classes, frame["label"].shape, config.pipeline.stride),
-                  _colour(to_classes(seg["labels"][j], model, num_classes), num_classes),
+        panels = [frame["image"], _window_panel(seg, j, model, classes, frame["label"].shape, config.pipeline.stride),
+                  _colour(to_classes(seg["labels"][j], model, classes), classes),
                   heatmap(seg["risk"][j], vmin=0.0, vmax=1.0),
-                  _colour(to_classes(seg["crf_labels"][j], model, num_classes), num_classes)]
+                  _colour(to_classes(seg["crf_labels"][j], model, classes), classes)]
         write_png_atomic(out_dir / f"frame_{j}_{tag}.png", np.concatenate(panels, axis=1))
 
 
