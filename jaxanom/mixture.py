@@ -115,15 +115,15 @@ def _kmeans(key, z: jax.Array, m: int, steps: int) -> jax.Array:
 
     def seed(k, carry):
         centres, dist = carry
-        p = dist / jnp.sum(dist)
-        pick = jax.random.choice(jax.random.fold_in(rest, k), z.shape[0], p=jnp.where(jnp.sum(dist) > 0, p, 1.0 / z.shape[0]))
+        p = jnp.where(jnp.sum(dist) > 0, dist / jnp.sum(dist), 1.0 / z.shape[0])  # all points equal: uniform
+        pick = jax.random.choice(jax.random.fold_in(rest, k), z.shape[0], p=p)
         centres = centres.at[k].set(z[pick])
         return centres, jnp.minimum(dist, jnp.sum((z - z[pick]) ** 2, axis=-1))
 
     centres, _ = jax.lax.fori_loop(1, m, seed, (centres, dist))
 
-    def assign(centres):
-        return jnp.argmin(jnp.sum((z[:, None, :] - centres[None]) ** 2, axis=-1), axis=-1)
+    def assign(centres):  # nearest centre by |c|^2 - 2 z.c (|z|^2 is the same for every centre)
+        return jnp.argmin(jnp.sum(centres**2, axis=-1)[None] - 2 * z @ centres.T, axis=-1)
 
     def lloyd(_, centres):
         onehot = jax.nn.one_hot(assign(centres), m, dtype=z.dtype)
@@ -180,7 +180,8 @@ def _check_fit_options(reg_covar, tol, max_iter) -> None:
 
 
 def _checked_result(result: EMResult) -> EMResult:
-    if not np.isfinite(np.asarray(result.mixture.covariances)).all() or not np.isfinite(np.asarray(result.lower_bound)).all():
+    finite = np.isfinite(np.asarray(result.mixture.covariances)).all() and np.isfinite(np.asarray(result.lower_bound)).all()
+    if not finite:
         raise ValueError("EM met an ill-defined covariance (not positive definite); increase reg_covar or give fewer components")
     return result
 

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from jaxanom.offroad.crf import dense_crf
+from jaxanom.offroad.crf import dense_crf, dense_crf_batch
 
 
 def numpy_dense_crf(probs, image, sxy_b, srgb, w_b, sxy_g, w_g, iters, symmetric):
@@ -71,17 +71,29 @@ def test_zero_weights_or_iterations_return_the_input(method):
 
 
 def test_permutohedral_close_to_exact():
-    # measured: 98-99 % equal labels and Q within 0.1 at this size; the bounds leave margin
+    # measured here: 100 % equal labels, |Q_lattice - Q_exact| / |Q_exact| = 4e-4 (and 99.98 %, 0.8 %
+    # on a 64x96 five-label scene); the bounds leave margin for other BLAS / XLA builds
     rng = np.random.default_rng(2)
     probs, image, truth = two_region_scene(rng, 40, 56, 3)
     kwargs = dict(sxy_b=20.0, srgb=13.0, w_b=10.0, sxy_g=3.0, w_g=3.0, iters=5)
     exact = np.asarray(dense_crf(probs, image, method="exact", **kwargs))
     lattice = np.asarray(dense_crf(probs, image, method="permutohedral", **kwargs))
     agree = np.mean(exact.argmax(-1) == lattice.argmax(-1))
-    assert agree >= 0.95, agree
-    assert np.linalg.norm(lattice - exact) / np.linalg.norm(exact) <= 0.15
+    assert agree >= 0.99, agree
+    assert np.linalg.norm(lattice - exact) / np.linalg.norm(exact) <= 0.02
     # and the CRF does what it is for: it cleans the noisy input
     assert np.mean(exact.argmax(-1) == truth) > np.mean(probs.argmax(-1) == truth) + 0.05
+
+
+def test_batch_twin_equals_single_images():
+    rng = np.random.default_rng(4)
+    scenes = [two_region_scene(rng, 12, 20, 3)[:2] for _ in range(2)]
+    probs, images = np.stack([p for p, _ in scenes]), np.stack([i for _, i in scenes])
+    batch = dense_crf_batch(probs, images, sxy_b=10.0)
+    for k in range(2):
+        np.testing.assert_allclose(batch[k], dense_crf(probs[k], images[k], sxy_b=10.0), atol=1e-6)
+    with pytest.raises(ValueError, match="probs must have rank 4"):
+        dense_crf_batch(probs[0], images[0])
 
 
 def test_matches_pydensecrf2_where_installed():
@@ -96,7 +108,7 @@ def test_matches_pydensecrf2_where_installed():
     model.addPairwiseBilateral(sxy=80, srgb=13, rgbim=np.ascontiguousarray((image * 255).round().astype(np.uint8)), compat=10)
     theirs = np.asarray(model.inference(5)).reshape(num_labels, h, w).argmax(0)
     ours = np.asarray(dense_crf(probs, (image * 255).round() / 255)).argmax(-1)
-    assert np.mean(ours == theirs) >= 0.95
+    assert np.mean(ours == theirs) >= 0.99  # measured 100 % here (99.97 % on a 64x96 five-label scene)
 
 
 def test_bad_input_raises_naming_the_argument():
@@ -113,5 +125,25 @@ def test_bad_input_raises_naming_the_argument():
         dense_crf(probs, image, method="bilateral_grid")
     with pytest.raises(ValueError, match="normalization must be"):
         dense_crf(probs, image, normalization="before")
+    with pytest.raises(ValueError, match="features too far apart"):
+        dense_crf(probs, image, sxy_b=0.001, srgb=1.0)
     with pytest.raises(ValueError, match="sxy_b must be > 0"):
         dense_crf(probs, image, sxy_b=0.0)
+
+
+def test_tightly_sized_lattice_filters_like_the_full_one():
+    import jax
+    import jax.numpy as jnp
+
+    from jaxanom.offroad.crf import build_lattice, lattice_filter, vertex_count
+
+    rng = np.random.default_rng(5)
+    with jax.enable_x64(True):
+        features = jnp.asarray(rng.random((300, 3)) * 4, jnp.float32)
+        values = jnp.asarray(rng.random((300, 2)), jnp.float32)
+        count = int(vertex_count(features))
+        full = build_lattice(features)
+        tight = build_lattice(features, count)
+        assert bool(full.fits) and bool(tight.fits) and not bool(build_lattice(features, count - 1).fits)
+        assert count < 300 * 4 and tight.neighbours.shape == (4, 2, count)
+        np.testing.assert_allclose(lattice_filter(tight, values), lattice_filter(full, values), rtol=1e-6)

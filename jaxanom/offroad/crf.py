@@ -70,12 +70,13 @@ def exact_filter(features: jax.Array, values: jax.Array) -> jax.Array:
 
 class Lattice(NamedTuple):
     """A built lattice: per point and vertex the vertex id ``(N, d+1)`` and weight ``(N, d+1)``;
-    per lattice direction the two neighbours of every vertex ``(d+1, 2, S)`` (S = empty slot)."""
+    per lattice direction the two neighbours of every vertex ``(d+1, 2, S)`` (S = empty slot);
+    ``fits``: whether every key fitted the int64 packing (else the lattice is wrong)."""
 
     vertex: jax.Array
     weight: jax.Array
     neighbours: jax.Array
-    max_key: jax.Array
+    fits: jax.Array
 
 
 def _elevate(features: jax.Array) -> jax.Array:
@@ -90,8 +91,13 @@ def _elevate(features: jax.Array) -> jax.Array:
     return jnp.concatenate([suffix[:, :1], tail - j * cf], axis=-1)  # e_0 = sum cf, e_j = sum_{i>=j} cf_i - j cf_{j-1}
 
 
-def build_lattice(features: jax.Array) -> Lattice:
-    """The permutohedral lattice of ``features (N, d)`` (already divided by their std devs)."""
+def build_lattice(features: jax.Array, size: int | None = None) -> Lattice:
+    """The permutohedral lattice of ``features (N, d)`` (already divided by their std devs).
+
+    ``size`` (static): room for that many distinct vertices (default ``N (d+1)``, always
+    enough); with fewer than the lattice has, ``fits`` is false. ``vertex_count`` tells how
+    many there are, so a caller can build with a tight size (blur and search cost O(size)).
+    """
     n, d = features.shape
     elevated = _elevate(features)
     rem0 = jnp.round(elevated / (d + 1)) * (d + 1)
@@ -118,21 +124,27 @@ def build_lattice(features: jax.Array) -> Lattice:
     base = jnp.int64(1) << jnp.arange(d, dtype=jnp.int64) * bits
     half = jnp.int64(1) << (bits - 1)
     codes = jnp.sum((keys + half) * base, axis=-1).reshape(-1)
-    size = n * (d + 1)
+    capacity = n * (d + 1)
+    size = capacity if size is None else size
     empty = jnp.iinfo(jnp.int64).max
     order = jnp.argsort(codes)
     ordered = codes[order]
     slot = jnp.cumsum(jnp.concatenate([jnp.ones((1,), jnp.int32), (ordered[1:] != ordered[:-1]).astype(jnp.int32)])) - 1
-    inverse = jnp.zeros((size,), jnp.int32).at[order].set(slot)
-    unique = jnp.full((size,), empty, jnp.int64).at[slot].set(ordered)  # sorted; unused slots hold `empty`
+    inverse = jnp.zeros((capacity,), jnp.int32).at[order].set(slot)
+    unique = jnp.full((size,), empty, jnp.int64).at[slot].set(ordered, mode="drop")  # sorted; unused slots: `empty`
     # neighbour along direction j: key - 1 everywhere and + d at j (j < d); the opposite one: its negative
     step = -jnp.sum(base) + (d + 1) * jnp.concatenate([base, jnp.zeros((1,), jnp.int64)])
-    queries = unique[None, None, :] + jnp.stack([step, -step], axis=1)[:, :, None]  # (d+1, 2, S)
-    at = jnp.clip(jnp.searchsorted(unique, queries.reshape(-1), method="sort"), 0, size - 1).reshape(queries.shape)
+    queries = unique[None, None, :] + jnp.stack([step, -step], axis=1)[:, :, None]  # (d+1, 2, size)
+    at = jnp.clip(jnp.searchsorted(unique, queries.reshape(-1)), 0, size - 1).reshape(queries.shape)
     found = (unique[at] == queries) & (unique != empty)[None, None, :]
     neighbours = jnp.where(found, at, size)
-    return Lattice(inverse.reshape(n, d + 1), bary, neighbours.astype(jnp.int32),
-                   jnp.max(jnp.abs(keys)))
+    fits = (jnp.max(jnp.abs(keys)) < half - (d + 2)) & (slot[-1] < size)  # digits (also neighbours') in their field
+    return Lattice(inverse.reshape(n, d + 1), bary, neighbours.astype(jnp.int32), fits)
+
+
+def vertex_count(features: jax.Array) -> jax.Array:
+    """The number of distinct lattice vertices of ``features (N, d)`` (int32 scalar)."""
+    return build_lattice(features, size=1).vertex.max() + 1
 
 
 def lattice_filter(lattice: Lattice, values: jax.Array) -> jax.Array:
@@ -165,22 +177,35 @@ def _mean_field(unary, filters, weights, iters: int, symmetric: bool):
     return q
 
 
-def _dense_crf(probs, image, sxy_b, srgb, w_b, sxy_g, w_g, iters: int, symmetric: bool, exact: bool):
+def _dense_crf(probs, image, sxy_b, srgb, w_b, sxy_g, w_g, iters: int, symmetric: bool, exact: bool, sizes=(None, None)):
     h, w, num_labels = probs.shape
     unary = -jnp.log(jnp.clip(probs.reshape(-1, num_labels).astype(jnp.float32), 1e-8, None))
     f_b, f_g = crf_features(image, sxy_b, srgb, sxy_g)
     if exact:
         filters = [lambda v: exact_filter(f_b, v), lambda v: exact_filter(f_g, v)]
-        max_key = jnp.int32(0)
+        fits = jnp.asarray(True)
     else:
-        lat_b, lat_g = build_lattice(f_b), build_lattice(f_g)
+        lat_b, lat_g = build_lattice(f_b, sizes[0]), build_lattice(f_g, sizes[1])
         filters = [lambda v: lattice_filter(lat_b, v), lambda v: lattice_filter(lat_g, v)]
-        max_key = jnp.maximum(lat_b.max_key, lat_g.max_key)
+        fits = lat_b.fits & lat_g.fits
     q = _mean_field(unary, filters, (w_b, w_g), iters, symmetric)
-    return q.reshape(h, w, num_labels), max_key
+    return q.reshape(h, w, num_labels), fits
 
 
-_dense_crf_jit = jax.jit(_dense_crf, static_argnums=(7, 8, 9))
+def _vertex_counts(image, sxy_b, srgb, sxy_g):
+    f_b, f_g = crf_features(image, sxy_b, srgb, sxy_g)
+    return jnp.stack([vertex_count(f_b), vertex_count(f_g)])
+
+
+def _room(count: int) -> int:
+    """Lattice size for ``count`` vertices: the next power of two (few recompiles, tight blur)."""
+    return max(64, 1 << (int(count) - 1).bit_length())
+
+
+_dense_crf_jit = jax.jit(_dense_crf, static_argnums=(7, 8, 9, 10))
+_dense_crf_batch = jax.jit(jax.vmap(_dense_crf, in_axes=(0, 0) + (None,) * 9), static_argnums=(7, 8, 9, 10))
+_vertex_counts_jit = jax.jit(_vertex_counts)
+_vertex_counts_batch = jax.jit(jax.vmap(_vertex_counts, in_axes=(0, None, None, None)))
 
 
 def dense_crf(probs, image, *, sxy_b: float = 80.0, srgb: float = 13.0, w_b: float = 10.0, sxy_g: float = 3.0,
@@ -193,11 +218,25 @@ def dense_crf(probs, image, *, sxy_b: float = 80.0, srgb: float = 13.0, w_b: flo
     Defaults are pydensecrf's common settings. ``reference_width``: if given, ``sxy_b`` and
     ``sxy_g`` are meant for an image that wide and are scaled by ``W / reference_width``.
     """
-    check_rank("probs", probs, 3, "(H, W, L)")
-    check_rank("image", image, 3, "(H, W, C)")
-    if np.shape(image)[:2] != np.shape(probs)[:2]:
-        raise ValueError(f"image must have the height and width of probs {np.shape(probs)[:2]}, got {np.shape(image)}")
-    if np.shape(probs)[-1] < 1 or np.shape(probs)[0] * np.shape(probs)[1] < 1:
+    return _run(_dense_crf_jit, probs, image, False, sxy_b, srgb, w_b, sxy_g, w_g, iters, normalization, method,
+                reference_width)
+
+
+def dense_crf_batch(probs, image, *, sxy_b: float = 80.0, srgb: float = 13.0, w_b: float = 10.0, sxy_g: float = 3.0,
+                    w_g: float = 3.0, iters: int = 5, normalization: str = "symmetric", method: str = "permutohedral",
+                    reference_width: int | None = None) -> jax.Array:
+    """``dense_crf`` over a batch: ``probs (B, H, W, L)``, ``image (B, H, W, C)`` -> ``(B, H, W, L)``."""
+    return _run(_dense_crf_batch, probs, image, True, sxy_b, srgb, w_b, sxy_g, w_g, iters, normalization, method,
+                reference_width)
+
+
+def _run(fn, probs, image, batched, sxy_b, srgb, w_b, sxy_g, w_g, iters, normalization, method, reference_width):
+    lead = "B, " if batched else ""
+    check_rank("probs", probs, 3 + batched, f"({lead}H, W, L)")
+    check_rank("image", image, 3 + batched, f"({lead}H, W, C)")
+    if np.shape(image)[:-1] != np.shape(probs)[:-1]:
+        raise ValueError(f"image must have the {lead}height and width of probs {np.shape(probs)[:-1]}, got {np.shape(image)}")
+    if min(np.shape(probs)) < 1:
         raise ValueError(f"probs must hold at least one pixel and one label, got shape {np.shape(probs)}")
     check_all_finite("probs", probs)
     check_all_finite("image", image)
@@ -210,12 +249,16 @@ def dense_crf(probs, image, *, sxy_b: float = 80.0, srgb: float = 13.0, w_b: flo
         raise ValueError(f"normalization must be 'symmetric' or 'none', got {normalization!r}")
     if method not in ("permutohedral", "exact"):
         raise ValueError(f"method must be 'permutohedral' or 'exact', got {method!r}")
-    scale = 1.0 if reference_width is None else np.shape(probs)[1] / float(reference_width)
+    scale = 1.0 if reference_width is None else np.shape(probs)[-2] / float(reference_width)
     with jax.enable_x64(True):
-        q, max_key = _dense_crf_jit(jnp.asarray(probs, jnp.float32), jnp.asarray(image, jnp.float32),
-                                    jnp.float32(sxy_b * scale), jnp.float32(srgb), jnp.float32(w_b),
-                                    jnp.float32(sxy_g * scale), jnp.float32(w_g), int(iters),
-                                    normalization == "symmetric", method == "exact")
-        if int(max_key) >= 2 ** (62 // 5 - 1) - 8:
+        image = jnp.asarray(image, jnp.float32)
+        sigmas = jnp.float32(sxy_b * scale), jnp.float32(srgb), jnp.float32(sxy_g * scale)
+        sizes = (None, None)
+        if method == "permutohedral":  # size the lattices to their vertex count (two passes, both jitted)
+            counts = np.asarray((_vertex_counts_batch if batched else _vertex_counts_jit)(image, *sigmas))
+            sizes = tuple(_room(c) for c in counts.reshape(-1, 2).max(axis=0))
+        q, fits = fn(jnp.asarray(probs, jnp.float32), image, sigmas[0], sigmas[1], jnp.float32(w_b), sigmas[2],
+                     jnp.float32(w_g), int(iters), normalization == "symmetric", method == "exact", sizes)
+        if not bool(jnp.all(fits)):
             raise ValueError("features too far apart for the lattice's key packing: increase sxy_b / srgb or use method='exact'")
         return jnp.asarray(np.asarray(q))
