@@ -12,14 +12,21 @@ def add_parser(commands) -> None:
                                  "SML statistics, evaluate MSP / max logit / entropy / energy / SML / SML + "
                                  "post-processing / CuDAM on a synthetic anomaly split; write a table, "
                                  "results.json and pictures.")
+    parser.add_argument("paper", nargs="?", choices=["offroad"],
+                        help="another paper's demo instead: offroad (active + contrastive off-road segmentation)")
     parser.add_argument("--out", default="jaxanom-demo", help="output folder (default: %(default)s)")
     parser.add_argument("--quick", action="store_true", help="a seconds-long smoke run of the same path")
     parser.add_argument("--steps", type=int, help="training steps (default: 1500; --quick: 3)")
+    parser.add_argument("--config", help="offroad: a JSON config file (fields of OffroadDemoConfig)")
     add_common(parser, progress=True)
     parser.set_defaults(handler=run)
 
 
 def run(args) -> None:
+    if args.paper == "offroad":
+        from jaxanom.offroad.demo import run_from_args
+
+        return run_from_args(args)
     from jaxanom.demo import DemoConfig, run_demo
 
     config = DemoConfig.quick() if args.quick else DemoConfig()

@@ -1,0 +1,285 @@
+"""``jaxanom demo offroad``: the three stages of the off-road paper on synthetic sequences.
+
+S1 learns from patch-annotated frames of domain A; S2 measures the frame-level risk on a
+sequence of the shifted domain B (active learning) and on the test sequence C; S3 runs one
+active-learning round on B (hard frames by Eq. 16, simulated annotations, fine-tuning, refit);
+then mFLR / scene coverage on B and C, pixel accuracy and mIoU on C (LV3 classes through the
+cluster -> class map, unknown counted wrong) with and without the CRF are compared before and
+after the round. Writes ``results.json``, ``frame_<i>_{before,after}.png`` (frame | window
+labels | voted labels | risk map | CRF labels) and ``hard_frames.png``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import cv2
+import jax
+import numpy as np
+
+from jaxanom.data.offroad import GRANULARITIES, OffroadSequence
+from jaxanom.data.patch_annotations import annotate
+from jaxanom.io import write_json_atomic, write_png_atomic
+from jaxanom.offroad.encoder import AnnotatedFrames, EncoderConfig, stack_annotations
+from jaxanom.offroad.pipeline import (OffroadConfig, OffroadModel, active_round, learn, segment, segmentation_scores,
+                                      sequence_risk_sweep, to_classes)
+from jaxanom.offroad.risk import mean_frame_risk, scene_coverage
+
+_PALETTE = [(140, 100, 60), (160, 160, 160), (230, 150, 40), (235, 235, 210), (110, 210, 70), (40, 130, 50),
+            (0, 80, 0), (120, 120, 255), (170, 60, 20), (130, 190, 255)]
+
+
+@dataclasses.dataclass(frozen=True)
+class Source:
+    """``frames`` frames from ``start`` every ``step`` of a sequence.
+
+    ``reader="synthetic"``: sequence ``sequence`` of domain ``domain`` (``jaxanom.data.offroad``);
+    ``"deepscene"``: split ``name`` of the DeepScene folder ``root``; ``"rugd"``: sequence
+    ``name`` of the RUGD folder ``root``. Real frames are resized to the demo's size; their
+    ground truth drives the simulated annotator and the evaluation.
+    """
+
+    domain: str = "A"
+    sequence: int = 0
+    frames: int = 1
+    start: int = 0
+    step: int = 1
+    reader: str = "synthetic"
+    root: str = ""
+    name: str = ""
+
+    def __post_init__(self):
+        if self.reader not in ("synthetic", "deepscene", "rugd"):
+            raise ValueError(f"reader: expected 'synthetic', 'deepscene' or 'rugd', got {self.reader!r}")
+        if self.frames < 1 or self.step < 1 or self.start < 0:
+            raise ValueError(f"frames, step, start: expected >= 1, >= 1, >= 0, got {self.frames}, {self.step}, {self.start}")
+
+    def open(self):
+        """The real reader of this source (not for ``"synthetic"``)."""
+        from jaxanom.data.deepscene import DeepScene
+        from jaxanom.data.rugd import RUGD
+
+        return DeepScene(self.root, self.name or "train") if self.reader == "deepscene" else RUGD(self.root, self.name)
+
+
+@dataclasses.dataclass(frozen=True)
+class OffroadDemoConfig:
+    """Sizes of the demo (``quick()``: a seconds-long run of the same path)."""
+
+    pipeline: OffroadConfig = OffroadConfig(encoder=EncoderConfig.tiny(steps=150), components=tuple(range(2, 11)),
+                                            gmm_inits=2, budget=6, gap=3)
+    train: tuple[Source, ...] = tuple(Source("A", s, 6, 0, 8) for s in range(4))
+    active: Source = Source("B", 0, 60)
+    test: Source = Source("C", 0, 40)
+    segmented: int = 4
+    pictures: int = 2
+    anchors: int = 12
+    granularity: str = "lv3"
+    height: int = 128
+    width: int = 256
+    seed: int = 0
+
+    @classmethod
+    def quick(cls) -> "OffroadDemoConfig":
+        encoder = EncoderConfig(size=16, widths=(4, 8, 8, 8, 8), hidden=8, dim=3, negatives=4, frames_per_step=2, steps=3)
+        pipeline = OffroadConfig(encoder=encoder, neighbours=2, components=(2, 3), gmm_inits=1, budget=2, gap=1, crf_iters=1)
+        return cls(pipeline=pipeline, train=(Source("A", 0, 2, 0, 4),), active=Source("B", 0, 4), test=Source("C", 0, 3),
+                   segmented=1, pictures=1, anchors=6, height=48, width=64)
+
+    @classmethod
+    def from_json(cls, path: str | Path) -> "OffroadDemoConfig":
+        """A config file: JSON with any of the fields; ``pipeline`` and ``encoder`` as nested objects,
+        sources as ``{"domain", "sequence", "frames", "start", "step"}``."""
+        raw = json.loads(Path(path).read_text())
+        if not isinstance(raw, dict):
+            raise ValueError(f"config: expected a JSON object in {path}")
+        fields = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(raw) - fields
+        if unknown:
+            raise ValueError(f"config: unknown field(s) {sorted(unknown)} in {path}; expected some of {sorted(fields)}")
+        base = cls()
+        try:
+            pipeline = dict(raw.pop("pipeline", {}))
+            encoder = dict(pipeline.pop("encoder", {}))
+            for fields_, key in ((encoder, "widths"), (pipeline, "components")):
+                if key in fields_:
+                    fields_[key] = tuple(fields_[key])
+            encoder = dataclasses.replace(base.pipeline.encoder, **encoder)
+            changes = {"pipeline": dataclasses.replace(base.pipeline, encoder=encoder, **pipeline)}
+            if "train" in raw:
+                changes["train"] = tuple(Source(**s) for s in raw.pop("train"))
+            for key in ("active", "test"):
+                if key in raw:
+                    changes[key] = Source(**raw.pop(key))
+            return dataclasses.replace(base, **changes, **raw)
+        except TypeError as error:  # an unknown or missing nested field
+            raise ValueError(f"config: {error} in {path}") from None
+
+
+def _frames(source: Source, config: OffroadDemoConfig) -> list[dict]:
+    if source.reader != "synthetic":
+        reader = source.open()
+        picked = range(source.start, min(len(reader), source.start + source.frames * source.step), source.step)
+        if not picked:
+            raise ValueError(f"{source.reader} source: start {source.start} is past its {len(reader)} frames")
+        size = (config.width, config.height)
+        return [{"image": cv2.resize(f["image"], size, interpolation=cv2.INTER_AREA),
+                 "label": cv2.resize(f["label"], size, interpolation=cv2.INTER_NEAREST)} for f in map(reader.__getitem__, picked)]
+    seq = OffroadSequence(source.domain, source.sequence, (source.frames - 1) * source.step + 1, config.seed,
+                          start=source.start, granularity=config.granularity, height=config.height, width=config.width)
+    return [seq[i] for i in range(0, len(seq), source.step)]
+
+
+def num_classes(config: OffroadDemoConfig) -> int:
+    """Reference classes of the evaluation: the granularity's, DeepScene's 5 or RUGD's colour map."""
+    source = config.train[0]
+    if source.reader == "synthetic":
+        return len(GRANULARITIES[config.granularity][0])
+    return 5 if source.reader == "deepscene" else len(source.open().class_names)
+
+
+def _annotate(frames: list[dict], config: OffroadDemoConfig, salt: int) -> AnnotatedFrames:
+    size = config.pipeline.encoder.size
+    anns = [annotate(f["label"], np.random.default_rng([config.seed, salt, i]), k=config.anchors, size=size,
+                     num_classes=num_classes(config)) for i, f in enumerate(frames)]
+    return stack_annotations([f["image"] for f in frames], anns, slots=config.anchors)
+
+
+def _as_float(frames: list[dict]) -> np.ndarray:
+    return np.stack([f["image"] for f in frames]).astype(np.float32) / 255.0
+
+
+def _colour(labels: np.ndarray, count: int) -> np.ndarray:
+    """Class ids -> RGB (the LV3-like palette, cycled beyond 10 classes); ``count`` (unknown) and void black."""
+    palette = np.array([_PALETTE[i % len(_PALETTE)] for i in range(count)] + [(0, 0, 0)] * (256 - count), np.uint8)
+    return palette[np.clip(labels, 0, 255)]
+
+
+def _window_panel(seg: dict, index: int, model: OffroadModel, classes: int, shape, stride: int) -> np.ndarray:
+    """Each window's label painted as a stride x stride square at its centre (black: unknown)."""
+    panel = np.full((*shape, 3), 255, np.uint8)
+    colours = _colour(to_classes(seg["window_labels"][index], model, classes), classes)
+    for (r, c), colour in zip(seg["centers"], colours):
+        panel[max(r - stride // 2, 0):r + (stride + 1) // 2, max(c - stride // 2, 0):c + (stride + 1) // 2] = colour
+    return panel
+
+
+def _evaluate(model: OffroadModel, test: list[dict], config: OffroadDemoConfig, progress) -> tuple[dict, dict]:
+    pipe, classes = config.pipeline, num_classes(config)
+    images = _as_float(test)
+    flr = sequence_risk_sweep(model, images, pipe, progress=progress)
+    picked = np.linspace(0, len(test) - 1, config.segmented).round().astype(int)
+    seg = segment(model, images[picked], pipe, crf=True)
+    truth = np.stack([test[i]["label"] for i in picked])
+    scores = {"mflr": mean_frame_risk(flr), "coverage": scene_coverage(flr, pipe.epsilon), "clusters": model.num_clusters}
+    for name, labels in (("votes", seg["labels"]), ("crf", seg["crf_labels"])):
+        s = segmentation_scores(to_classes(labels, model, classes), truth, classes)
+        scores[name] = {"pixel_accuracy": s["pixel_accuracy"], "miou": s["miou"]}
+    return scores, {"flr": flr, "segments": seg, "picked": picked}
+
+
+def _write_pictures(out_dir: Path, tag: str, model: OffroadModel, test: list[dict], detail: dict,
+                    config: OffroadDemoConfig) -> None:
+    from jaxanom.viz import heatmap
+
+    classes = num_classes(config)
+    seg = detail["segments"]
+    for j in range(min(config.pictures, len(detail["picked"]))):
+        frame = test[detail["picked"][j]]
+        panels = [frame["image"], _window_panel(seg, j, model, classes, frame["label"].shape, config.pipeline.stride),
+                  _colour(to_classes(seg["labels"][j], model, classes), classes),
+                  heatmap(seg["risk"][j], vmin=0.0, vmax=1.0),
+                  _colour(to_classes(seg["crf_labels"][j], model, classes), classes)]
+        write_png_atomic(out_dir / f"frame_{j}_{tag}.png", np.concatenate(panels, axis=1))
+
+
+def run_offroad_demo(out_dir: str | Path, config: OffroadDemoConfig = OffroadDemoConfig(), *, progress: bool = True,
+                     log=print) -> dict:
+    """Run the demo into ``out_dir``; returns the results (also written to ``results.json``)."""
+    from tqdm.auto import tqdm
+
+    out_dir, started = Path(out_dir), time.perf_counter()
+    bar = lambda desc: (lambda it: tqdm(it, desc=desc, disable=not progress, dynamic_ncols=True, leave=False))  # noqa: E731
+    pipe = config.pipeline
+    key = jax.random.key(config.seed)
+    train = [f for source in config.train for f in _frames(source, config)]
+    data = _annotate(train, config, 0)
+    log(f"[1/4] S1: encoder on {len(train)} patch-annotated frames of domain {config.train[0].domain} "
+        f"({int(data.valid.sum())} patches, {pipe.encoder.steps} steps), GMM by BIC over m in "
+        f"{pipe.components[0]}..{pipe.components[-1]}")
+    model = learn(jax.random.fold_in(key, 1), data, pipe, progress=bar("encoder"))
+    chosen_m = model.num_clusters
+    log(f"      BIC-chosen cluster count: {chosen_m}; r_sigma = {model.r_sigma:.3f}")
+
+    active = _frames(config.active, config)
+    test = _frames(config.test, config)
+    log(f"[2/4] S2: risk on the active-learning sequence ({len(active)} frames of {config.active.domain}) "
+        f"and the test sequence ({len(test)} frames of {config.test.domain})")
+    before, before_detail = _evaluate(model, test, config, bar("test risk"))
+    _write_pictures(out_dir, "before", model, test, before_detail, config)
+
+    log(f"[3/4] S3: active learning round (budget {pipe.budget}, gap {pipe.gap})")
+
+    def annotate_frames(indices):
+        return _annotate([active[i] for i in indices], config, 1)
+
+    round_ = active_round(jax.random.fold_in(key, 2), model, data, _as_float(active), annotate_frames, pipe,
+                          force=True, progress=bar("active"))
+    after_model = round_["model"]
+    chosen = round_["chosen"].tolist()
+    write_png_atomic(out_dir / "hard_frames.png", np.concatenate([active[i]["image"] for i in chosen], axis=1))
+    flr_active_after = sequence_risk_sweep(after_model, _as_float(active), pipe, progress=bar("active risk"))
+
+    log("[4/4] evaluating after the round")
+    after, after_detail = _evaluate(after_model, test, config, bar("test risk"))
+    _write_pictures(out_dir, "after", after_model, test, after_detail, config)
+    results = {
+        "clusters_bic": chosen_m, "bics": {str(k): v for k, v in model.bics.items()},
+        "clusters_after": after_model.num_clusters,
+        "active_sequence": {"mflr_before": mean_frame_risk(round_["flr"]), "coverage_before": scene_coverage(round_["flr"], pipe.epsilon),
+                            "sequence_risk_before": round_["sequence_risk"], "triggered": round_["sequence_risk"] > pipe.trigger,
+                            "mflr_after": mean_frame_risk(flr_active_after),
+                            "coverage_after": scene_coverage(flr_active_after, pipe.epsilon), "hard_frames": chosen},
+        "test_before": before, "test_after": after, "seconds": time.perf_counter() - started,
+        "config": json.loads(json.dumps(dataclasses.asdict(config), default=str)),
+    }
+    write_json_atomic(out_dir / "results.json", results)
+    log(results_table(results))
+    log(f"results in {out_dir}/ (results.json, frame_*_before.png, frame_*_after.png, hard_frames.png); "
+        f"{results['seconds']:.0f} s")
+    return results
+
+
+def results_table(results: dict) -> str:
+    """A markdown table of mFLR / coverage / PA / mIoU before and after the active-learning round."""
+    a = results["active_sequence"]
+    lines = [f"BIC-chosen clusters: {results['clusters_bic']} (after the round: {results['clusters_after']}); "
+             f"hard frames: {a['hard_frames']}",
+             "| model | mFLR B | Sc B | mFLR C | Sc C | PA C | mIoU C | PA C + CRF | mIoU C + CRF |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for name, tag, m, s in (("before", "test_before", a["mflr_before"], a["coverage_before"]),
+                            ("after one round", "test_after", a["mflr_after"], a["coverage_after"])):
+        t = results[tag]
+        lines.append(f"| {name} | {100 * m:.1f} | {100 * s:.1f} | {100 * t['mflr']:.1f} | {100 * t['coverage']:.1f} | "
+                     f"{100 * t['votes']['pixel_accuracy']:.1f} | {100 * t['votes']['miou']:.1f} | "
+                     f"{100 * t['crf']['pixel_accuracy']:.1f} | {100 * t['crf']['miou']:.1f} |")
+    return "\n".join(lines)
+
+
+def run_from_args(args) -> None:
+    """``jaxanom demo offroad [--quick] [--steps N] [--config FILE] [--out DIR]``."""
+    from jaxanom.cli.common import CommandError, out_folder
+
+    if args.config and args.quick:
+        raise CommandError("--config and --quick: give one of them")
+    if args.config and not Path(args.config).is_file():
+        raise CommandError(f"--config {args.config}: no such file")
+    config = OffroadDemoConfig.from_json(args.config) if args.config else (
+        OffroadDemoConfig.quick() if args.quick else OffroadDemoConfig())
+    if args.steps is not None:
+        encoder = dataclasses.replace(config.pipeline.encoder, steps=args.steps)
+        config = dataclasses.replace(config, pipeline=dataclasses.replace(config.pipeline, encoder=encoder))
+    out = "jaxanom-demo-offroad" if args.out == "jaxanom-demo" else args.out
+    run_offroad_demo(out_folder(out, args.overwrite), config, progress=not args.no_progress)

@@ -1,0 +1,158 @@
+"""Training the patch encoder with InfoNCE on patch annotations (S1, B2.2-B2.3), and embedding.
+
+``AnnotatedFrames`` stacks frames with their patch annotations padded to ``A`` anchor slots.
+``train_encoder`` runs Adam on Eq. 2: each step draws ``frames_per_step`` annotated frames,
+builds every anchor's query / positive / negatives within its frame (``contrastive_batch``,
+recomputed each step: no memory bank) and takes one optax update; the step is one jit compile.
+``embed`` maps patches at given centres to unit embeddings, in fixed-size chunks (one compile).
+"""
+from __future__ import annotations
+
+import dataclasses
+from functools import partial
+from typing import Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from jaxanom.models.alexnet import PatchAlexNet
+from jaxanom.offroad.contrastive import info_nce
+from jaxanom.offroad.pairs import contrastive_batch, gather_pairs
+from jaxanom.offroad.patches import patches_batch
+
+
+@dataclasses.dataclass(frozen=True)
+class EncoderConfig:
+    """Patch side, context factor, encoder widths, InfoNCE and Adam settings (D-B1, B2.3).
+
+    Defaults are the paper-scale ones of OFFROAD.md; ``tiny()`` is the CPU encoder.
+    """
+
+    size: int = 32
+    context: int = 2
+    widths: tuple[int, int, int, int, int] = (64, 192, 384, 256, 256)
+    hidden: int = 256
+    dim: int = 16
+    temperature: float = 0.1
+    negatives: int = 16
+    frames_per_step: int = 4
+    steps: int = 5000
+    lr: float = 1e-3
+
+    @classmethod
+    def tiny(cls, **changes) -> "EncoderConfig":
+        return cls(**{"widths": (16, 32, 64, 64, 64), "hidden": 64, "steps": 300, **changes})
+
+    def model(self) -> PatchAlexNet:
+        return PatchAlexNet(widths=self.widths, hidden=self.hidden, dim=self.dim)
+
+
+class AnnotatedFrames(NamedTuple):
+    """Frames and their patch annotations: images (F, H, W, 3) float32 in [0, 1]; centers
+    (F, A, 2) int32; ids (F, A) int32 per-image label ids; valid (F, A) bool; reference (F, A)
+    int32 hidden reference classes (-1 in padding; evaluation only)."""
+
+    images: np.ndarray
+    centers: np.ndarray
+    ids: np.ndarray
+    valid: np.ndarray
+    reference: np.ndarray
+
+
+def stack_annotations(images: list, annotations: list[dict], slots: int) -> AnnotatedFrames:
+    """Stack uint8 frames and ``annotate`` results, padding each to ``slots`` anchors."""
+    if not images or len(images) != len(annotations):
+        raise ValueError(f"images, annotations: expected equal, non-zero lengths, got {len(images)}, {len(annotations)}")
+    f = len(images)
+    centers, ids = np.zeros((f, slots, 2), np.int32), np.zeros((f, slots), np.int32)
+    valid, reference = np.zeros((f, slots), bool), np.full((f, slots), -1, np.int32)
+    for i, ann in enumerate(annotations):
+        n = len(ann["ids"])
+        if n > slots:
+            raise ValueError(f"annotations[{i}]: {n} patches exceed slots={slots}")
+        centers[i, :n], ids[i, :n], valid[i, :n], reference[i, :n] = ann["centers"], ann["ids"], True, ann["reference"]
+    if not valid.any():
+        raise ValueError("annotations: no annotated patch in any frame (an empty annotation set)")
+    stacked = np.stack([np.asarray(im, np.float32) / 255.0 for im in images])
+    return AnnotatedFrames(stacked, centers, ids, valid, reference)
+
+
+def concat_frames(a: AnnotatedFrames, b: AnnotatedFrames) -> AnnotatedFrames:
+    """The frames of ``a`` then ``b`` (same image size and slots)."""
+    return AnnotatedFrames(*(np.concatenate([x, y]) for x, y in zip(a, b)))
+
+
+def init_encoder(key, config: EncoderConfig):
+    """Encoder parameters for (size, size, 6) patches."""
+    return config.model().init(key, jnp.zeros((1, config.size, config.size, 6)))["params"]
+
+
+def _optimizer(config: EncoderConfig) -> optax.GradientTransformation:
+    return optax.adam(config.lr)
+
+
+@partial(jax.jit, static_argnames=("config",), donate_argnums=(0, 1))
+def _train_step(params, opt_state, key, data: AnnotatedFrames, config: EncoderConfig):
+    k_frames, k_batch = jax.random.split(key)
+    count = data.images.shape[0]
+    chosen = jax.random.choice(k_frames, count, (config.frames_per_step,), replace=count < config.frames_per_step)
+    pick = lambda x: x[chosen]  # noqa: E731
+    batch = contrastive_batch(k_batch, pick(data.images), pick(data.centers), pick(data.ids), pick(data.valid),
+                              size=config.size, negatives=config.negatives, context=config.context)
+    f, a = batch["query"].shape[:2]
+
+    def loss_fn(p):
+        every = jnp.concatenate([batch["query"], batch["near"]]).reshape(-1, *batch["query"].shape[2:])
+        z = config.model().apply({"params": p}, every)["embedding"].reshape(2, f, a, -1)
+        z_q, z_pos, z_neg, mask = gather_pairs(z[0], z[1], batch)
+        return info_nce(z_q, z_pos, z_neg, mask, config.temperature)
+
+    loss, grads = jax.value_and_grad(loss_fn)(params)
+    updates, opt_state = _optimizer(config).update(grads, opt_state, params)
+    return optax.apply_updates(params, updates), opt_state, loss
+
+
+def train_encoder(key, params, data: AnnotatedFrames, config: EncoderConfig, *, steps: int | None = None,
+                  progress: Callable | None = None) -> tuple[object, np.ndarray]:
+    """``steps`` (default ``config.steps``) Adam updates on Eq. 2; returns ``(params, losses (steps,))``.
+
+    ``progress(iterable)`` may wrap the step loop (e.g. tqdm).
+    """
+    steps = config.steps if steps is None else int(steps)
+    if steps < 1:
+        raise ValueError(f"steps: expected >= 1, got {steps}")
+    params = jax.tree.map(jnp.array, params)  # a private copy: the step donates its buffers
+    opt_state = _optimizer(config).init(params)
+    device_data = AnnotatedFrames(*map(jnp.asarray, data))
+    losses = []
+    loop = range(steps) if progress is None else progress(range(steps))
+    for step in loop:
+        params, opt_state, loss = _train_step(params, opt_state, jax.random.fold_in(key, step), device_data, config)
+        losses.append(loss)
+    return params, np.asarray(jax.device_get(losses), np.float32)
+
+
+@partial(jax.jit, static_argnames=("config",))
+def _embed_chunk(params, images, centers, config: EncoderConfig):
+    x = patches_batch(images, centers, config.size, config.context)
+    z = config.model().apply({"params": params}, x.reshape(-1, *x.shape[2:]))["embedding"]
+    return z.reshape(*centers.shape[:2], -1)
+
+
+def embed(params, images, centers, config: EncoderConfig, *, chunk: int = 8) -> np.ndarray:
+    """Unit embeddings (F, P, D) of the patches at ``centers`` (F, P, 2) of ``images`` (F, H, W, 3) in [0, 1].
+
+    Frames go through in chunks of ``chunk`` (the last padded), so any F compiles once.
+    """
+    images, centers = np.asarray(images, np.float32), np.asarray(centers, np.int32)
+    if images.ndim != 4 or centers.ndim != 3 or centers.shape[0] != images.shape[0] or centers.shape[2] != 2:
+        raise ValueError(f"images, centers: expected (F, H, W, 3) and (F, P, 2), got {images.shape}, {centers.shape}")
+    out = []
+    for start in range(0, len(images), chunk):
+        im, ce = images[start:start + chunk], centers[start:start + chunk]
+        pad = chunk - len(im)
+        z = _embed_chunk(params, np.pad(im, ((0, pad), (0, 0), (0, 0), (0, 0))), np.pad(ce, ((0, pad), (0, 0), (0, 0))), config)
+        out.append(np.asarray(z)[:len(im)])
+    return np.concatenate(out)

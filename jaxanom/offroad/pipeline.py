@@ -1,0 +1,225 @@
+"""The three stages of the off-road paper as one pipeline (B1, B2.7).
+
+- S1 ``learn``: patch annotations -> InfoNCE encoder -> GMM (BIC-chosen m) on P^train (the
+  anchors plus ``neighbours`` neighbour samples each, D-B8) -> risk bound r_sigma (Eq. 11).
+- S2 ``sequence_risk_sweep`` (FLR per frame on a sliding grid, Eqs. 6-13) and ``segment``
+  (sliding windows -> Gaussian votes -> optional dense CRF).
+- S3 ``active_round``: if the sequence risk Phi^s exceeds the trigger, choose hard frames (Eq.
+  16), annotate them, fine-tune on them (D-B12) and refit the category model on P^train and P^AL.
+
+Array work runs in the jitted pieces (encoder, classify, vote, CRF); this module is host-side
+control flow. ``OffroadModel`` keeps what S2 needs; its ``cluster_class`` maps clusters to
+reference classes for evaluation only (D-B13): the majority reference class of the training
+patches in each cluster.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxanom.metrics.segmentation import confusion_counts
+from jaxanom.mixture import GaussianMixture, fit_gmm, select_components
+from jaxanom.offroad.active import select_hard_frames
+from jaxanom.offroad.crf import dense_crf
+from jaxanom.offroad.encoder import AnnotatedFrames, EncoderConfig, concat_frames, embed, init_encoder, train_encoder
+from jaxanom.offroad.patches import neighbour_centers, sliding_centers
+from jaxanom.offroad.risk import classify_batch, frame_risk_batch, risk_bound, training_risks, vote_batch
+
+
+@dataclasses.dataclass(frozen=True)
+class OffroadConfig:
+    """Settings of the three stages (D-B1 values; ``stride`` s_p/4 segments, ``risk_stride``
+    s_p/2 sweeps). ``components``: the BIC scan range, or a fixed m with ``fixed_components``."""
+
+    encoder: EncoderConfig = EncoderConfig.tiny()
+    neighbours: int = 8
+    components: tuple[int, ...] = tuple(range(2, 13))
+    fixed_components: int | None = None
+    gmm_inits: int = 3
+    delta: float = 0.95
+    risk: str = "calibrated"
+    stride: int = 8
+    risk_stride: int = 16
+    epsilon: float = 0.5
+    trigger: float = 0.5
+    budget: int = 20
+    gap: int = 5
+    selection: str = "dp"
+    finetune_fraction: float = 0.25
+    replay: bool = False
+    crf_iters: int = 5
+
+    def __post_init__(self):
+        if self.fixed_components is None and len(self.components) < 2:
+            raise ValueError(f"components: expected at least two counts to scan, got {self.components}")
+        if not 0 < self.finetune_fraction <= 1:
+            raise ValueError(f"finetune_fraction: expected in (0, 1], got {self.finetune_fraction}")
+
+
+@dataclasses.dataclass
+class OffroadModel:
+    """Encoder parameters, the category model and its risk calibration (S1's output)."""
+
+    params: object
+    mixture: GaussianMixture
+    r_sigma: float
+    train_raw: np.ndarray
+    cluster_class: np.ndarray
+    bics: dict[int, float]
+
+    @property
+    def num_clusters(self) -> int:
+        return int(np.shape(self.mixture.means)[0])
+
+
+def training_patches(key, data: AnnotatedFrames, config: OffroadConfig) -> tuple[np.ndarray, np.ndarray]:
+    """P^train (D-B8): centres (F, A (1 + neighbours), 2) of every anchor followed by its
+    ``neighbours`` neighbour samples, and whether each is valid (F, A (1 + neighbours))."""
+    f, a = data.ids.shape
+    size = config.encoder.size
+    height, width = data.images.shape[1:3]
+    near = neighbour_centers(key, jnp.asarray(data.centers.reshape(-1, 2)), size, config.neighbours, height, width)
+    centers = np.concatenate([data.centers.reshape(-1, 1, 2), np.asarray(near)], axis=1).reshape(f, -1, 2)
+    return centers, np.repeat(data.valid.reshape(-1), 1 + config.neighbours).reshape(f, -1)
+
+
+def fit_category_model(key, params, data: AnnotatedFrames, config: OffroadConfig) -> OffroadModel:
+    """GMM on P^train (m by the decisive BIC minimum, or ``fixed_components``), r_sigma, cluster -> class."""
+    k_near, k_gmm = jax.random.split(key)
+    centers, valid = training_patches(k_near, data, config)
+    z = embed(params, data.images, centers, config.encoder)[valid]
+    reference = np.repeat(data.reference.reshape(-1), 1 + config.neighbours)[valid.reshape(-1)]
+    z64 = z.astype(np.float64)
+    if config.fixed_components is not None:
+        fit = fit_gmm(k_gmm, z64, config.fixed_components, n_init=config.gmm_inits)
+        bics = {}
+    else:
+        m, fits, bics = select_components(k_gmm, z64, config.components, n_init=config.gmm_inits)
+        fit = fits[m]
+    mixture = GaussianMixture(*(np.asarray(x) for x in fit.mixture))
+    raw, risks = training_risks(z64, mixture, risk=config.risk)
+    clusters = np.argmin(raw_cluster_distance(z64, mixture), axis=1)
+    return OffroadModel(params, mixture, risk_bound(risks, config.delta), raw,
+                        majority_class(clusters, reference, len(mixture.weights)), bics)
+
+
+def raw_cluster_distance(z: np.ndarray, mixture: GaussianMixture) -> np.ndarray:
+    """(N, m) ``-log gamma(z; c_k)`` (Eq. 3 without weights), for Eq. 6's k*."""
+    from jaxanom.mixture import log_gaussian
+
+    with jax.enable_x64(True):
+        return -np.asarray(jax.jit(log_gaussian)(jnp.asarray(z), jnp.asarray(mixture.means), jnp.asarray(mixture.covariances)))
+
+
+def majority_class(clusters: np.ndarray, reference: np.ndarray, num_clusters: int) -> np.ndarray:
+    """(m,) the most frequent reference class per cluster (lowest on ties; -1 for an empty cluster)."""
+    out = np.full(num_clusters, -1, np.int64)
+    for k in range(num_clusters):
+        members = reference[clusters == k]
+        if members.size:
+            out[k] = np.bincount(members).argmax()
+    return out
+
+
+def learn(key, data: AnnotatedFrames, config: OffroadConfig, *, progress: Callable | None = None) -> OffroadModel:
+    """S1: train the encoder from scratch on ``data`` and fit the category model."""
+    k_init, k_train, k_fit = jax.random.split(key, 3)
+    params, _ = train_encoder(k_train, init_encoder(k_init, config.encoder), data, config.encoder, progress=progress)
+    return fit_category_model(k_fit, params, data, config)
+
+
+def _classify_frames(model: OffroadModel, images: np.ndarray, centers: np.ndarray, config: OffroadConfig):
+    tiled = np.broadcast_to(centers, (len(images), *centers.shape))
+    z = embed(model.params, images, tiled, config.encoder)
+    return classify_batch(z.astype(np.float64), model.mixture, model.r_sigma, model.train_raw, risk=config.risk)
+
+
+def sequence_risk_sweep(model: OffroadModel, images: np.ndarray, config: OffroadConfig, *, chunk: int = 16,
+                        progress: Callable | None = None) -> np.ndarray:
+    """FLR (T,) of frames (T, H, W, 3) float [0, 1] on the ``risk_stride`` grid (Eqs. 6-13)."""
+    height, width = images.shape[1:3]
+    centers = sliding_centers(height, width, config.encoder.size, config.risk_stride)
+    starts = range(0, len(images), chunk)
+    flr = []
+    for start in (starts if progress is None else progress(starts)):
+        out = _classify_frames(model, images[start:start + chunk], centers, config)
+        flr.append(np.asarray(frame_risk_batch(np.asarray(out.labels), model.num_clusters)))
+    return np.concatenate(flr)
+
+
+def segment(model: OffroadModel, images: np.ndarray, config: OffroadConfig, *, crf: bool = True) -> dict:
+    """S2 on frames (B, H, W, 3) float [0, 1]: window labels, votes -> dense labels (m = unknown),
+    risk map, and with ``crf`` the CRF labels; all host arrays.
+
+    The CRF's probabilities are the normalised votes of the m known clusters (floored at 1e-4):
+    it relabels unknown regions from their surroundings and never outputs the unknown label.
+    """
+    height, width = images.shape[1:3]
+    size = config.encoder.size
+    centers = sliding_centers(height, width, size, config.stride)
+    out = _classify_frames(model, images, centers, config)
+    m = model.num_clusters
+    voted = vote_batch(centers, np.asarray(out.labels), np.asarray(out.risk, np.float32), patch_size=size,
+                       height=height, width=width, num_labels=m + 1)
+    result = {"centers": centers, "window_labels": np.asarray(out.labels), "labels": np.asarray(voted.labels),
+              "votes": np.asarray(voted.votes), "risk": np.asarray(voted.risk)}
+    if crf:
+        labels = []
+        for votes, image in zip(result["votes"][..., :m], images):  # known clusters only (decision)
+            probs = np.maximum(votes / np.maximum(votes.sum(-1, keepdims=True), 1e-12), 1e-4)
+            q = dense_crf(probs / probs.sum(-1, keepdims=True), image, iters=config.crf_iters, reference_width=512)
+            labels.append(np.asarray(q).argmax(-1))
+        result["crf_labels"] = np.stack(labels).astype(np.int32)
+    return result
+
+
+def to_classes(labels: np.ndarray, model: OffroadModel, num_classes: int) -> np.ndarray:
+    """Cluster labels (unknown = m, void 255) -> reference classes; unknown and classless clusters
+    become ``num_classes`` (the always-wrong column of D-B14), void stays 255."""
+    table = np.append(np.where(model.cluster_class >= 0, model.cluster_class, num_classes), num_classes)
+    safe = np.where(labels == 255, 0, labels)
+    return np.where(labels == 255, 255, table[np.clip(safe, 0, model.num_clusters)]).astype(np.int32)
+
+
+def segmentation_scores(predicted: np.ndarray, truth: np.ndarray, num_classes: int) -> dict:
+    """Pixel accuracy and mIoU (D-B14): ``predicted`` in [0, num_classes] (num_classes = unknown,
+    counted wrong), ``truth`` in [0, num_classes) or 255 (ignored)."""
+    matrix = np.asarray(confusion_counts(jnp.asarray(np.where(predicted == 255, num_classes, predicted)),
+                                         jnp.asarray(truth), num_classes + 1), np.int64)
+    tp = np.diag(matrix)[:num_classes]
+    union = matrix[:num_classes].sum(1) + matrix[:, :num_classes].sum(0) - tp
+    present = union > 0
+    return {"pixel_accuracy": float(np.trace(matrix) / max(matrix.sum(), 1)),
+            "miou": float(np.mean(tp[present] / union[present])) if present.any() else float("nan"),
+            "confusion": matrix.tolist()}
+
+
+def active_round(key, model: OffroadModel, base: AnnotatedFrames, images: np.ndarray,
+                 annotate_frames: Callable[[np.ndarray], AnnotatedFrames], config: OffroadConfig, *,
+                 flr: np.ndarray | None = None, force: bool = False, progress: Callable | None = None) -> dict:
+    """S3: one round on a sequence ``images`` (T, H, W, 3) float [0, 1].
+
+    ``annotate_frames(indices)`` returns the annotations of those frames (a person, or the
+    simulator). Triggered when Phi^s > ``trigger`` (or ``force``). Returns ``{"triggered",
+    "flr", "sequence_risk", "chosen", "model"}`` (the old model when not triggered).
+    """
+    from jaxanom.offroad.risk import sequence_risk
+
+    flr = sequence_risk_sweep(model, images, config, progress=progress) if flr is None else flr
+    phi = sequence_risk(flr, config.epsilon)
+    result = {"flr": flr, "sequence_risk": phi, "triggered": bool(phi > config.trigger or force),
+              "chosen": np.zeros(0, np.int64), "model": model}
+    if not result["triggered"]:
+        return result
+    chosen = select_hard_frames(flr, config.budget, config.gap, method=config.selection)
+    new = annotate_frames(chosen)
+    k_train, k_fit = jax.random.split(key)
+    tune_data = concat_frames(base, new) if config.replay else new
+    steps = max(1, int(round(config.encoder.steps * config.finetune_fraction)))
+    params, _ = train_encoder(k_train, model.params, tune_data, config.encoder, steps=steps, progress=progress)
+    result.update(chosen=chosen, model=fit_category_model(k_fit, params, concat_frames(base, new), config))
+    return result

@@ -1,0 +1,76 @@
+"""The three stages end to end on a few small synthetic frames, and the evaluation helpers."""
+import dataclasses
+
+import jax
+import numpy as np
+import pytest
+
+from jaxanom.data.offroad import generate_frame
+from jaxanom.data.patch_annotations import annotate
+from jaxanom.mixture import GaussianMixture
+from jaxanom.offroad.encoder import EncoderConfig, stack_annotations
+from jaxanom.offroad.pipeline import (OffroadConfig, OffroadModel, active_round, learn, majority_class, segment,
+                                      segmentation_scores, sequence_risk_sweep, to_classes)
+
+H, W = 48, 64
+CONFIG = OffroadConfig(encoder=EncoderConfig(size=16, widths=(4, 8, 8, 8, 8), hidden=8, dim=3, negatives=4,
+                                             frames_per_step=2, steps=4),
+                       neighbours=2, components=(2, 3), gmm_inits=1, stride=8, risk_stride=16, budget=2, gap=1,
+                       crf_iters=1)
+
+
+def _annotated(domain, indices):
+    frames = [generate_frame(domain, 0, i, height=H, width=W) for i in indices]
+    anns = [annotate(f["label"], np.random.default_rng(i), k=6, size=16) for i, f in zip(indices, frames)]
+    return frames, stack_annotations([f["image"] for f in frames], anns, slots=6)
+
+
+def test_four_frame_smoke_run_of_all_three_stages():
+    _, data = _annotated("A", [0, 4])
+    model = learn(jax.random.key(0), data, CONFIG)
+    assert model.num_clusters in (2, 3) and set(model.bics) == {2, 3}
+    assert 0 <= model.r_sigma <= 1 and model.cluster_class.shape == (model.num_clusters,)
+    frames, _ = _annotated("B", [0, 1, 2, 3])
+    images = np.stack([f["image"] for f in frames]).astype(np.float32) / 255
+    flr = sequence_risk_sweep(model, images, CONFIG, chunk=3)
+    assert flr.shape == (4,) and ((flr >= 0) & (flr <= 1)).all()
+    seg = segment(model, images[:1], CONFIG, crf=True)
+    assert seg["labels"].shape == (1, H, W) and seg["crf_labels"].shape == (1, H, W)
+    assert seg["labels"].max() <= model.num_clusters and seg["crf_labels"].max() < model.num_clusters
+    assert seg["votes"].shape == (1, H, W, model.num_clusters + 1)
+
+    def annotate_frames(indices):
+        return _annotated("B", list(indices))[1]
+
+    result = active_round(jax.random.key(1), model, data, images, annotate_frames, CONFIG, flr=flr, force=True)
+    assert result["triggered"] and len(result["chosen"]) == 2 and abs(np.diff(result["chosen"])).min() > CONFIG.gap
+    assert result["model"] is not model
+    calm = active_round(jax.random.key(1), model, data, images, annotate_frames,
+                        dataclasses.replace(CONFIG, trigger=1.0), flr=flr)
+    assert not calm["triggered"] and calm["model"] is model and calm["chosen"].size == 0
+
+
+def test_majority_class_and_class_mapping():
+    clusters = np.array([0, 0, 1, 1, 1, 2])
+    reference = np.array([3, 3, 1, 2, 2, 5])
+    assert majority_class(clusters, reference, 4).tolist() == [3, 2, 5, -1]
+    model = OffroadModel(None, GaussianMixture(np.ones(4), np.zeros((4, 2)), np.zeros((4, 2, 2))), 0.5, np.zeros(3),
+                         np.array([3, 2, 5, -1]), {})
+    labels = np.array([[0, 1, 2, 3, 4, 255]])  # 4 = unknown, cluster 3 has no class
+    assert to_classes(labels, model, 6).tolist() == [[3, 2, 5, 6, 6, 255]]
+
+
+def test_segmentation_scores_count_unknown_as_wrong_against_a_numpy_reference():
+    rng = np.random.default_rng(0)
+    truth = rng.integers(0, 4, (9, 11))
+    truth[0, :3] = 255
+    predicted = rng.integers(0, 5, (9, 11))  # 4 = unknown
+    out = segmentation_scores(predicted, truth, 4)
+    kept = truth != 255
+    assert out["pixel_accuracy"] == pytest.approx(np.mean(predicted[kept] == truth[kept]))
+    ious = []
+    for c in range(4):
+        inter = np.sum((predicted == c) & (truth == c) & kept)
+        union = np.sum(((predicted == c) | (truth == c)) & kept)
+        ious.append(inter / union)
+    assert out["miou"] == pytest.approx(np.mean(ious))
