@@ -75,10 +75,24 @@ def from_torch(state_dict: Mapping, kind: str, num_classes: int = 19, *, key: ja
     if key is None:
         raise ValueError(f"key: {kind} initialises the DeepLabV3+ head at random; pass key=jax.random.key(seed)")
     model = build_model(_RESNET_PRESETS[kind], num_classes=num_classes, output_stride=output_stride, attention=None)
-    initial = jax.jit(model.init, static_argnames="train")(key, probe, train=False)
-    variables = fill_variables(state, jax.device_get(initial), _torchvision_resnet_name,
+    template = _with_initial_head(model, key, probe)
+    variables = fill_variables(state, template, _torchvision_resnet_name,
                                lambda name: name.startswith("fc."), f"{kind} (ImageNet backbone)")
     return model, variables
+
+
+def _with_initial_head(model, key: jax.Array, probe: np.ndarray) -> dict:
+    """The backbone's shapes and the head's initial values (exactly ``model.init``'s): only the head
+    leaves are computed, so XLA drops the backbone's initialisation and forward pass."""
+
+    def head(key):
+        variables = model.init(key, probe, train=False)
+        return {collection: {name: tree for name, tree in trees.items() if name != "backbone"}
+                for collection, trees in variables.items()}
+
+    shapes = jax.eval_shape(lambda x: model.init(key, x, train=False), probe)
+    initial = jax.device_get(jax.jit(head)(key))
+    return {collection: {**trees, **initial.get(collection, {})} for collection, trees in shapes.items()}
 
 
 def _resnet_name(path: tuple[str, ...]) -> str:

@@ -16,6 +16,7 @@ otherwise one ValueError lists the missing, unexpected and mis-shaped keys.
 """
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Mapping
 
 import numpy as np
@@ -45,11 +46,11 @@ def fill_variables(state: Mapping[str, np.ndarray], template: Mapping, naming: C
                 continue
             leaf = (_CONV if path[:-1] in conv_modules else _BATCH_NORM)[path[-1]]
             expected[f"{prefix}.{leaf}"] = (collection, path, in_shift.get(prefix, 0))
-    missing = [key for key in expected if key not in state]
+    missing = sorted((key for key in expected if key not in state), key=_natural)
     unexpected = [key for key in state if key not in expected and not key.endswith(".num_batches_tracked")
                   and not ignorable(key)]
     values, misshaped, bad = {}, [], []
-    for key, (collection, path, shift) in expected.items():
+    for key, (collection, path, shift) in sorted(expected.items(), key=lambda item: _natural(item[0])):
         if key not in state:
             continue
         want = tuple(flat[collection][path].shape)
@@ -75,11 +76,16 @@ def fill_variables(state: Mapping[str, np.ndarray], template: Mapping, naming: C
     return out
 
 
+def _natural(key: str) -> list:
+    """Sort key putting layer3.10 after layer3.9."""
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", key)]
+
+
 def _report(what, expected, missing, unexpected, misshaped, bad) -> str:
     lines = [f"state dict does not match {what} ({expected} tensors expected); nothing was loaded:"]
     for title, keys in (("missing", missing), ("unexpected", unexpected), ("mis-shaped", misshaped),
                         ("not finite floats", bad)):
         if keys:
-            shown = ", ".join(keys[:_SHOWN]) + (f", ... and {len(keys) - _SHOWN} more" if len(keys) > _SHOWN else "")
+            shown = "; ".join(keys[:_SHOWN]) + (f", ... and {len(keys) - _SHOWN} more" if len(keys) > _SHOWN else "")
             lines.append(f"  {title} ({len(keys)}): {shown}")
     return "\n".join(lines)
