@@ -71,11 +71,11 @@ def test_sml_wrong_class_count_names_the_classifier(sml):
 
 def test_another_architecture_is_refused_with_missing_and_unexpected_keys(sml, tv):
     with pytest.raises(ValueError, match=r"(?s)missing \(482\): aspp.*unexpected \(7\): conv1\.weight; bn1\.weight; "
-                                         r"bn1\.bias; bn1\.running_mean; bn1\.running_var; fc\.weight; fc\.bias\n"
-                                         r"  mis-shaped \(23\): layer1\.0\.conv1\.weight: checkpoint \(64, 64, 3, 3\)"):
+                                         r"bn1\.bias; bn1\.running_mean; bn1\.running_var; fc\.weight; fc\.bias\. "
+                                         r"mis-shaped \(23\): layer1\.0\.conv1\.weight: checkpoint \(64, 64, 3, 3\)"):
         from_torch(tv.resnet18().state_dict(), "sml-deeplabv3plus")
     with pytest.raises(ValueError, match=r"(?s)missing \(5\): bn1\.bias; bn1\.running_mean; bn1\.running_var; "
-                                         r"bn1\.weight; conv1\.weight\n  unexpected \(\d+\): layer0\.0\.weight"):
+                                         r"bn1\.weight; conv1\.weight\. unexpected \(\d+\): layer0\.0\.weight"):
         from_torch(sml[1], "torchvision-resnet101", key=jax.random.key(0))
 
 

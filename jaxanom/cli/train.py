@@ -24,20 +24,24 @@ def add_parser(commands) -> None:
     parser.add_argument("--steps", type=int, help="training steps")
     parser.add_argument("--batch-size", type=int, help="global batch size")
     parser.add_argument("--seed", type=int, help="random seed")
+    parser.add_argument("--init-from", help="start from the weights of this run folder (e.g. from convert-weights); "
+                        "without --config or --model the network's preset, output stride and classes are its")
+    parser.add_argument("--init-modules", help="comma-separated top-level modules to take from --init-from, "
+                        "e.g. backbone (default: all it has)")
     add_common(parser, progress=True, overwrite=False)
     parser.set_defaults(handler=run)
 
 
 def run(args) -> None:
-    from jaxanom.experiment import Experiment, load_experiment, run_training
+    from jaxanom.experiment import load_experiment, run_training
 
     out = Path(args.out)
     if args.resume:
-        if args.config:
-            raise CommandError("--resume continues the run's own experiment.json; do not pass --config")
+        if args.config or args.init_from or args.init_modules:
+            raise CommandError("--resume continues the run's own experiment.json; do not pass --config or --init-*")
         experiment = load_experiment(out)
     else:
-        experiment = load_config(args.config) if args.config else Experiment()
+        experiment = load_config(args.config) if args.config else _base_experiment(args.init_from)
         out_folder(args.out, overwrite=False)
     experiment = _override(experiment, args)
     run_training(experiment, out, progress=not args.no_progress)
@@ -57,8 +61,25 @@ def load_config(path: str):
     return experiment
 
 
+def _base_experiment(init_from: str | None):
+    """The default experiment, with the network of ``init_from``'s run when given."""
+    from jaxanom.experiment import Experiment, load_experiment
+
+    if init_from is None:
+        return Experiment()
+    source = load_experiment(init_from)  # ValueError unless it is a run folder
+    return Experiment(model=source.model, output_stride=source.output_stride, num_classes=source.num_classes)
+
+
 def _override(experiment, args):
     fields = {"model": args.model, "data": args.data, "data_root": args.data_root, "batch_size": args.batch_size}
+    if args.init_from is not None:
+        from jaxanom.experiment import load_experiment
+
+        load_experiment(args.init_from)  # ValueError unless it is a run folder
+        fields["init_from"] = str(Path(args.init_from).resolve())
+    if args.init_modules is not None:
+        fields["init_modules"] = tuple(name for name in args.init_modules.split(",") if name)
     if args.attention is not None:
         fields["attention"] = None if args.attention == "none" else args.attention
     train = {"steps": args.steps, "seed": args.seed}

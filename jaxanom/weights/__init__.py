@@ -8,9 +8,12 @@
 
 ``read_state_dict`` never unpickles arbitrary objects (``torch.load(weights_only=True)``);
 ``from_torch`` loads everything or raises a ValueError listing missing, unexpected and
-mis-shaped keys. ``jaxanom convert-weights`` writes the result as a run folder.
+mis-shaped keys. ``write_run`` (``jaxanom convert-weights``) stores a DeepLabV3+ as a run folder
+that ``evaluate --run`` and ``train --init-from`` read; ``write_vgg`` / ``read_vgg`` store a VGG.
 """
-from jaxanom.weights.architectures import KINDS, SML_PRESET, from_torch
+from jaxanom.weights.architectures import KINDS, PRESETS, SML_PRESET, from_torch
 from jaxanom.weights.files import read_state_dict, state_dict_arrays
+from jaxanom.weights.runs import read_vgg, take_modules, write_run, write_vgg
 
-__all__ = ["KINDS", "SML_PRESET", "from_torch", "read_state_dict", "state_dict_arrays"]
+__all__ = ["KINDS", "PRESETS", "SML_PRESET", "from_torch", "read_state_dict", "read_vgg", "state_dict_arrays", "take_modules",
+           "write_run", "write_vgg"]

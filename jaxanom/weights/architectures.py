@@ -28,9 +28,10 @@ import numpy as np
 
 KINDS = ("torchvision-resnet18", "torchvision-resnet50", "torchvision-resnet101", "sml-deeplabv3plus",
          "torchvision-vgg16", "torchvision-vgg19")
-_RESNET_PRESETS = {"torchvision-resnet18": "deeplabv3plus_r18", "torchvision-resnet50": "deeplabv3plus_r50",
-                   "torchvision-resnet101": "deeplabv3plus_r101"}
 SML_PRESET = "deeplabv3plus_r101_sml"
+# The jaxanom.models preset that each DeepLabV3+ kind builds.
+PRESETS = {"torchvision-resnet18": "deeplabv3plus_r18", "torchvision-resnet50": "deeplabv3plus_r50",
+           "torchvision-resnet101": "deeplabv3plus_r101", "sml-deeplabv3plus": SML_PRESET}
 _SML_HEAD = {("aspp", "conv1x1"): "aspp.features.0", ("aspp", "atrous0"): "aspp.features.1",
              ("aspp", "atrous1"): "aspp.features.2", ("aspp", "atrous2"): "aspp.features.3",
              ("aspp", "image_pool"): "aspp.img_conv", ("aspp", "project"): "bot_aspp",
@@ -74,7 +75,7 @@ def from_torch(state_dict: Mapping, kind: str, num_classes: int = 19, *, key: ja
         return model, variables
     if key is None:
         raise ValueError(f"key: {kind} initialises the DeepLabV3+ head at random; pass key=jax.random.key(seed)")
-    model = build_model(_RESNET_PRESETS[kind], num_classes=num_classes, output_stride=output_stride, attention=None)
+    model = build_model(PRESETS[kind], num_classes=num_classes, output_stride=output_stride, attention=None)
     template = _with_initial_head(model, key, probe)
     variables = fill_variables(state, template, _torchvision_resnet_name,
                                lambda name: name.startswith("fc."), f"{kind} (ImageNet backbone)")

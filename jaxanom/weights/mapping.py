@@ -82,10 +82,11 @@ def _natural(key: str) -> list:
 
 
 def _report(what, expected, missing, unexpected, misshaped, bad) -> str:
-    lines = [f"state dict does not match {what} ({expected} tensors expected); nothing was loaded:"]
+    """One line (the command line prints errors as one line)."""
+    parts = []
     for title, keys in (("missing", missing), ("unexpected", unexpected), ("mis-shaped", misshaped),
                         ("not finite floats", bad)):
         if keys:
-            shown = "; ".join(keys[:_SHOWN]) + (f", ... and {len(keys) - _SHOWN} more" if len(keys) > _SHOWN else "")
-            lines.append(f"  {title} ({len(keys)}): {shown}")
-    return "\n".join(lines)
+            shown = "; ".join(keys[:_SHOWN]) + (f"; ... and {len(keys) - _SHOWN} more" if len(keys) > _SHOWN else "")
+            parts.append(f"{title} ({len(keys)}): {shown}")
+    return f"state dict does not match {what} ({expected} tensors expected; nothing was loaded): " + ". ".join(parts)
