@@ -172,8 +172,9 @@ def load_variables(run_dir: str | os.PathLike, step: int | None = None) -> tuple
     experiment = load_experiment(run_dir)
     model = build_network(experiment)
     image = np.zeros((1, *experiment.crop, 3), np.float32)
-    variables = jax.jit(model.init, static_argnames="train")(jax.random.key(0), image, train=False)
     tx, _ = make_optimizer(experiment.train.optim, experiment.train.steps)
-    template = TrainState.create(variables, tx, jax.random.key(0))
+    # shapes only (nothing compiled): the arrays come from the checkpoint, to the host
+    template = jax.eval_shape(
+        lambda x: TrainState.create(model.init(jax.random.key(0), x, train=False), tx, jax.random.key(0)), image)
     state, _ = restore_checkpoint(Path(run_dir) / "checkpoints", template, step)
     return experiment, jax.device_get(state.variables)
