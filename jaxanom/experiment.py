@@ -32,7 +32,10 @@ class Experiment:
     ``data``: "synthetic" (generated ``train_frames`` frames of ``height`` x ``width``) or
     "cityscapes" (``data_root`` in the official layout). Training crops are ``crop`` pixels
     after random scaling by ``scale_range``. ``train.seed`` seeds the network, the shuffling and
-the synthetic scenes; ``train.run_dir`` is set when a run starts.
+the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``: a run folder
+    (e.g. from ``jaxanom convert-weights``) whose modules ``init_modules`` (default: all it has,
+    e.g. ("backbone",) for an ImageNet trunk only) start a fresh run; the network's other modules
+    are initialised from ``train.seed``.
     """
 
     model: str = "deeplabv3plus_tiny"
@@ -49,6 +52,8 @@ the synthetic scenes; ``train.run_dir`` is set when a run starts.
     scale_range: tuple[float, float] = (0.75, 1.5)
     batch_size: int = 8
     train: TrainConfig = dataclasses.field(default_factory=lambda: TrainConfig(run_dir=""))
+    init_from: str | None = None
+    init_modules: tuple[str, ...] | None = None
 
     def __post_init__(self):
         if self.data not in DATASETS:
@@ -133,8 +138,22 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
     network = build_network(experiment)
     write_json_atomic(config_file, jsonable(experiment))
     config = dataclasses.replace(experiment.train, run_dir=str(run_dir), progress=progress)
-    state = train(config, network, batches, val)
+    started = (run_dir / "checkpoints").is_dir() and any((run_dir / "checkpoints").iterdir())
+    variables = initial_variables(experiment) if experiment.init_from and not started else None
+    state = train(config, network, batches, val, variables)
     return jax.device_get(state.variables)
+
+
+def initial_variables(experiment: Experiment) -> dict:
+    """The variables a run of ``experiment`` starts from: ``init_modules`` of the ``init_from`` run,
+    the rest initialised with ``train.seed``; ValueError when they do not fit the network."""
+    from jaxanom.weights import take_modules
+
+    _, source = load_variables(experiment.init_from)
+    image = np.zeros((1, *experiment.crop, 3), np.float32)
+    fresh = jax.jit(build_network(experiment).init, static_argnames="train")(
+        jax.random.key(experiment.train.seed), image, train=False)
+    return take_modules(jax.device_get(fresh), source, experiment.init_modules)
 
 
 def jsonable(experiment: Experiment) -> dict:
@@ -172,8 +191,9 @@ def load_variables(run_dir: str | os.PathLike, step: int | None = None) -> tuple
     experiment = load_experiment(run_dir)
     model = build_network(experiment)
     image = np.zeros((1, *experiment.crop, 3), np.float32)
-    variables = jax.jit(model.init, static_argnames="train")(jax.random.key(0), image, train=False)
     tx, _ = make_optimizer(experiment.train.optim, experiment.train.steps)
-    template = TrainState.create(variables, tx, jax.random.key(0))
+    # shapes only (nothing compiled): the arrays come from the checkpoint, to the host
+    template = jax.eval_shape(
+        lambda x: TrainState.create(model.init(jax.random.key(0), x, train=False), tx, jax.random.key(0)), image)
     state, _ = restore_checkpoint(Path(run_dir) / "checkpoints", template, step)
     return experiment, jax.device_get(state.variables)

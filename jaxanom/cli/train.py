@@ -27,12 +27,16 @@ def add_parser(commands) -> None:
     parser.add_argument("--distributed", action="store_true",
                         help="multi-host: one process per host, joined by jax.distributed.initialize (SLURM, Open MPI "
                         "and TPU pods are detected; see the README)")
+    parser.add_argument("--init-from", help="start from the weights of this run folder (e.g. from convert-weights); "
+                        "without --config or --model the network's preset, output stride and classes are its")
+    parser.add_argument("--init-modules", help="comma-separated top-level modules to take from --init-from, "
+                        "e.g. backbone (default: all it has)")
     add_common(parser, progress=True, overwrite=False)
     parser.set_defaults(handler=run)
 
 
 def run(args) -> None:
-    from jaxanom.experiment import Experiment, load_experiment, run_training
+    from jaxanom.experiment import load_experiment, run_training
 
     if args.distributed:  # before any JAX work: loading the data or the model may touch devices
         from jaxanom.train.sharding import initialize_distributed
@@ -40,12 +44,12 @@ def run(args) -> None:
         initialize_distributed()
     out = Path(args.out)
     if args.resume:
-        if args.config:
-            raise CommandError("--resume continues the run's own experiment.json; do not pass --config")
+        if args.config or args.init_from or args.init_modules:
+            raise CommandError("--resume continues the run's own experiment.json; do not pass --config or --init-*")
         experiment = load_experiment(out)
         claim(out / CLAIM, f"--out {out}")
     else:
-        experiment = load_config(args.config) if args.config else Experiment()
+        experiment = load_config(args.config) if args.config else _base_experiment(args.init_from)
         out_folder(args.out, overwrite=False, hint="continue the run there with --resume")
     experiment = _override(experiment, args)
     run_training(experiment, out, progress=not args.no_progress)
@@ -74,8 +78,25 @@ def load_config(path: str):
     return experiment
 
 
+def _base_experiment(init_from: str | None):
+    """The default experiment, with the network of ``init_from``'s run when given."""
+    from jaxanom.experiment import Experiment, load_experiment
+
+    if init_from is None:
+        return Experiment()
+    source = load_experiment(init_from)  # ValueError unless it is a run folder
+    return Experiment(model=source.model, output_stride=source.output_stride, num_classes=source.num_classes)
+
+
 def _override(experiment, args):
     fields = {"model": args.model, "data": args.data, "data_root": args.data_root, "batch_size": args.batch_size}
+    if args.init_from is not None:
+        from jaxanom.experiment import load_experiment
+
+        load_experiment(args.init_from)  # ValueError unless it is a run folder
+        fields["init_from"] = str(Path(args.init_from).resolve())
+    if args.init_modules is not None:
+        fields["init_modules"] = tuple(name for name in args.init_modules.split(",") if name)
     if args.attention is not None:
         fields["attention"] = None if args.attention == "none" else args.attention
     train = {"steps": args.steps, "seed": args.seed, "distributed": args.distributed or None}

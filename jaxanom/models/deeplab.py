@@ -57,6 +57,7 @@ from jaxanom.nn.msaam import MSAAM
 
 ATTENTIONS = (None, "cudam", "msaam")
 CUDAM_POSITIONS = ("deep", "surface")
+RESIZES = ("half_pixel", "align_corners")
 
 
 class ASPP(nn.Module):
@@ -93,6 +94,9 @@ class DeepLabV3Plus(nn.Module):
       aspp_channels, low_level_channels, decoder_channels: head widths (256, 48, 256 as in
         the paper's DeepLabV3+).
       dtype: compute dtype (float32 or bfloat16); parameters stay float32.
+      resize: the decoder's and the logits' bilinear upsampling, "half_pixel" (PyTorch's
+        ``align_corners=False``) or "align_corners" (``align_corners=True``, as in the SML
+        authors' network; ``jaxanom.weights`` imports it with this setting).
     """
 
     num_classes: int
@@ -104,6 +108,7 @@ class DeepLabV3Plus(nn.Module):
     low_level_channels: int = 48
     decoder_channels: int = 256
     dtype: Dtype = jnp.float32
+    resize: str = "half_pixel"
 
     def __post_init__(self):
         if not isinstance(self.num_classes, numbers.Integral) or self.num_classes < 1:
@@ -118,6 +123,8 @@ class DeepLabV3Plus(nn.Module):
             raise ValueError(
                 f"cudam_position: expected one of {CUDAM_POSITIONS}, got {self.cudam_position!r}"
             )
+        if self.resize not in RESIZES:
+            raise ValueError(f"resize: expected one of {RESIZES}, got {self.resize!r}")
         super().__post_init__()
 
     @nn.compact
@@ -141,7 +148,8 @@ class DeepLabV3Plus(nn.Module):
 
         low = feats["layer1"]
         low_proj = ConvBN(self.low_level_channels, 1, dtype=self.dtype, name="low_level")(low, train)
-        x = resize_bilinear(x, *low.shape[1:3])
+        align_corners = self.resize == "align_corners"
+        x = resize_bilinear(x, *low.shape[1:3], align_corners)
         x = jnp.concatenate([x, low_proj], axis=-1)
         # two 3x3 convolutions; CuDAM follows the first ("deep") or the second ("surface")
         for i, position in enumerate(CUDAM_POSITIONS):
@@ -154,5 +162,5 @@ class DeepLabV3Plus(nn.Module):
         logits = nn.Conv(
             self.num_classes, (1, 1), dtype=self.dtype, param_dtype=jnp.float32, name="classifier"
         )(x)
-        out["logits"] = resize_bilinear(logits.astype(jnp.float32), height, width)
+        out["logits"] = resize_bilinear(logits.astype(jnp.float32), height, width, align_corners)
         return out

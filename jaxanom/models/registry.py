@@ -19,6 +19,8 @@ _PRESETS: dict[str, dict[str, Any]] = {
     "deeplabv3plus_r18": {"backbone": "resnet18"},
     "deeplabv3plus_r50": {"backbone": "resnet50"},
     "deeplabv3plus_r101": {"backbone": "resnet101"},
+    # The SML authors' DeepR101V3PlusD_OS8 (jaxanom.weights imports its checkpoints).
+    "deeplabv3plus_r101_sml": {"backbone": "resnet101_deep_stem", "resize": "align_corners"},
     "deeplabv3plus_tiny": {
         "backbone": "resnet_tiny",
         "aspp_channels": 16,

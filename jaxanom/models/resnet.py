@@ -20,18 +20,25 @@ from jaxanom.nn.layers import ConvBN, Dtype
 
 @dataclasses.dataclass(frozen=True)
 class ResNetSpec:
-    """Depth and width of a ResNet: blocks per stage, block kind, stem width, stem kind."""
+    """Depth and width of a ResNet: blocks per stage, block kind, stage width, stem kind and width.
+
+    ``stem_width``: channels out of the stem (default ``width``); a deep stem's three convolutions
+    have ``stem_width // 2``, ``stem_width // 2`` and ``stem_width`` channels.
+    """
 
     stage_sizes: tuple[int, ...]
     bottleneck: bool
     width: int = 64
     deep_stem: bool = False
+    stem_width: int | None = None
 
 
 RESNETS: dict[str, ResNetSpec] = {
     "resnet18": ResNetSpec((2, 2, 2, 2), bottleneck=False),
     "resnet50": ResNetSpec((3, 4, 6, 3), bottleneck=True),
     "resnet101": ResNetSpec((3, 4, 23, 3), bottleneck=True),
+    # The SML authors' trunk (their Resnet.py "ResNet3X3"): a deep stem 64, 64, 128.
+    "resnet101_deep_stem": ResNetSpec((3, 4, 23, 3), bottleneck=True, deep_stem=True, stem_width=128),
     # For tests and demos: one basic block per stage, 8 channels in the first stage.
     "resnet_tiny": ResNetSpec((1, 1, 1, 1), bottleneck=False, width=8),
 }
@@ -100,7 +107,8 @@ class ResNet(nn.Module):
 
     Call with images (B, H, W, 3) and ``train``; BatchNorm uses batch statistics and updates
     ``batch_stats`` when ``train`` is true, running averages otherwise. The deep stem is three
-    3x3 convolutions (width/2, width/2, width; "ResNet-C") instead of one 7x7.
+    3x3 convolutions (stem_width/2, stem_width/2, stem_width; "ResNet-C") instead of one 7x7.
+    The max-pool pads with -inf, as PyTorch's ``MaxPool2d(3, 2, padding=1)``.
     """
 
     spec: ResNetSpec
@@ -110,13 +118,14 @@ class ResNet(nn.Module):
     @nn.compact
     def __call__(self, images: jax.Array, train: bool = False) -> dict[str, jax.Array]:
         spec = self.spec
+        stem_width = spec.stem_width or spec.width
         x = images.astype(self.dtype)
         if spec.deep_stem:
-            x = ConvBN(spec.width // 2, 3, 2, dtype=self.dtype, name="stem1")(x, train)
-            x = ConvBN(spec.width // 2, 3, 1, dtype=self.dtype, name="stem2")(x, train)
-            x = ConvBN(spec.width, 3, 1, dtype=self.dtype, name="stem3")(x, train)
+            x = ConvBN(stem_width // 2, 3, 2, dtype=self.dtype, name="stem1")(x, train)
+            x = ConvBN(stem_width // 2, 3, 1, dtype=self.dtype, name="stem2")(x, train)
+            x = ConvBN(stem_width, 3, 1, dtype=self.dtype, name="stem3")(x, train)
         else:
-            x = ConvBN(spec.width, 7, 2, dtype=self.dtype, name="stem")(x, train)
+            x = ConvBN(stem_width, 7, 2, dtype=self.dtype, name="stem")(x, train)
         x = nn.max_pool(x, (3, 3), strides=(2, 2), padding=((1, 1), (1, 1)))
         features = {"stem": x}
         block = Bottleneck if spec.bottleneck else BasicBlock

@@ -61,28 +61,35 @@ class ConvBN(nn.Module):
         return nn.relu(x) if self.relu else x
 
 
-def _linear_taps(size_in: int, size_out: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Source indices (i0, i1) and weight of i1 for linear resampling with half-pixel centres.
+def _linear_taps(size_in: int, size_out: int, align_corners: bool = False
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Source indices (i0, i1) and weight of i1 for linear resampling.
 
-    ``src = (o + 0.5) * size_in / size_out - 0.5``, clamped to [0, size_in - 1]; the value at
-    ``o`` is ``(1 - t) x[i0] + t x[i1]``, as PyTorch's ``align_corners=False``.
+    Half-pixel centres (``align_corners=False``): ``src = (o + 0.5) * size_in / size_out - 0.5``,
+    clamped to [0, size_in - 1]. Corner-aligned (``align_corners=True``): ``src = o * (size_in - 1)
+    / (size_out - 1)`` (0 when ``size_out`` is 1). The value at ``o`` is ``(1 - t) x[i0] + t x[i1]``,
+    as PyTorch's ``interpolate(mode="bilinear", align_corners=...)``.
     """
-    src = np.clip((np.arange(size_out) + 0.5) * size_in / size_out - 0.5, 0, size_in - 1)
+    if align_corners:
+        src = np.arange(size_out) * ((size_in - 1) / (size_out - 1) if size_out > 1 else 0.0)
+    else:
+        src = np.clip((np.arange(size_out) + 0.5) * size_in / size_out - 0.5, 0, size_in - 1)
     i0 = np.floor(src).astype(np.int32)
     return i0, np.minimum(i0 + 1, size_in - 1), (src - i0).astype(np.float32)
 
 
-def resize_bilinear(x: jax.Array, height: int, width: int) -> jax.Array:
-    """Bilinear resize of ``x`` (B, h, w, C) to (B, height, width, C), half-pixel centres.
+def resize_bilinear(x: jax.Array, height: int, width: int, align_corners: bool = False) -> jax.Array:
+    """Bilinear resize of ``x`` (B, h, w, C) to (B, height, width, C), half-pixel centres by default.
 
-    Half-pixel centres with clamped borders are PyTorch's ``align_corners=False``; no
+    Half-pixel centres with clamped borders are PyTorch's ``align_corners=False``;
+    ``align_corners=True`` maps the corner pixels onto each other, as PyTorch's; no
     antialiasing on downscaling, also as PyTorch. Two gathers and a blend per axis (memory-bound;
     ``jax.image.resize`` would multiply by dense (out x in) matrices instead). Same dtype out.
     """
     for axis, size in ((1, height), (2, width)):
         if x.shape[axis] == size:
             continue
-        i0, i1, t = _linear_taps(x.shape[axis], size)
+        i0, i1, t = _linear_taps(x.shape[axis], size, align_corners)
         t = t.reshape((-1,) + (1,) * (x.ndim - axis - 1)).astype(x.dtype)
         x = jnp.take(x, i0, axis=axis) * (1 - t) + jnp.take(x, i1, axis=axis) * t
     return x

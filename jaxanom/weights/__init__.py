@@ -1,0 +1,19 @@
+"""Pretrained weights from PyTorch: torchvision ResNets and VGGs, the SML authors' DeepLabV3+.
+
+    from jaxanom.weights import from_torch, read_state_dict
+
+    state = read_state_dict("best_model.pth")      # or .npz / .safetensors (no torch needed)
+    model, variables = from_torch(state, "sml-deeplabv3plus", num_classes=19)
+    logits = model.apply(variables, images, train=False)["logits"]   # images ImageNet-normalised
+
+``read_state_dict`` never unpickles arbitrary objects (``torch.load(weights_only=True)``);
+``from_torch`` loads everything or raises a ValueError listing missing, unexpected and
+mis-shaped keys. ``write_run`` (``jaxanom convert-weights``) stores a DeepLabV3+ as a run folder
+that ``evaluate --run`` and ``train --init-from`` read; ``write_vgg`` / ``read_vgg`` store a VGG.
+"""
+from jaxanom.weights.architectures import KINDS, PRESETS, SML_PRESET, from_torch
+from jaxanom.weights.files import read_state_dict, state_dict_arrays
+from jaxanom.weights.runs import read_vgg, take_modules, write_run, write_vgg
+
+__all__ = ["KINDS", "PRESETS", "SML_PRESET", "from_torch", "read_state_dict", "read_vgg", "state_dict_arrays", "take_modules",
+           "write_run", "write_vgg"]

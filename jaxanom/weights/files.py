@@ -1,0 +1,102 @@
+"""Reading PyTorch state dicts without unpickling arbitrary objects.
+
+    state = read_state_dict("model.pth")          # torch.load(weights_only=True); needs torch
+    state = read_state_dict("model.safetensors")  # the safetensors package, no torch
+    state = read_state_dict("model.npz")          # NumPy, no torch
+
+The result is ``{name: float32 np.ndarray}`` in PyTorch's layout (convolutions OIHW). A training
+checkpoint (a dict holding ``"state_dict"`` beside optimizer state) gives its ``state_dict``;
+DataParallel's ``module.`` prefix is removed. Integer entries (BatchNorm's
+``num_batches_tracked``) are kept as they are. A file that cannot be read raises ValueError
+naming it; a ``.pth`` file holding anything but tensors, numbers, strings and containers is refused
+by ``weights_only`` and never unpickled.
+"""
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+_DATA_PARALLEL = "module."
+
+
+def read_state_dict(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """The state dict stored in ``path`` (.pth/.pt/.ckpt/.bin via torch, .npz, .safetensors)."""
+    file = Path(path)
+    if not file.is_file():
+        raise ValueError(f"weights file: expected an existing file, got {os.fspath(path)!r}")
+    suffix = file.suffix.lower()
+    if suffix == ".npz":
+        return state_dict_arrays(_read_npz(file), file)
+    if suffix == ".safetensors":
+        return state_dict_arrays(_read_safetensors(file), file)
+    return state_dict_arrays(_read_torch(file), file)
+
+
+def state_dict_arrays(state: Mapping, source: object = "state_dict") -> dict[str, np.ndarray]:
+    """``state`` (tensors or arrays by name, or a checkpoint holding ``"state_dict"``) as NumPy.
+
+    Floating tensors become float32 arrays; ``module.`` prefixes are removed.
+    """
+    if not isinstance(state, Mapping):
+        raise ValueError(f"{source}: expected a mapping of parameter names to tensors, got {type(state).__name__}")
+    if "state_dict" in state and isinstance(state["state_dict"], Mapping):
+        state = state["state_dict"]
+    arrays = {}
+    for name, value in state.items():
+        if not isinstance(name, str):
+            raise ValueError(f"{source}: expected parameter names as strings, got {name!r}")
+        key = name[len(_DATA_PARALLEL):] if name.startswith(_DATA_PARALLEL) else name
+        if key in arrays:
+            raise ValueError(f"{source}: {key!r} appears both with and without the 'module.' prefix")
+        arrays[key] = _to_numpy(value, f"{source}: {name}")
+    if not arrays:
+        raise ValueError(f"{source}: expected parameters, found an empty state dict")
+    return arrays
+
+
+def _to_numpy(value, where: str) -> np.ndarray:
+    if hasattr(value, "detach"):  # a torch.Tensor; bfloat16 / float16 go through float32
+        value = value.detach().cpu()
+        value = value.float() if value.is_floating_point() else value
+        value = value.numpy()
+    array = np.asarray(value) if isinstance(value, (np.ndarray, np.generic, int, float)) else None
+    if array is None or not (np.issubdtype(array.dtype, np.floating) or np.issubdtype(array.dtype, np.integer)):
+        raise ValueError(f"{where}: expected a numeric tensor, got {type(value).__name__}")
+    return array.astype(np.float32) if np.issubdtype(array.dtype, np.floating) else array
+
+
+def _read_npz(file: Path) -> dict:
+    try:
+        with np.load(file, allow_pickle=False) as loaded:
+            return {name: loaded[name] for name in loaded.files}
+    except Exception as error:  # zipfile, OSError, ValueError (pickled arrays) all mean "not readable"
+        raise ValueError(f"weights file {file}: not a readable .npz ({type(error).__name__}: {error})") from None
+
+
+def _read_safetensors(file: Path) -> dict:
+    try:
+        from safetensors.numpy import load_file
+    except ImportError:
+        raise ValueError(f"weights file {file}: reading .safetensors needs the safetensors package "
+                         "(pip install 'jaxanom[torch]' or safetensors)") from None
+    try:
+        return load_file(file)
+    except Exception as error:  # SafetensorError, OSError, TypeError (bfloat16 in NumPy)
+        raise ValueError(f"weights file {file}: not a readable .safetensors file "
+                         f"({type(error).__name__}: {error})") from None
+
+
+def _read_torch(file: Path) -> Mapping:
+    try:
+        import torch
+    except ImportError:
+        raise ValueError(f"weights file {file}: reading PyTorch checkpoints needs torch (pip install "
+                         "'jaxanom[torch]'), or save the state dict as .npz or .safetensors elsewhere") from None
+    try:
+        return torch.load(file, map_location="cpu", weights_only=True)
+    except Exception as error:  # UnpicklingError (refused objects), RuntimeError / EOFError (damaged)
+        raise ValueError(f"weights file {file}: not a readable PyTorch checkpoint with weights_only=True "
+                         f"({type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''})") from None

@@ -1,0 +1,103 @@
+"""Converted weights on disk, and starting a network from another one's modules.
+
+``write_run(folder, model, variables)`` makes a DeepLabV3+ run folder (``experiment.json`` and a
+step-0 checkpoint), which ``jaxanom evaluate --run`` and ``train --init-from`` read like any
+trained run. A VGG has no run: ``write_vgg`` / ``read_vgg`` keep its variables in an .npz with
+the Flax paths as names (``params/conv1_1/kernel``) and the configuration in ``vgg.json``.
+``take_modules(fresh, source, modules)`` starts a network from another's top-level modules.
+"""
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import jax
+import numpy as np
+from flax import traverse_util
+
+from jaxanom.io import write_bytes_atomic, write_json_atomic
+
+VGG_FILE, VGG_CONFIG = "vgg.npz", "vgg.json"
+
+
+def write_run(folder: str | os.PathLike, preset: str, model, variables: dict):
+    """Write ``variables`` of ``model`` (built by ``build_model(preset, ...)``) as a step-0 run.
+
+    The experiment keeps jaxanom's defaults for everything but the network (model preset,
+    attention, output stride, classes, CuDAM position). Returns the ``Experiment``.
+    """
+    from jaxanom.experiment import Experiment, jsonable
+    from jaxanom.train.checkpoint import Checkpointer
+    from jaxanom.train.optim import make_optimizer
+    from jaxanom.train.state import TrainState
+
+    experiment = Experiment(model=preset, attention=model.attention, cudam_position=model.cudam_position,
+                            output_stride=model.output_stride, num_classes=model.num_classes)
+    folder = Path(folder)
+    write_json_atomic(folder / "experiment.json", jsonable(experiment))
+    tx, _ = make_optimizer(experiment.train.optim, experiment.train.steps)
+    state = TrainState.create(jax.tree.map(np.asarray, variables), tx, jax.random.key(0))
+    with Checkpointer(folder / "checkpoints") as checkpointer:
+        checkpointer.save(0, state)
+        checkpointer.wait()
+    return experiment
+
+
+def write_vgg(folder: str | os.PathLike, model, variables: dict) -> None:
+    """``variables`` of a ``jaxanom.models.vgg.VGG`` as ``vgg.npz`` plus ``vgg.json``."""
+    import io
+
+    folder = Path(folder)
+    flat = {"/".join(path): np.asarray(value) for path, value in traverse_util.flatten_dict(variables).items()}
+    buffer = io.BytesIO()
+    np.savez(buffer, **flat)
+    write_bytes_atomic(folder / VGG_FILE, buffer.getvalue())
+    write_json_atomic(folder / VGG_CONFIG, {"config": model.config, "widths": list(model.widths)})
+
+
+def read_vgg(folder: str | os.PathLike):
+    """``(VGG model, variables)`` written by ``write_vgg``; ValueError when the folder has none."""
+    import json
+
+    from jaxanom.models.vgg import VGG
+
+    folder = Path(folder)
+    if not (folder / VGG_FILE).is_file() or not (folder / VGG_CONFIG).is_file():
+        raise ValueError(f"folder: expected {VGG_FILE} and {VGG_CONFIG} (from convert-weights), in {os.fspath(folder)!r}")
+    config = json.loads((folder / VGG_CONFIG).read_text())
+    with np.load(folder / VGG_FILE, allow_pickle=False) as loaded:
+        flat = {tuple(name.split("/")): loaded[name] for name in loaded.files}
+    return VGG(config["config"], widths=tuple(config["widths"])), traverse_util.unflatten_dict(flat)
+
+
+def take_modules(fresh: dict, source: dict, modules: Sequence[str] | None = None) -> dict:
+    """``fresh`` variables with the top-level modules ``modules`` (default: all of ``source``'s)
+    replaced by ``source``'s, e.g. ``("backbone",)`` to start from an ImageNet trunk.
+
+    Each taken module must have the same variables with the same shapes in both; a mismatch, or
+    a module that one side lacks, raises ValueError naming it. Other modules keep ``fresh``.
+    """
+    names = sorted({name for tree in source.values() for name in tree}) if modules is None else list(modules)
+    have = {name for tree in fresh.values() for name in tree}
+    problems = [f"{name} (not in the network)" for name in names if name not in have]
+    problems += [f"{name} (not in the source)" for name in names
+                 if name in have and not any(name in tree for tree in source.values())]
+    out = {collection: dict(tree) for collection, tree in fresh.items()}
+    for collection, tree in fresh.items():
+        for name in names:
+            if name not in tree or problems:
+                continue
+            want = traverse_util.flatten_dict(tree[name])
+            got = traverse_util.flatten_dict(source.get(collection, {}).get(name, {}))
+            differ = [f"{collection}/{name}/{'/'.join(path)} (not in the source)" for path in want if path not in got]
+            differ += [f"{collection}/{name}/{'/'.join(path)}: source {np.shape(got[path])}, network "
+                       f"{np.shape(want[path])}" for path in want
+                       if path in got and np.shape(got[path]) != np.shape(want[path])]
+            differ += [f"{collection}/{name}/{'/'.join(path)} (not in the network)" for path in got if path not in want]
+            problems += differ
+            out[collection][name] = tree[name] if differ else source[collection][name]
+    if problems:
+        shown = "; ".join(problems[:8]) + (f"; ... and {len(problems) - 8} more" if len(problems) > 8 else "")
+        raise ValueError(f"init modules {names}: the source does not fit the network: {shown}")
+    return out

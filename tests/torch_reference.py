@@ -1,0 +1,137 @@
+"""PyTorch reference networks for the weight-import tests.
+
+``torchvision_models()`` returns torchvision's ``models`` package. The torchvision wheel that
+pip finds beside torch's CPU wheel is linked against CUDA libraries, so its C extension (detection
+operators only) cannot load and ``import torchvision`` fails while registering them; the model
+definitions are pure Python, so they are then imported without running ``torchvision/__init__``.
+
+``SMLDeepV3Plus`` is our own PyTorch rendering of the SML authors' ``DeepR101V3PlusD_OS8``
+(github shjung13/Standardized-max-logits, ``network/deepv3.py`` and ``network/Resnet.py``), with
+their parameter names so that their checkpoints' keys load into it: a deep stem packed as
+``layer0``, ResNet-101 with the stride on the 3x3 conv, layer3 / layer4 dilated 2 / 4 with
+stride-1 shortcuts, ASPP with the image-pooling branch first, ``bot_aspp``, ``bot_fine``,
+``final1``, ``final2`` and the auxiliary ``dsn``; every resize bilinear with align_corners=True.
+"""
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import sys
+import types
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+
+def torchvision_models():
+    try:
+        return importlib.import_module("torchvision.models")
+    except RuntimeError:  # "operator torchvision::nms does not exist": the CUDA build on CPU torch
+        for name in [name for name in sys.modules if name == "torchvision" or name.startswith("torchvision.")]:
+            del sys.modules[name]
+        spec = importlib.util.find_spec("torchvision")
+        package = types.ModuleType("torchvision")
+        package.__path__ = list(spec.submodule_search_locations)
+        package.__file__ = spec.origin
+        sys.modules["torchvision"] = package
+        return importlib.import_module("torchvision.models")
+
+
+def randomize(module: nn.Module, seed: int) -> nn.Module:
+    """Random BatchNorm affine parameters and running statistics (the default init has 1, 0, 0, 1),
+    in eval mode."""
+    gen = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for layer in module.modules():
+            if isinstance(layer, nn.BatchNorm2d):
+                n = layer.num_features
+                layer.weight.copy_(torch.rand(n, generator=gen) + 0.5)
+                layer.bias.copy_(torch.randn(n, generator=gen) * 0.1)
+                layer.running_mean.copy_(torch.randn(n, generator=gen) * 0.1)
+                layer.running_var.copy_(torch.rand(n, generator=gen) + 0.5)
+            elif isinstance(layer, nn.Conv2d) and layer.bias is not None:
+                layer.bias.copy_(torch.randn(layer.bias.shape, generator=gen) * 0.1)
+    return module.eval()
+
+
+def nchw(images: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(np.ascontiguousarray(images.transpose(0, 3, 1, 2)))
+
+
+def nhwc(tensor: torch.Tensor) -> np.ndarray:
+    return tensor.detach().permute(0, 2, 3, 1).numpy()
+
+
+def _conv_bn_relu(cin: int, cout: int, kernel: int, stride: int = 1, dilation: int = 1) -> list[nn.Module]:
+    pad = dilation * (kernel // 2)
+    return [nn.Conv2d(cin, cout, kernel, stride, pad, dilation, bias=False), nn.BatchNorm2d(cout), nn.ReLU()]
+
+
+class _Bottleneck(nn.Module):
+    def __init__(self, cin: int, planes: int, stride: int, dilation: int):
+        super().__init__()
+        self.conv1 = nn.Conv2d(cin, planes, 1, bias=False)
+        self.bn1 = nn.BatchNorm2d(planes)
+        self.conv2 = nn.Conv2d(planes, planes, 3, stride, dilation, dilation, bias=False)
+        self.bn2 = nn.BatchNorm2d(planes)
+        self.conv3 = nn.Conv2d(planes, 4 * planes, 1, bias=False)
+        self.bn3 = nn.BatchNorm2d(4 * planes)
+        self.downsample = None
+        if stride != 1 or cin != 4 * planes:
+            self.downsample = nn.Sequential(nn.Conv2d(cin, 4 * planes, 1, stride, bias=False),
+                                            nn.BatchNorm2d(4 * planes))
+
+    def forward(self, x):
+        y = F.relu(self.bn1(self.conv1(x)))
+        y = F.relu(self.bn2(self.conv2(y)))
+        y = self.bn3(self.conv3(y))
+        return F.relu(y + (x if self.downsample is None else self.downsample(x)))
+
+
+def _stage(cin: int, planes: int, blocks: int, stride: int, dilation: int) -> nn.Sequential:
+    layers = [_Bottleneck(cin, planes, stride, dilation)]
+    layers += [_Bottleneck(4 * planes, planes, 1, dilation) for _ in range(blocks - 1)]
+    return nn.Sequential(*layers)
+
+
+class _ASPP(nn.Module):
+    def __init__(self, cin: int, width: int, rates: tuple[int, ...]):
+        super().__init__()
+        self.features = nn.ModuleList([nn.Sequential(*_conv_bn_relu(cin, width, 1))]
+                                      + [nn.Sequential(*_conv_bn_relu(cin, width, 3, 1, r)) for r in rates])
+        self.img_conv = nn.Sequential(*_conv_bn_relu(cin, width, 1))
+
+    def forward(self, x):
+        pooled = self.img_conv(x.mean(dim=(2, 3), keepdim=True))
+        branches = [F.interpolate(pooled, size=x.shape[2:], mode="bilinear", align_corners=True)]
+        return torch.cat(branches + [branch(x) for branch in self.features], dim=1)
+
+
+class SMLDeepV3Plus(nn.Module):
+    """DeepR101V3PlusD_OS8 (``blocks`` (3, 4, 23, 3)); ``forward`` returns eval-mode logits NCHW."""
+
+    def __init__(self, num_classes: int = 19, blocks: tuple[int, ...] = (3, 4, 23, 3)):
+        super().__init__()
+        self.layer0 = nn.Sequential(*_conv_bn_relu(3, 64, 3, 2), *_conv_bn_relu(64, 64, 3),
+                                    *_conv_bn_relu(64, 128, 3), nn.MaxPool2d(3, 2, 1))
+        self.layer1 = _stage(128, 64, blocks[0], 1, 1)
+        self.layer2 = _stage(256, 128, blocks[1], 2, 1)
+        self.layer3 = _stage(512, 256, blocks[2], 1, 2)
+        self.layer4 = _stage(1024, 512, blocks[3], 1, 4)
+        self.aspp = _ASPP(2048, 256, (12, 24, 36))
+        self.bot_fine = nn.Sequential(*_conv_bn_relu(256, 48, 1))
+        self.bot_aspp = nn.Sequential(*_conv_bn_relu(1280, 256, 1))
+        self.final1 = nn.Sequential(*_conv_bn_relu(304, 256, 3), *_conv_bn_relu(256, 256, 3))
+        self.final2 = nn.Sequential(nn.Conv2d(256, num_classes, 1))
+        self.dsn = nn.Sequential(nn.Conv2d(1024, 512, 3, padding=1), nn.BatchNorm2d(512), nn.ReLU(),
+                                 nn.Dropout2d(0.1), nn.Conv2d(512, num_classes, 1))
+
+    def forward(self, x):
+        low = self.layer1(self.layer0(x))
+        deep = self.layer4(self.layer3(self.layer2(low)))
+        up = F.interpolate(self.bot_aspp(self.aspp(deep)), size=low.shape[2:], mode="bilinear",
+                           align_corners=True)
+        logits = self.final2(self.final1(torch.cat([self.bot_fine(low), up], dim=1)))
+        return F.interpolate(logits, size=x.shape[2:], mode="bilinear", align_corners=True)
