@@ -71,6 +71,6 @@ def run(args) -> None:
     if scarce:
         print(f"jaxanom fit-stats: warning: classes {scarce} have fewer than {args.min_count:g} predicted pixels "
               f"(counts {[int(final.count[c]) for c in scarce]}); their statistics are "
-              f"{'unreliable' if args.policy == 'none' else 'pooled or shrunk as the table says'}",
+              f"{'unreliable (consider --policy shrink or min_count)' if args.policy == 'none' else 'pooled or shrunk as the table says'}",
               file=sys.stderr)
     print(f"statistics of {len(final.mean)} classes from {policy['frames']} frames, policy {args.policy} -> {out}")
