@@ -107,7 +107,7 @@ def summary(results: list[dict], failures: dict[str, str] | None = None) -> str:
         "",
         f"Written by `python -m experiments` on {datetime.date.today().isoformat()}. Every network is the tiny "
         f"DeepLabV3+ (`deeplabv3plus_tiny`, output stride 16) trained for the steps its table states, batch "
-        f"{scale.batch_size}, on {data}, with AdamW (lr 2e-3) instead of the papers' SGD schedule. SML "
+        f"{scale.batch_size}, on {data} (unless a table states another size), with AdamW (lr 2e-3) instead of the papers' SGD schedule. SML "
         f"statistics come from {scale.stats_frames} training frames; anomaly metrics pool all non-void pixels "
         f"of {anomaly}; mIoU is on {scale.val_frames} validation frames. Numbers are percent: AP is the step sum "
         "(scikit-learn's average precision), FPR95 the FPR at the first ROC point with TPR >= 95% (Fishyscapes' "
