@@ -25,7 +25,7 @@ from jaxanom.io import write_bytes_atomic
 
 # Ordered so that the shared networks (plain, CuDAM) are trained by the first tables.
 EXPERIMENTS = ("sml_table3_table7", "cudam_table2", "msaam_table6", "cudam_table3", "cudam_table5",
-               "cudam_fig5", "cudam_fig6")
+               "cudam_fig5", "cudam_fig6", "sml_scarce_stats")
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -33,6 +33,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--only", nargs="+", choices=EXPERIMENTS, default=list(EXPERIMENTS), metavar="NAME",
                         help=f"experiments to run (default: all of {', '.join(EXPERIMENTS)})")
     parser.add_argument("--steps", type=int, help="training steps per network (default: Scale's)")
+    parser.add_argument("--seeds", type=int, default=3,
+                        help="train every network once per seed (seed, seed + 1, ...); tables give mean ± std "
+                        "(default: %(default)s)")
     parser.add_argument("--smoke", action="store_true", help="a seconds-long run of the same code (tiny sizes)")
     parser.add_argument("--cityscapes", metavar="ROOT", help="train on Cityscapes instead of synthetic scenes")
     parser.add_argument("--anomaly", metavar="READER:ROOT",
@@ -59,8 +62,12 @@ def main(argv=None) -> None:
         start = time.perf_counter()
         module = importlib.import_module(f"experiments.{name}")
         try:
-            run_table(module.NAME, module.TITLE, module.rows(scale), module.findings, scale, args.out, args.runs,
-                      description=describe(module))
+            run = getattr(module, "run", None)
+            if run is not None:  # an experiment that is not a table of (network, score) rows
+                run(scale, args.seeds, args.out, args.runs, description=describe(module))
+            else:
+                run_table(module.NAME, module.TITLE, module.rows, module.findings, scale, args.out, args.runs,
+                          description=describe(module), seeds=args.seeds)
         except Exception:  # noqa: BLE001 -- e.g. a diverged network: report it, run the other tables
             failures[name] = traceback.format_exc(limit=4).strip()
             print(failures[name])
@@ -99,20 +106,20 @@ def summary(results: list[dict], failures: dict[str, str] | None = None) -> str:
         "# Experiments: the papers' tables on a small budget",
         "",
         f"Written by `python -m experiments` on {datetime.date.today().isoformat()}. Every network is the tiny "
-        f"DeepLabV3+ (`deeplabv3plus_tiny`, output stride 16) trained for {scale.steps} steps, batch "
-        f"{scale.batch_size}, on {data}, with AdamW (lr 2e-3) instead of the papers' SGD schedule. SML "
+        f"DeepLabV3+ (`deeplabv3plus_tiny`, output stride 16) trained for the steps its table states, batch "
+        f"{scale.batch_size}, on {data} (unless a table states another size), with AdamW (lr 2e-3) instead of the papers' SGD schedule. SML "
         f"statistics come from {scale.stats_frames} training frames; anomaly metrics pool all non-void pixels "
         f"of {anomaly}; mIoU is on {scale.val_frames} validation frames. Numbers are percent: AP is the step sum "
         "(scikit-learn's average precision), FPR95 the FPR at the first ROC point with TPR >= 95% (Fishyscapes' "
         "convention), AUROC the trapezoid. Rows with the same network hash share one trained network.",
         "",
-        f"**Single seed** (seed {scale.seed} for initialisation, shuffling and scenes): differences of a point "
-        "or two are within what another seed could change; read the findings as indications, not evidence.",
+        *seed_lines(results),
         "",
         f"CuDAM's tau and sigma are rescaled to this run's attention-map size so that `tau * M_att` keeps the "
         f"paper's magnitude: tau = {matched_tau(scale):.4g} (paper: 5e4 on 180 x 180 maps), sigma = "
         f"{matched_sigma(scale.height, scale.width):.4g} (paper: 2e4 on 256 x 512 maps). The paper's literal "
-        "values are rows of their own (Table II `cudam` score, Fig. 6).",
+        "values are rows of their own (Table II `cudam` score, Fig. 6). At the \"output\" position (the paper's "
+        "surface, Table V) the map covers the whole frame, and tau and sigma are rescaled to its H x W positions.",
         "",
         f"**{held} of {total} qualitative findings of the papers hold here.** The synthetic data was not "
         "changed to make any of them hold; a finding that does not hold is reported as such.",
@@ -132,6 +139,19 @@ def summary(results: list[dict], failures: dict[str, str] | None = None) -> str:
                   f"Curves: [{result['name']}_roc.png]({result['name']}_roc.png), "
                   f"[{result['name']}_pr.png]({result['name']}_pr.png)."]
     return "\n".join(lines + failed)
+
+
+def seed_lines(results: list[dict]) -> list[str]:
+    """What RESULTS.md says about seeds: how many each table used and what a finding needs to hold."""
+    counts = {r["name"]: r.get("num_seeds", 1) for r in results}
+    single = [name for name, n in counts.items() if n == 1]
+    lines = ["**Seeds.** Each table states its seeds. With several seeds a value is the mean ± sample std (ddof 1) "
+             "over seeds (each seed sets the network's initialisation, the shuffling and the synthetic scenes), and "
+             "**a finding holds only when the difference of means exceeds the larger std of the rows compared**."]
+    if single:
+        lines[0] += (f" Tables with a single seed ({', '.join(single)}): differences of a point or two are within "
+                     "what another seed could change; read those findings as indications, not evidence.")
+    return lines
 
 
 def _anchor(title: str) -> str:

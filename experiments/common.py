@@ -32,7 +32,8 @@ import numpy as np
 
 from jaxanom import methods as scoring
 from jaxanom import sml
-from jaxanom.cudam_score import PAPER_TEST_POSITIONS, PAPER_TRAIN_POSITIONS, cudam_score, equivalent_weight
+from jaxanom.cudam_score import (PAPER_TEST_POSITIONS, PAPER_TRAIN_POSITIONS, cudam_score, equivalent_weight,
+                                 paper_sigma, paper_tau)
 from jaxanom.evaluate import class_statistics, predictions, predictor, segmentation_results
 from jaxanom.experiment import Experiment, build_network, frames, jsonable, run_training
 from jaxanom.io import write_bytes_atomic, write_json_atomic
@@ -138,7 +139,7 @@ def matched_sigma(height: int, width: int) -> float:
 
 
 def network(scale: Scale, attention: str | None = None, loss: LossConfig = LossConfig(),
-            cudam_position: str = "deep") -> Network:
+            cudam_position: str = "deep", cudam_gate: str = "paper") -> Network:
     """The tiny DeepLabV3+ of every table, trained on ``scale``'s data with ``loss``."""
     data = dict(data="cityscapes", data_root=scale.cityscapes_root) if scale.cityscapes_root else {}
     train = TrainConfig(run_dir="", steps=scale.steps, seed=scale.seed, loss=loss, eval_every=scale.steps,
@@ -147,7 +148,8 @@ def network(scale: Scale, attention: str | None = None, loss: LossConfig = LossC
                                           warmup_steps=max(1, min(30, scale.steps // 10))))
     experiment = Experiment(model="deeplabv3plus_tiny", attention=attention, train_frames=scale.train_frames,
                             height=scale.height, width=scale.width, crop=(scale.height, scale.width),
-                            batch_size=scale.batch_size, cudam_position=cudam_position, train=train, **data)
+                            batch_size=scale.batch_size, cudam_position=cudam_position, cudam_gate=cudam_gate,
+                            train=train, **data)
     return Network(experiment)
 
 
@@ -156,13 +158,15 @@ def plain(scale: Scale) -> Network:
     return network(scale)
 
 
-def cudam(scale: Scale, position: str = "deep", **loss) -> Network:
+def cudam(scale: Scale, position: str = "deep", gate: str = "paper", **loss) -> Network:
     """DeepLabV3+ with CuDAM trained with Eq. 8.
 
-    ``loss`` overrides ``LossConfig`` fields; tau defaults to ``matched_tau``.
+    ``loss`` overrides ``LossConfig`` fields; tau defaults to ``matched_tau`` (for ``"output"``,
+    whose map covers the whole crop, to the paper-equivalent tau of height * width positions).
     """
-    config = LossConfig(method="cudam", **{"tau": matched_tau(scale), **loss})
-    return network(scale, "cudam", config, position)
+    tau = paper_tau(scale.height * scale.width) if position == "output" else matched_tau(scale)
+    config = LossConfig(method="cudam", **{"tau": tau, **loss})
+    return network(scale, "cudam", config, position, gate)
 
 
 def msaam(scale: Scale) -> Network:
@@ -214,7 +218,8 @@ def _scores(out: dict, stats) -> dict:
     attention = out.get("attention_up")
     scores = {name: scoring.score_batch(name, out["logits"], stats=stats) for name in BASE_SCORES}
     if attention is not None:
-        sigma = matched_sigma(*out["logits"].shape[1:3])
+        positions = out.get("attention_positions")
+        sigma = matched_sigma(*out["logits"].shape[1:3]) if positions is None else paper_sigma(int(positions))
         for base in ENSEMBLE_BASES:
             scores[f"{base}+att"] = cudam_score(scores[base], attention, sigma)
         scores["cudam"] = scoring.score_batch("cudam", out["logits"], stats=stats, attention_up=attention)
@@ -290,29 +295,90 @@ def table(rows: Sequence[Row], scale: Scale, runs: Path = RUNS, log: Callable = 
     return values, curves
 
 
+METRICS = ("ap", "auroc", "fpr95", "miou")
+
+
+def seed_scales(scale: Scale, seeds: int) -> list[Scale]:
+    """``seeds`` copies of ``scale`` with seeds ``scale.seed``, ``scale.seed + 1``, ...: each seeds a
+    network's initialisation, its shuffling and its synthetic scenes (training and anomaly frames)."""
+    if seeds < 1:
+        raise ValueError(f"seeds: expected >= 1, got {seeds}")
+    return [dataclasses.replace(scale, seed=scale.seed + i) for i in range(seeds)]
+
+
+def aggregate(per_seed: Sequence[dict]) -> dict:
+    """Per label: the mean over seeds of every metric, ``<metric>_std`` (sample std, ddof 1; 0 for one
+    seed) and ``<metric>_seeds`` (the values); other fields from the first seed, ``networks`` of all."""
+    values = {}
+    for label, first in per_seed[0].items():
+        row = {k: v for k, v in first.items() if k not in METRICS}
+        row["networks"] = [run[label]["network"] for run in per_seed]
+        for metric in METRICS:
+            xs = np.array([run[label][metric] for run in per_seed], np.float64)
+            row[metric] = float(xs.mean())
+            row[f"{metric}_std"] = float(xs.std(ddof=1)) if len(xs) > 1 else 0.0
+            row[f"{metric}_seeds"] = xs.tolist()
+        values[label] = row
+    return values
+
+
+def seeds_text(scales: Sequence[Scale]) -> str:
+    """How a result's seeds were used, for its report."""
+    seeds = [s.seed for s in scales]
+    if len(seeds) == 1:
+        return f"single seed: training, shuffling and synthetic scenes all use seed {seeds[0]}"
+    return (f"{len(seeds)} seeds ({', '.join(map(str, seeds))}), each seeding a network's initialisation, shuffling "
+            "and synthetic scenes; values are mean ± sample std (ddof 1) over seeds, and a finding holds only when "
+            "the difference of means exceeds the larger std of the rows it compares")
+
+
+def _cell(v: dict, metric: str) -> str:
+    spread = v.get(f"{metric}_std")
+    return f"{v[metric]:.2f}" if not spread else f"{v[metric]:.2f} ± {spread:.2f}"
+
+
 def markdown(table: Sequence[dict]) -> str:
-    """Table rows ``{label, score, network, miou, ap, fpr95, auroc}`` as markdown (percent, two decimals)."""
+    """Table rows ``{label, score, network, miou, ap, fpr95, auroc}`` as markdown (percent, two decimals,
+    ``± std`` over seeds when there are several)."""
     lines = ["| row | score | network | mIoU | AP ↑ | FPR95 ↓ | AUROC ↑ |", "|---|---|---|---|---|---|---|"]
     for v in table:
-        lines.append(f"| {v['label']} | `{v['score']}` | `{v['network']}` | {v['miou']:.2f} | {v['ap']:.2f} | "
-                     f"{v['fpr95']:.2f} | {v['auroc']:.2f} |")
+        lines.append(f"| {v['label']} | `{v['score']}` | `{v['network']}` | {_cell(v, 'miou')} | {_cell(v, 'ap')} | "
+                     f"{_cell(v, 'fpr95')} | {_cell(v, 'auroc')} |")
     return "\n".join(lines)
 
 
-def run_table(name: str, title: str, rows: Sequence[Row], findings: Callable[[dict], list[Finding]],
+def run_table(name: str, title: str, rows, findings: Callable[[dict], list[Finding]],
               scale: Scale, out_dir: Path = HERE, runs: Path = RUNS, log: Callable = print,
-              description: str = "") -> dict:
-    """Compute the table, check the findings, write ``<name>.json/.md/_roc.png/_pr.png`` in ``out_dir``."""
+              description: str = "", seeds: int = 1) -> dict:
+    """Compute the table over ``seeds`` seeds, check the findings on the means (against the spread),
+    write ``<name>.json/.md/_roc.png/_pr.png`` in ``out_dir`` (curves: the first seed's).
+
+    ``rows``: a list of ``Row`` (one seed only) or a function ``rows(scale)`` giving them for a seed.
+    """
+    log(f"{name}: {title}")
+    scales = seed_scales(scale, seeds)
+    if not callable(rows) and seeds != 1:
+        raise ValueError("rows: pass a function rows(scale) to run several seeds")
+    per_seed, curves, networks = [], None, {}
+    for s in scales:
+        seed_rows = rows(s) if callable(rows) else rows
+        values, seed_curves = table(seed_rows, s, runs, log)
+        per_seed.append(values)
+        curves = curves or seed_curves
+        networks.update({row.network.key: row.network.to_dict() for row in seed_rows})
+    return write_table(name, title, aggregate(per_seed), curves, findings, scales, networks, out_dir, description)
+
+
+def write_table(name: str, title: str, values: dict, curves: dict, findings: Callable[[dict], list[Finding]],
+                scales: Sequence[Scale], networks: dict, out_dir: Path, description: str = "") -> dict:
+    """Check the findings on ``values`` (from ``aggregate``) and write the result files; returns the result."""
     from jaxanom.viz import plot_curves
 
-    log(f"{name}: {title}")
-    values, curves = table(rows, scale, runs, log)
     checked = findings(values)
-    networks = {row.network.key: row.network.to_dict() for row in rows}
     result = {"name": name, "title": title, "description": description,
-              "table": [{"label": k, **v} for k, v in values.items()], "scale": dataclasses.asdict(scale),
+              "table": [{"label": k, **v} for k, v in values.items()], "scale": dataclasses.asdict(scales[0]),
               "findings": [dataclasses.asdict(f) for f in checked], "networks": networks,
-              "seeds": f"single seed: training, shuffling and synthetic scenes all use seed {scale.seed}"}
+              "seeds": seeds_text(scales), "num_seeds": len(scales)}
     out_dir = Path(out_dir)
     write_json_atomic(out_dir / f"{name}.json", result)
     write_bytes_atomic(out_dir / f"{name}.md", (report(result) + "\n").encode())
@@ -324,7 +390,8 @@ def run_table(name: str, title: str, rows: Sequence[Row], findings: Callable[[di
 def report(result: dict) -> str:
     """A result as markdown: title, table, findings."""
     lines = [f"## {result['title']}", "", *([result["description"], ""] if result.get("description") else []),
-             markdown(result["table"]), "", f"`{result['name']}`; {result['seeds']}.",
+             markdown(result["table"]), "",
+             f"`{result['name']}`; {result['scale']['steps']} training steps per network; {result['seeds']}.",
              "", "| paper's finding | holds here? | evidence |", "|---|---|---|"]
     lines += [f"| {f['claim']} | {'yes' if f['holds'] else '**no**'} | {f['evidence']} |" for f in result["findings"]]
     return "\n".join(lines)
@@ -337,39 +404,44 @@ NAMES = {"ap": "AP", "auroc": "AUROC", "fpr95": "FPR95", "miou": "mIoU"}
 
 
 def _better(values: dict, a: str, b: str, metric: str) -> bool:
+    """``a`` beats ``b`` by more than the spread over seeds (the larger std of the two; 0 for one seed)."""
     x, y = values[a][metric], values[b][metric]
-    return x < y if metric in LOWER_IS_BETTER else x > y
+    spread = max(values[a].get(f"{metric}_std", 0.0), values[b].get(f"{metric}_std", 0.0))
+    margin = y - x if metric in LOWER_IS_BETTER else x - y
+    return margin > spread
+
+
+def _pair(values: dict, a: str, b: str, metric: str) -> str:
+    return f"{NAMES[metric]} {_cell(values[a], metric)} vs {_cell(values[b], metric)}"
 
 
 def improves(values: dict, new: str, old: str, metrics: Sequence[str] = ("ap",), claim: str | None = None) -> Finding:
     """``new`` is better than ``old`` in every metric of ``metrics``."""
     holds = all(_better(values, new, old, m) for m in metrics)
-    evidence = ", ".join(f"{NAMES[m]} {values[new][m]:.2f} vs {values[old][m]:.2f}" for m in metrics)
+    evidence = ", ".join(_pair(values, new, old, m) for m in metrics)
     return Finding(claim or f"{new} beats {old} in {'/'.join(NAMES[m] for m in metrics)}", holds, evidence)
 
 
 def worse(values: dict, new: str, old: str, metric: str, claim: str) -> Finding:
     """``new`` is worse than ``old`` in ``metric``."""
-    return Finding(claim, _better(values, old, new, metric),
-                   f"{NAMES[metric]} {values[new][metric]:.2f} vs {values[old][metric]:.2f}")
+    return Finding(claim, _better(values, old, new, metric), _pair(values, new, old, metric))
 
 
 def not_better(values: dict, new: str, old: str, metric: str, claim: str) -> Finding:
     """``new`` does not improve on ``old`` in ``metric`` (equal or worse)."""
-    return Finding(claim, not _better(values, new, old, metric),
-                   f"{NAMES[metric]} {values[new][metric]:.2f} vs {values[old][metric]:.2f}")
+    return Finding(claim, not _better(values, new, old, metric), _pair(values, new, old, metric))
 
 
 def ordered(values: dict, labels: Sequence[str], metric: str = "ap", claim: str | None = None) -> Finding:
     """``labels`` strictly increase in quality in this order."""
     holds = all(_better(values, b, a, metric) for a, b in zip(labels, labels[1:]))
-    evidence = ", ".join(f"{label} {values[label][metric]:.2f}" for label in labels)
+    evidence = ", ".join(f"{label} {_cell(values[label], metric)}" for label in labels)
     return Finding(claim or f"{NAMES[metric]}: {' < '.join(labels)}", holds, f"{NAMES[metric]}: {evidence}")
 
 
 def best(values: dict, winner: str, among: Sequence[str], metric: str = "ap", claim: str | None = None) -> Finding:
     """``winner`` is the best of ``among``."""
-    pick = min if metric in LOWER_IS_BETTER else max
-    top = pick(among, key=lambda k: values[k][metric])
-    evidence = ", ".join(f"{label} {values[label][metric]:.2f}" for label in among)
-    return Finding(claim or f"{winner} has the best {NAMES[metric]}", top == winner, f"{NAMES[metric]}: {evidence}")
+    holds = all(_better(values, winner, other, metric) for other in among if other != winner)
+    evidence = ", ".join(f"{label} {_cell(values[label], metric)}" for label in among)
+    return Finding(claim or f"{winner} has the best {NAMES[metric]} (by more than the spread)", holds,
+                   f"{NAMES[metric]}: {evidence}")

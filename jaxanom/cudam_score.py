@@ -57,3 +57,16 @@ def equivalent_weight(weight: float, positions: int, paper_positions: int) -> fl
     if positions < 1 or paper_positions < 1:
         raise ValueError(f"positions, paper_positions: expected >= 1, got {positions}, {paper_positions}")
     return weight * positions / paper_positions
+
+
+PAPER_TAU, PAPER_SIGMA = 5e4, 2e4
+
+
+def paper_tau(positions: int) -> float:
+    """The reward weight (Eq. 4) with the paper's effect (tau = 5e4 on 180 x 180 maps) on a map of ``positions``."""
+    return equivalent_weight(PAPER_TAU, positions, PAPER_TRAIN_POSITIONS)
+
+
+def paper_sigma(positions: int) -> float:
+    """The ensemble weight (Eq. 10) with the paper's effect (sigma = 2e4 on 256 x 512 maps) on a map of ``positions``."""
+    return equivalent_weight(PAPER_SIGMA, positions, PAPER_TEST_POSITIONS)

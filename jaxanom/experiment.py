@@ -28,7 +28,8 @@ class Experiment:
     """A network and its training data.
 
     ``model``: a ``jaxanom.models.build_model`` name; ``attention``: None, "cudam" or "msaam";
-    ``cudam_position``: "deep" or "surface" (CuDAM Table V);
+    ``cudam_position``: "deep", "surface" or "output" (CuDAM Table V; ``DeepLabV3Plus``);
+    ``cudam_gate``: "paper" or "scale_free" (Eq. 3 or its size-free deviation);
     ``data``: "synthetic" (generated ``train_frames`` frames of ``height`` x ``width``) or
     "cityscapes" (``data_root`` in the official layout). Training crops are ``crop`` pixels
     after random scaling by ``scale_range``. ``train.seed`` seeds the network, the shuffling and
@@ -41,6 +42,7 @@ the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``:
     model: str = "deeplabv3plus_tiny"
     attention: str | None = "cudam"
     cudam_position: str = "deep"
+    cudam_gate: str = "paper"
     output_stride: int = 16
     num_classes: int = 19
     data: str = "synthetic"
@@ -86,7 +88,18 @@ def build_network(experiment: Experiment):
     from jaxanom.models import build_model
 
     return build_model(experiment.model, num_classes=experiment.num_classes, attention=experiment.attention,
-                       output_stride=experiment.output_stride, cudam_position=experiment.cudam_position)
+                       output_stride=experiment.output_stride, cudam_position=experiment.cudam_position,
+                       cudam_gate=experiment.cudam_gate)
+
+
+def attention_positions(experiment: Experiment, height: int, width: int) -> int | None:
+    """h * w of the network's CuDAM map for ``height`` x ``width`` images (None without CuDAM); no compute."""
+    if experiment.attention != "cudam":
+        return None
+    model = build_network(experiment)
+    images = jax.ShapeDtypeStruct((1, height, width, 3), np.float32)
+    out = jax.eval_shape(lambda x: model.init_with_output(jax.random.key(0), x, train=False)[0], images)
+    return int(out["attention"].shape[1] * out["attention"].shape[2])
 
 
 def frames(experiment: Experiment, split: str, num_frames: int | None = None) -> Sequence[dict]:
@@ -186,14 +199,16 @@ def load_variables(run_dir: str | os.PathLike, step: int | None = None) -> tuple
     """``(experiment, variables)`` of the newest (or ``step``) checkpoint in ``run_dir``."""
     from jaxanom.train.checkpoint import restore_checkpoint
     from jaxanom.train.optim import make_optimizer
+    from jaxanom.train.running_sml import running_sml_classes
     from jaxanom.train.state import TrainState
 
     experiment = load_experiment(run_dir)
     model = build_network(experiment)
     image = np.zeros((1, *experiment.crop, 3), np.float32)
     tx, _ = make_optimizer(experiment.train.optim, experiment.train.steps)
+    sml_classes = running_sml_classes(experiment.train.loss, experiment.num_classes)
     # shapes only (nothing compiled): the arrays come from the checkpoint, to the host
-    template = jax.eval_shape(
-        lambda x: TrainState.create(model.init(jax.random.key(0), x, train=False), tx, jax.random.key(0)), image)
+    template = jax.eval_shape(lambda x: TrainState.create(model.init(jax.random.key(0), x, train=False), tx,
+                                                          jax.random.key(0), sml_classes), image)
     state, _ = restore_checkpoint(Path(run_dir) / "checkpoints", template, step)
     return experiment, jax.device_get(state.variables)

@@ -143,3 +143,60 @@ def test_train_resume_continues_its_own_run(tmp_path, capsys):
     assert main(["train", "--resume", "--out", str(run), "--no-progress"]) == 0
     lines = (run / "log.jsonl").read_text().splitlines()
     assert [json.loads(line)["step"] for line in lines if "train/loss" in line] == [1, 2, 3]
+
+
+def test_fit_stats_policy_table_warning_and_evaluate_records_it(demo_dir, tmp_path, capsys):
+    stats = tmp_path / "stats.npz"
+    assert main(["fit-stats", "--run", str(demo_dir / "run"), "--frames", "4", "--policy", "min_count",
+                 "--min-count", "500", "--out", str(stats)]) == 0
+    captured = capsys.readouterr()
+    with np.load(stats) as data:
+        counts, status = data["counts"], data["status"].tolist()
+    pooled = [c for c in range(19) if counts[c] < 500]
+    assert pooled and status == ["pooled" if c in pooled else "fitted" for c in range(19)]
+    assert len(captured.out.splitlines()) >= 20 and "pooled" in captured.out
+    assert "warning" in captured.err and str(pooled) in captured.err
+    out = tmp_path / "eval"
+    assert main(["evaluate", "--run", str(demo_dir / "run"), "--dataset", "synthetic", "--path", "anomaly",
+                 "--frames", "2", "--stats", str(stats), "--methods", "sml,cudam", "--out", str(out)]) == 0
+    record = json.loads((out / "metrics.json").read_text())
+    assert record["sml_statistics"]["classes"] == {"pooled": pooled, "shrunk": []}
+    assert record["sml_statistics"]["policy"]["policy"] == "min_count"
+    # evaluate's synthetic frames are 256 x 512; the demo network's CuDAM map is at stride 4: 64 x 128
+    assert record["cudam_sigma"] == {"values": [pytest.approx(2e4 * 64 * 128 / (256 * 512))],
+                                     "source": "paper-equivalent"}
+    out2 = tmp_path / "eval2"
+    assert main(["evaluate", "--run", str(demo_dir / "run"), "--dataset", "synthetic", "--path", "anomaly",
+                 "--frames", "2", "--stats", str(stats), "--methods", "cudam", "--cudam-sigma", "3",
+                 "--out", str(out2)]) == 0
+    assert json.loads((out2 / "metrics.json").read_text())["cudam_sigma"] == {"values": [3.0], "source": "given"}
+
+
+def test_train_writes_the_paper_equivalent_tau_for_its_map(tmp_path, capsys):
+    config = tmp_path / "exp.py"
+    config.write_text("import dataclasses\nfrom jaxanom.demo import DemoConfig\nfrom jaxanom.train.step import LossConfig\n"
+                      "e = DemoConfig.quick().experiment\n"
+                      "experiment = dataclasses.replace(e, train=dataclasses.replace(e.train, steps=2, save_every=2, "
+                      "eval_every=2, loss=LossConfig(method='cudam')))\n")
+    run = tmp_path / "run"
+    assert main(["train", "--config", str(config), "--out", str(run), "--cudam-position", "output",
+                 "--no-progress"]) == 0
+    saved = json.loads((run / "experiment.json").read_text())
+    assert saved["cudam_position"] == "output"
+    # "output": the map covers the 64 x 96 crop itself; the paper's tau 5e4 is for 180 x 180 maps
+    assert saved["train"]["loss"]["tau"] == pytest.approx(5e4 * 64 * 96 / (180 * 180))
+    assert "CuDAM tau" in capsys.readouterr().out
+
+
+def test_cudam_tau_flag_and_config_tau_win_over_the_default():
+    import dataclasses
+
+    from jaxanom.cli.train import with_cudam_tau
+    from jaxanom.demo import DemoConfig
+    from jaxanom.train.step import LossConfig
+
+    e = DemoConfig.quick().experiment
+    assert with_cudam_tau(e, 7.0).train.loss.tau == 7.0
+    assert with_cudam_tau(e, None).train.loss.tau == e.train.loss.tau != LossConfig.tau  # set by the config
+    paper = dataclasses.replace(e, train=dataclasses.replace(e.train, loss=LossConfig(method="cudam")))
+    assert with_cudam_tau(paper, None).train.loss.tau == pytest.approx(5e4 * 16 * 24 / (180 * 180))

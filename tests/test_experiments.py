@@ -156,3 +156,23 @@ def test_benchmark_helpers_bandwidth_and_cpu_check():
 
     assert gb_per_s(3 * 10**9, 1000.0) == "3 GB/s"
     assert same_as_cpu(lambda: 1 / 0, 0.0) == ""  # on a CPU nothing is recomputed
+
+
+def test_seeds_aggregate_to_mean_and_sample_std_and_findings_need_the_spread():
+    from experiments.common import aggregate, seed_scales
+
+    per_seed = [{"a": {"ap": ap, "auroc": 80.0, "fpr95": f, "miou": 50.0, "network": f"n{i}", "score": "msp"},
+                 "b": {"ap": 10.0 + i, "auroc": 80.0, "fpr95": 40.0, "miou": 50.0, "network": f"m{i}", "score": "sml"}}
+                for i, (ap, f) in enumerate([(12.0, 50.0), (14.0, 52.0), (16.0, 60.0)])]
+    v = aggregate(per_seed)
+    assert v["a"]["ap"] == pytest.approx(14.0) and v["a"]["ap_std"] == pytest.approx(np.std([12, 14, 16], ddof=1))
+    assert v["a"]["ap_seeds"] == [12.0, 14.0, 16.0] and v["a"]["networks"] == ["n0", "n1", "n2"]
+    # AP: a 14 +- 2 vs b 11 +- 1: the difference 3 exceeds the larger std 2
+    assert improves(v, "a", "b").holds and "14.00 ± 2.00" in improves(v, "a", "b").evidence
+    # FPR95: b 40 +- 0 vs a 54 +- 5.3: holds; AUROC equal: does not
+    assert improves(v, "b", "a", ("fpr95",)).holds and not improves(v, "b", "a", ("auroc",)).holds
+    per_seed[2]["a"]["ap"] = 30.0  # a 18.7 +- 9.5 vs b 11: within the spread
+    assert not improves(aggregate(per_seed), "a", "b").holds
+    assert [s.seed for s in seed_scales(Scale(seed=4), 3)] == [4, 5, 6]
+    with pytest.raises(ValueError, match="seeds"):
+        seed_scales(Scale(), 0)

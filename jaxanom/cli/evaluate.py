@@ -22,6 +22,9 @@ def add_parser(commands) -> None:
     parser.add_argument("--base", help="base dataset root (Fishyscapes only)")
     parser.add_argument("--frames", type=int, default=64, help="synthetic frames (default: %(default)s)")
     add_scoring(parser)
+    parser.add_argument("--cudam-sigma", type=float,
+                        help="CuDAM ensemble weight (Eq. 10); default: the paper's 2e4 rescaled to the attention "
+                        "map's size (equivalent_weight), recorded in metrics.json")
     parser.add_argument("--pictures", type=int, default=0, help="frames to draw (default: %(default)s)")
     add_common(parser, progress=False)
     parser.set_defaults(handler=run)
@@ -57,12 +60,30 @@ def run(args) -> None:
     predict = predictor(build_network(experiment), variables)
     names = args.methods.split(",")
     batches = evaluation_batches(source, batch_size=1)
-    metrics, _ = anomaly_results(predictions(predict, batches), names, stats=stats,
+    metrics, _ = anomaly_results(predictions(predict, batches), names, stats=stats, cudam_sigma=args.cudam_sigma,
                                  fpr_convention=args.fpr_convention, ap_convention=args.ap_convention)
-    write_json_atomic(out / "metrics.json", {"dataset": args.dataset, "path": args.path, "frames": len(source),
-                                             "metrics": metrics})
+    record = {"dataset": args.dataset, "path": args.path, "frames": len(source), "metrics": metrics}
+    if stats is not None:
+        record["sml_statistics"] = statistics_record(args.stats)
+    if "cudam" in metrics:
+        record["cudam_sigma"] = {"values": metrics["cudam"]["sigma"],
+                                 "source": "given" if args.cudam_sigma is not None else "paper-equivalent"}
+    write_json_atomic(out / "metrics.json", record)
     if args.pictures:
         from jaxanom.demo import write_pictures
 
         write_pictures(out, predict, source, stats, args.pictures)
     print(results_table(metrics))
+
+
+def statistics_record(path: str) -> dict:
+    """What ``metrics.json`` says about the SML statistics: file, policy, counts, pooled and shrunk classes."""
+    from jaxanom.sml import load_stats, load_stats_info
+
+    info = load_stats_info(path)
+    record = {"file": path, "policy": info["policy"], "counts": load_stats(path)[2].tolist()}
+    if info["status"] is None:
+        record["classes"] = "unknown: the file has no per-class status (written without a policy)"
+    else:
+        record["classes"] = {s: [c for c, x in enumerate(info["status"]) if x == s] for s in ("pooled", "shrunk")}
+    return record

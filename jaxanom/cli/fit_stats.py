@@ -1,6 +1,7 @@
 """``jaxanom fit-stats``: SML class statistics (Eqs. 3-4) of a trained run."""
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from jaxanom.cli.common import CLAIM, CommandError, add_common, claim, positive_int
@@ -9,15 +10,41 @@ from jaxanom.cli.common import CLAIM, CommandError, add_common, claim, positive_
 def add_parser(commands) -> None:
     parser = commands.add_parser("fit-stats", help="fit SML class statistics of a trained run",
                                  description="Stream a trained network's logits over training frames and write the "
-                                 "per-class max-logit mean / std (SML Eqs. 3-4) as .npz.")
+                                 "per-class max-logit mean / std (SML Eqs. 3-4) as .npz. Prints a per-class table "
+                                 "(pixels, mean, std, fitted / pooled / shrunk) and warns on scarce classes.")
     parser.add_argument("--run", required=True, help="training run folder")
     parser.add_argument("--frames", type=positive_int, default=200,
                         help="training frames to use, at most the run's (default: %(default)s)")
     parser.add_argument("--out", required=True, help="output .npz file")
     parser.add_argument("--missing", choices=["error", "pooled"], default="error",
-                        help="classes never predicted: fail, or use the pooled statistics (default: %(default)s)")
+                        help="policy none: classes never predicted fail, or use the pooled statistics "
+                        "(default: %(default)s)")
+    add_policy(parser)
     add_common(parser, progress=False)
     parser.set_defaults(handler=run)
+
+
+def add_policy(parser) -> None:
+    """``--policy``, ``--min-count``, ``--strength`` (``jaxanom.sml.stats_finalize``)."""
+    parser.add_argument("--policy", choices=["none", "min_count", "shrink"], default="none",
+                        help="scarce classes: the original's estimate (none), the pooled statistics below "
+                        "--min-count pixels (min_count), or shrinkage toward the pooled statistics with a prior "
+                        "of --strength pixels (shrink) (default: %(default)s)")
+    parser.add_argument("--min-count", type=float, default=10_000,
+                        help="pixels below which a class is scarce: pooled by min_count, warned about always "
+                        "(default: %(default)g)")
+    parser.add_argument("--strength", type=float, default=10_000,
+                        help="shrink: the pooled prior's weight in pixels (default: %(default)g)")
+
+
+def stats_table(final) -> str:
+    """Per-class lines: pixels, mean, std, status (and the prior's weight when shrunk)."""
+    lines = ["class   pixels       mean      std  status"]
+    for c, (n, m, s, status, w) in enumerate(zip(final.count, final.mean, final.std, final.status,
+                                                 final.prior_weight)):
+        extra = f" (prior weight {w:.2f})" if status == "shrunk" else ""
+        lines.append(f"{c:5d} {n:8d} {float(m):10.4f} {float(s):8.4f}  {status}{extra}")
+    return "\n".join(lines)
 
 
 def run(args) -> None:
@@ -38,6 +65,16 @@ def run(args) -> None:
     batches = evaluation_batches(source, batch_size=experiment.batch_size)
     predict = predictor(build_network(experiment), variables)
     stats = class_statistics(predict, batches)
-    mean, std = sml.stats_finalize(stats, missing=args.missing)
-    sml.save_stats(out, mean, std, stats.count)
-    print(f"statistics of {len(mean)} classes from {len(source)} frames -> {out}")
+    final = sml.stats_finalize_report(stats, missing=args.missing, policy=args.policy,
+                                      min_count=args.min_count, strength=args.strength)
+    policy = {"policy": args.policy, "missing": args.missing, "min_count": args.min_count,
+              "strength": args.strength, "frames": len(source)}
+    sml.save_stats(out, final.mean, final.std, final.count, status=final.status, policy=policy)
+    print(stats_table(final))
+    scarce = [c for c, n in enumerate(final.count) if n < args.min_count]
+    if scarce:
+        print(f"jaxanom fit-stats: warning: classes {scarce} have fewer than {args.min_count:g} predicted pixels "
+              f"(counts {[int(final.count[c]) for c in scarce]}); their statistics are "
+              f"{'unreliable (consider --policy shrink or min_count)' if args.policy == 'none' else 'pooled or shrunk as the table says'}",
+              file=sys.stderr)
+    print(f"statistics of {len(final.mean)} classes from {policy['frames']} frames, policy {args.policy} -> {out}")

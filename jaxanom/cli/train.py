@@ -31,6 +31,15 @@ def add_parser(commands) -> None:
                         "without --config or --model the network's preset, output stride and classes are its")
     parser.add_argument("--init-modules", help="comma-separated top-level modules to take from --init-from, "
                         "e.g. backbone (default: all it has)")
+    parser.add_argument("--cudam-position", choices=["deep", "surface", "output"],
+                        help="CuDAM's place: deep (paper's best), surface (pre-classifier variant), "
+                        "output (the paper's surface: on the logits)")
+    parser.add_argument("--cudam-gate", choices=["paper", "scale_free"],
+                        help="Eq. 3 as printed, or with h*w*M_att (a deviation; see jaxanom.nn.cudam)")
+    parser.add_argument("--cudam-tau", type=float,
+                        help="CuDAM reward weight (Eq. 4); default: the paper's 5e4 rescaled to this network's "
+                        "attention-map size at the crop size (equivalent_weight), unless a config file set "
+                        "another tau; the value used is written to experiment.json")
     add_common(parser, progress=True, overwrite=False)
     parser.set_defaults(handler=run)
 
@@ -52,6 +61,11 @@ def run(args) -> None:
         experiment = load_config(args.config) if args.config else _base_experiment(args.init_from)
         out_folder(args.out, overwrite=False, hint="continue the run there with --resume")
     experiment = _override(experiment, args)
+    if not args.resume:
+        experiment = with_cudam_tau(experiment, args.cudam_tau)
+    if experiment.attention == "cudam":
+        print(f"CuDAM tau = {experiment.train.loss.tau:.6g} (position {experiment.cudam_position}, "
+              f"gate {experiment.cudam_gate})")
     run_training(experiment, out, progress=not args.no_progress)
     import jax
 
@@ -89,7 +103,8 @@ def _base_experiment(init_from: str | None):
 
 
 def _override(experiment, args):
-    fields = {"model": args.model, "data": args.data, "data_root": args.data_root, "batch_size": args.batch_size}
+    fields = {"model": args.model, "data": args.data, "data_root": args.data_root, "batch_size": args.batch_size,
+              "cudam_position": args.cudam_position, "cudam_gate": args.cudam_gate}
     if args.init_from is not None:
         from jaxanom.experiment import load_experiment
 
@@ -106,3 +121,22 @@ def _override(experiment, args):
         train["loss"] = dataclasses.replace(experiment.train.loss, method=method)
     fields = {k: v for k, v in fields.items() if v is not None or k == "attention"}
     return dataclasses.replace(experiment, **fields, train=dataclasses.replace(experiment.train, **train))
+
+
+def with_cudam_tau(experiment, tau: float | None):
+    """``experiment`` with the reward weight ``tau``, or, when None and the loss has the library's
+    default (the paper's 5e4, tuned for 180 x 180 maps), the paper-equivalent tau for its map size."""
+    from jaxanom.cudam_score import paper_tau
+    from jaxanom.experiment import attention_positions
+    from jaxanom.train.step import LossConfig
+
+    if experiment.attention != "cudam":
+        if tau is not None:
+            raise CommandError("--cudam-tau: the network has no CuDAM module (pass --attention cudam)")
+        return experiment
+    if tau is None:
+        if experiment.train.loss.tau != LossConfig.tau:
+            return experiment
+        tau = paper_tau(attention_positions(experiment, *experiment.crop))
+    loss = dataclasses.replace(experiment.train.loss, tau=float(tau))
+    return dataclasses.replace(experiment, train=dataclasses.replace(experiment.train, loss=loss))

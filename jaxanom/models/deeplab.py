@@ -29,15 +29,16 @@ Architecture: ResNet trunk; ASPP on ``layer4`` (1x1 conv, three 3x3 atrous convs
 to ``aspp_channels``); decoder: ``layer1`` projected to ``low_level_channels``, ASPP output
 upsampled to its size, concatenated, two 3x3 conv-BN-ReLU of ``decoder_channels``, a 1x1
 classifier with bias. CuDAM sits after the first decoder convolution (``"deep"``, the paper's
-best, Table V) or after the second, just before the classifier (``"surface"``), with
-F_low = ``layer1`` and F_mid = ``layer2``. MSAAM sits at the end of the encoder, before ASPP.
+best, Table V), after the second, just before the classifier (``"surface"``, our variant), or
+on the logits at input size (``"output"``, the paper's surface position: its (19, 720, 720)),
+with F_low = ``layer1`` and F_mid = ``layer2``; at ``"output"`` the attention map is (B, H, W). MSAAM sits at the end of the encoder, before ASPP.
 
 On the CuDAM position: the paper inserts the module "after the convolution layer following the
 concatenation" (256 channels here, as METHODS.md decides) yet lists the inserted feature as
 (304, 180, 180), the concatenation itself; with 304 channels Eq. 2's 1x1 conv would have
 (256 + 512 + 304) * 304 weights, about the paper's +0.34M, against +0.26M here. Its "surface"
-position is near the output (the paper's (19, 720, 720)); we take the last decoder feature
-before the classifier, which keeps the map at stride 4 and the 1x1 fusion affordable.
+position is the output (the paper's (19, 720, 720)): ``"output"`` here; ``"surface"`` is our
+earlier reading (the last decoder feature before the classifier, stride 4), kept as a variant.
 
 BatchNorm in train mode needs more than one value per channel: the ASPP image-pooling branch
 sees one pixel per image, so train with batches of 2 or more (as in PyTorch).
@@ -56,7 +57,8 @@ from jaxanom.nn.layers import ConvBN, Dtype, resize_bilinear
 from jaxanom.nn.msaam import MSAAM
 
 ATTENTIONS = (None, "cudam", "msaam")
-CUDAM_POSITIONS = ("deep", "surface")
+CUDAM_POSITIONS = ("deep", "surface", "output")
+_DECODER_POSITIONS = CUDAM_POSITIONS[:2]
 RESIZES = ("half_pixel", "align_corners")
 
 
@@ -90,7 +92,9 @@ class DeepLabV3Plus(nn.Module):
         "resnet101", "resnet_tiny") or a ``ResNetSpec``.
       output_stride: 8 or 16 (stride of the encoder's output).
       attention: None, "cudam" or "msaam".
-      cudam_position: "deep" or "surface".
+      cudam_position: "deep", "surface" (our pre-classifier variant) or "output" (the paper's
+        surface position: on the logits at input size).
+      cudam_gate: "paper" (Eq. 3) or "scale_free" (a deviation, ``CuDAMAttention.gate``).
       aspp_channels, low_level_channels, decoder_channels: head widths (256, 48, 256 as in
         the paper's DeepLabV3+).
       dtype: compute dtype (float32 or bfloat16); parameters stay float32.
@@ -104,6 +108,7 @@ class DeepLabV3Plus(nn.Module):
     output_stride: int = 8
     attention: str | None = None
     cudam_position: str = "deep"
+    cudam_gate: str = "paper"
     aspp_channels: int = 256
     low_level_channels: int = 48
     decoder_channels: int = 256
@@ -152,15 +157,17 @@ class DeepLabV3Plus(nn.Module):
         x = resize_bilinear(x, *low.shape[1:3], align_corners)
         x = jnp.concatenate([x, low_proj], axis=-1)
         # two 3x3 convolutions; CuDAM follows the first ("deep") or the second ("surface")
-        for i, position in enumerate(CUDAM_POSITIONS):
+        cudam = CuDAMAttention(dtype=self.dtype, gate=self.cudam_gate, name="cudam")
+        for i, position in enumerate(_DECODER_POSITIONS):
             x = ConvBN(self.decoder_channels, 3, dtype=self.dtype, name=f"decoder{i}")(x, train)
             if self.attention == "cudam" and self.cudam_position == position:
-                x, out["attention"] = CuDAMAttention(dtype=self.dtype, name="cudam")(
-                    x, feats["layer1"], feats["layer2"]
-                )
+                x, out["attention"] = cudam(x, feats["layer1"], feats["layer2"])
 
         logits = nn.Conv(
             self.num_classes, (1, 1), dtype=self.dtype, param_dtype=jnp.float32, name="classifier"
         )(x)
-        out["logits"] = resize_bilinear(logits.astype(jnp.float32), height, width, align_corners)
+        logits = resize_bilinear(logits.astype(jnp.float32), height, width, align_corners)
+        if self.attention == "cudam" and self.cudam_position == "output":
+            logits, out["attention"] = cudam(logits.astype(self.dtype), feats["layer1"], feats["layer2"])
+        out["logits"] = logits.astype(jnp.float32)
         return out

@@ -12,6 +12,13 @@ Given decoder features ``F_a`` (B, h, w, C') and two encoder stages ``F_low``, `
   four times smaller size and no concatenated tensor is built.
 * Eq. 3  ``F = alpha * M_att * (F_a + F_sc) + F_a`` with a learnable scalar ``alpha``
   initialised to 0, so an untrained module returns ``F_a`` exactly.
+
+Deviation (off by default, ``gate="scale_free"``): Eq. 3 with ``h * w * M_att`` in place of
+``M_att``. The map sums to 1, so its values are ~1 / (h w) and ``alpha * M_att`` stays ~1e-3 or
+less after hundreds of AdamW steps (alpha moves ~lr per step): the attention barely touches the
+features. Multiplied by h * w the map averages 1 per position, so alpha means the same at every
+map size ("alpha = 1: the average position's features are doubled"). The attention map returned
+(and used by Eqs. 4, 7, 10) is ``M_att`` itself in both cases.
 """
 from __future__ import annotations
 
@@ -23,6 +30,8 @@ import jax.numpy as jnp
 
 from jaxanom.nn.layers import resize_bilinear, spatial_softmax
 
+GATES = ("paper", "scale_free")
+
 
 class CuDAMAttention(nn.Module):
     """CuDAM attention block (Eqs. 1-3).
@@ -30,6 +39,7 @@ class CuDAMAttention(nn.Module):
     Attributes:
       kernel_size: size of the convolution ``f`` of Eq. 1 (7, as CBAM's spatial attention).
       dtype: compute dtype of the features; the attention map is always float32.
+      gate: ``"paper"`` (Eq. 3 as printed) or ``"scale_free"`` (``alpha * h * w * M_att``, see above).
 
     ``__call__(f_a, f_low, f_mid)`` with f_a (B, h, w, C'), f_low (B, h1, w1, C1), f_mid
     (B, h2, w2, C2) returns ``(features, attention)``: features (B, h, w, C') in ``dtype``
@@ -40,6 +50,12 @@ class CuDAMAttention(nn.Module):
 
     kernel_size: int = 7
     dtype: Any = jnp.float32
+    gate: str = "paper"
+
+    def __post_init__(self):
+        if self.gate not in GATES:
+            raise ValueError(f"gate: expected one of {GATES}, got {self.gate!r}")
+        super().__post_init__()
 
     @nn.compact
     def __call__(
@@ -77,6 +93,7 @@ class CuDAMAttention(nn.Module):
 
         # Eq. 3.
         alpha = self.param("alpha", nn.initializers.zeros, (), jnp.float32)
-        gate = (alpha * attention)[..., None].astype(self.dtype)
+        scale = float(h * w) if self.gate == "scale_free" else 1.0
+        gate = (alpha * scale * attention)[..., None].astype(self.dtype)
         features = gate * (f_a.astype(self.dtype) + f_sc) + f_a.astype(self.dtype)
         return features, attention

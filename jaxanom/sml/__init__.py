@@ -6,6 +6,7 @@ class boundaries (``suppress_boundaries``, Eqs. 6-7), smooth (``dilated_smoothin
 ``sml_score`` does the whole test-time path. See ``../shared/METHODS.md`` §1.
 """
 from jaxanom.sml.boundaries import BORDERS, boundary_distance, find_boundaries
+from jaxanom.sml.policy import POLICIES, FinalizedStats
 from jaxanom.sml.postprocessing import dilated_smoothing, gaussian_kernel_1d, suppress_boundaries
 from jaxanom.sml.score import (
     postprocess,
@@ -18,8 +19,10 @@ from jaxanom.sml.stats import (
     ClassStats,
     fit_stats,
     load_stats,
+    load_stats_info,
     save_stats,
     stats_finalize,
+    stats_finalize_report,
     stats_init,
     stats_merge,
     stats_update,
@@ -27,8 +30,8 @@ from jaxanom.sml.stats import (
 )
 
 __all__ = [
-    "BORDERS", "ClassStats", "boundary_distance", "dilated_smoothing", "find_boundaries", "fit_stats",
-    "gaussian_kernel_1d", "load_stats", "postprocess", "postprocess_batch", "save_stats", "sml_score",
-    "sml_score_batch", "standardized_max_logit", "stats_finalize", "stats_init", "stats_merge",
+    "BORDERS", "ClassStats", "FinalizedStats", "POLICIES", "boundary_distance", "dilated_smoothing", "find_boundaries", "fit_stats",
+    "gaussian_kernel_1d", "load_stats", "load_stats_info", "postprocess", "postprocess_batch", "save_stats", "sml_score",
+    "sml_score_batch", "standardized_max_logit", "stats_finalize", "stats_finalize_report", "stats_init", "stats_merge",
     "stats_update", "stats_update_batch", "suppress_boundaries",
 ]

@@ -16,12 +16,13 @@ merge weights at that level.
 Policy for a class that was never predicted (or has fewer than 2 pixels, or zero variance):
 ``stats_finalize`` raises ``ValueError`` naming those classes by default; with
 ``missing="pooled"`` it gives them the mean and std of the max logit over all counted pixels
-(documented fallback). It never returns NaN.
+(documented fallback). It never returns NaN. Scarce classes: ``policy=`` (``jaxanom.sml.policy``).
 """
 from __future__ import annotations
 
-import os
 import io
+import json
+import os
 import zipfile
 from typing import Iterable, NamedTuple
 
@@ -31,6 +32,7 @@ import numpy as np
 
 from jaxanom._validate import check_finite, check_rank, check_real, dtype_of
 from jaxanom.io import write_bytes_atomic
+from jaxanom.sml.policy import FinalizedStats, check_policy, finalize
 
 
 class ClassStats(NamedTuple):
@@ -138,46 +140,52 @@ def fit_stats(batches: Iterable, num_classes: int | None = None) -> ClassStats:
     return stats
 
 
-def stats_finalize(stats: ClassStats, *, missing: str = "error") -> tuple[jax.Array, jax.Array]:
+def stats_finalize(stats: ClassStats, *, missing: str = "error", policy: str = "none",
+                   min_count: float = 10_000, strength: float = 10_000) -> tuple[jax.Array, jax.Array]:
     """Per-class ``(mean, std)``, float32 ``(C,)``, std from the unbiased variance (as the original code).
 
-    A class with fewer than 2 counted pixels or zero variance is *degenerate*:
-    ``missing="error"`` raises ``ValueError`` naming them; ``missing="pooled"`` gives them the
-    mean and std over all counted pixels of all classes.
+    ``policy`` (``jaxanom.sml.policy``): ``"none"`` the original's estimate; ``"min_count"`` pools
+    classes with fewer than ``min_count`` pixels; ``"shrink"`` shrinks every class toward the
+    pooled statistics with a prior worth ``strength`` pixels. A class with fewer than 2 counted
+    pixels or zero variance is *degenerate*: under ``"none"``, ``missing="error"`` raises
+    ``ValueError`` naming them and ``missing="pooled"`` gives them the mean and std over all
+    counted pixels of all classes; ``"min_count"`` pools them too. ``stats_finalize_report``
+    also says what happened to each class.
     """
+    return stats_finalize_report(stats, missing=missing, policy=policy, min_count=min_count,
+                                 strength=strength)[:2]
+
+
+def stats_finalize_report(stats: ClassStats, *, missing: str = "error", policy: str = "none",
+                          min_count: float = 10_000, strength: float = 10_000) -> FinalizedStats:
+    """``stats_finalize`` with, per class, its pixel count and whether it was fitted, pooled or shrunk."""
     if missing not in ("error", "pooled"):
         raise ValueError(f'missing must be "error" or "pooled", got {missing!r}')
+    check_policy(policy, min_count, strength)
     count, mean, m2 = (np.asarray(x, np.float64) for x in stats)
     if not all(np.isfinite(x).all() for x in (count, mean, m2)):
         raise ValueError("stats hold NaN/Inf: NaN or Inf logits were counted (stats_update checks its input; "
                          "statistics merged or built by hand do not)")
-    var = np.divide(m2, count - 1, out=np.zeros_like(m2), where=count > 1)
-    degenerate = (count < 2) | ~(var > 0)
-    if degenerate.any():
-        classes = np.flatnonzero(degenerate).tolist()
-        if missing == "error":
-            raise ValueError(
-                f"stats has classes {classes} with counts {count[degenerate].astype(int).tolist()}: "
-                'each class needs >= 2 predicted pixels with some spread; fit on more data or pass missing="pooled"'
-            )
-        total = _pool(*(jnp.asarray(x)[:, None] for x in stats))
-        n, pooled_mean, pooled_m2 = (float(x[0]) for x in total)
-        if not (n > 1 and pooled_m2 > 0):
-            raise ValueError(f"stats has only {int(n)} counted pixel(s) in all: cannot pool a fallback")
-        mean = np.where(degenerate, pooled_mean, mean)
-        var = np.where(degenerate, pooled_m2 / (n - 1), var)
-    return jnp.asarray(mean, jnp.float32), jnp.asarray(np.sqrt(var), jnp.float32)
+    return finalize(count, mean, m2, policy=policy, min_count=min_count, strength=strength, missing=missing)
 
 
-def save_stats(path, mean, std, counts) -> None:
-    """Write ``mean``, ``std``, ``counts`` (each ``(C,)``) to an ``.npz`` file, atomically."""
+def save_stats(path, mean, std, counts, *, status=None, policy: dict | None = None) -> None:
+    """Write ``mean``, ``std``, ``counts`` (each ``(C,)``) to an ``.npz`` file, atomically.
+
+    Optional: ``status`` ``(C,)`` strings (``FinalizedStats.status``) and ``policy`` (a JSON-able
+    dict, e.g. ``{"policy": "shrink", "strength": 1e4}``); ``load_stats_info`` reads them back.
+    """
     arrays = {"mean": np.asarray(mean, np.float32), "std": np.asarray(std, np.float32),
               "counts": np.rint(np.asarray(counts, np.float64)).astype(np.int64)}
+    if status is not None:
+        arrays["status"] = np.asarray(status, dtype=str)
     shapes = {k: v.shape for k, v in arrays.items()}
     if len(set(shapes.values())) != 1 or arrays["mean"].ndim != 1:
         raise ValueError(f"mean, std and counts must all have shape (C,), got {shapes}")
     if not os.path.isdir(os.path.dirname(os.path.abspath(path))):
         raise ValueError(f"path must be in an existing folder, got {str(path)!r}")
+    if policy is not None:
+        arrays["policy"] = np.asarray(json.dumps(policy))
     buffer = io.BytesIO()
     np.savez(buffer, **arrays)
     write_bytes_atomic(path, buffer.getvalue())
@@ -198,6 +206,18 @@ def load_stats(path) -> tuple[jax.Array, jax.Array, np.ndarray]:
         raise ValueError(f"{str(path)!r} must hold arrays mean, std, counts; missing {sorted(absent)}")
     _check_saved_stats(str(path), **{name: arrays[name] for name in ("mean", "std", "counts")})
     return jnp.asarray(arrays["mean"], jnp.float32), jnp.asarray(arrays["std"], jnp.float32), arrays["counts"]
+
+
+def load_stats_info(path) -> dict:
+    """How the statistics in ``path`` were finalised: ``{"status": [C strings] | None, "policy": dict | None}``.
+
+    Files written without that information (older ones, or ``save_stats`` without it) give None.
+    """
+    load_stats(path)  # the same checks
+    with np.load(path, allow_pickle=False) as data:
+        status = data["status"].tolist() if "status" in data.files else None
+        policy = json.loads(str(data["policy"])) if "policy" in data.files else None
+    return {"status": status, "policy": policy}
 
 
 def _check_saved_stats(path: str, mean, std, counts) -> None:

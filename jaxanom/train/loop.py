@@ -32,6 +32,7 @@ from jaxanom.train.checkpoint import Checkpointer
 from jaxanom.train.optim import OptimConfig, make_optimizer
 from jaxanom.train.runlog import RunLog
 from jaxanom.train.sharding import global_batch, initialize_distributed, make_mesh, replicated
+from jaxanom.train.running_sml import running_sml_classes
 from jaxanom.train.state import TrainState
 from jaxanom.train.step import LossConfig, make_steps, model_input
 
@@ -157,13 +158,15 @@ def _run(config: TrainConfig, model, train_data, val_data, variables, mesh, tx, 
     source = iter(train_data)
     resumable = hasattr(source, "get_state") and hasattr(source, "set_state")
     first = next(source)
-    check_batch(first, _num_classes(model, np.asarray(first["image"])), config.loss.ignore)
+    num_classes = _num_classes(model, np.asarray(first["image"]))
+    check_batch(first, num_classes, config.loss.ignore)
 
     init_key, state_key = jax.random.split(jax.random.key(config.seed))
     if variables is None:
         variables = jax.jit(model.init, static_argnames="train")(
             init_key, model_input(np.asarray(first["image"][:1])), train=False)
-    state = jax.device_put(TrainState.create(variables, tx, state_key), replicated(mesh))
+    sml_classes = running_sml_classes(config.loss, num_classes)
+    state = jax.device_put(TrainState.create(variables, tx, state_key, sml_classes), replicated(mesh))
 
     checkpointer = Checkpointer(os.path.join(config.run_dir, "checkpoints"), config.save_every, config.keep)
     pending = [first]

@@ -11,7 +11,9 @@ import optax
 
 @flax.struct.dataclass
 class TrainState:
-    """Parameters, BatchNorm statistics, optimizer state, step counter and PRNG key data.
+    """Parameters, BatchNorm statistics, optimizer state, step counter, PRNG key data and, for
+    CuDAM with ``LossConfig(attention_k="running_sml")``, running SML class statistics
+    (``sml.ClassStats``; None otherwise, which adds nothing to the pytree or the checkpoints).
 
     ``rng`` holds raw key data (uint32, from ``jax.random.key_data``) so that checkpoints store a
     plain array; the key for step t is ``fold_in(key(rng), t)``, so a resumed run draws the same
@@ -23,10 +25,15 @@ class TrainState:
     opt_state: Any
     step: jax.Array
     rng: jax.Array
+    sml_stats: Any = None
 
     @classmethod
-    def create(cls, variables: dict, tx: optax.GradientTransformation, key: jax.Array) -> "TrainState":
-        """A step-0 state from ``model.init``'s variables and a typed PRNG key."""
+    def create(cls, variables: dict, tx: optax.GradientTransformation, key: jax.Array,
+               sml_classes: int | None = None) -> "TrainState":
+        """A step-0 state from ``model.init``'s variables and a typed PRNG key; ``sml_classes``:
+        hold empty running SML statistics for that many classes."""
+        from jaxanom.sml.stats import stats_init
+
         params = variables["params"]
         return cls(
             params=params,
@@ -34,6 +41,8 @@ class TrainState:
             opt_state=tx.init(params),
             step=jnp.zeros((), jnp.int32),
             rng=jax.random.key_data(key),
+            # distinct buffers: the state is donated to the train step
+            sml_stats=None if sml_classes is None else jax.tree.map(jnp.array, stats_init(sml_classes)),
         )
 
     @property

@@ -20,11 +20,13 @@ from jaxanom import losses
 from jaxanom.cudam_score import upsample_attention
 from jaxanom.data.transforms import normalize
 from jaxanom.metrics.segmentation import confusion_counts
+from jaxanom.train.running_sml import running_sml_score, running_stats_update
 from jaxanom.train.sharding import batch_sharding, replicated
 from jaxanom.train.state import TrainState
 
 METHODS = ("plain", "cudam", "msaam")
 COMPUTE_DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
+ATTENTION_KS = ("msp", "running_sml")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,6 +37,9 @@ class LossConfig:
     iterations + lambda (Eq. 9) * attention loss Eq. 7) or ``"msaam"`` (MSAAM Eq. 7;
     ``msaam_lambda`` is not given in the paper). ``compute_dtype="bfloat16"`` runs the forward
     pass with bfloat16 parameters and images; master weights, losses and updates stay float32.
+    ``attention_k``: the k of L_att's weight e^k (Eq. 7): ``"msp"`` (1 - max softmax probability)
+    or ``"running_sml"`` (SML from class statistics accumulated in the train state with EMA
+    ``sml_decay``, ``jaxanom.train.running_sml``).
     """
 
     method: str = "plain"
@@ -47,12 +52,18 @@ class LossConfig:
     msaam_lambda: float = 0.1
     msaam_literal: bool = False
     compute_dtype: str = "float32"
+    attention_k: str = "msp"
+    sml_decay: float = 0.99
 
     def __post_init__(self):
         if self.method not in METHODS:
             raise ValueError(f"method: expected one of {METHODS}, got {self.method!r}")
         if self.compute_dtype not in COMPUTE_DTYPES:
             raise ValueError(f"compute_dtype: expected one of {tuple(COMPUTE_DTYPES)}, got {self.compute_dtype!r}")
+        if self.attention_k not in ATTENTION_KS:
+            raise ValueError(f"attention_k: expected one of {ATTENTION_KS}, got {self.attention_k!r}")
+        if not 0.0 < self.sml_decay <= 1.0:
+            raise ValueError(f"sml_decay: expected a decay in (0, 1], got {self.sml_decay}")
         if not 0.0 <= self.reward_prob <= 1.0:
             raise ValueError(f"reward_prob: expected a probability in [0, 1], got {self.reward_prob}")
 
@@ -82,12 +93,12 @@ def training_anomaly_score(logits) -> jax.Array:
     return jax.lax.stop_gradient(1.0 - jnp.max(jax.nn.softmax(logits, axis=-1), axis=-1))
 
 
-def objective(out: dict, labels, key, cfg: LossConfig) -> tuple[jax.Array, dict]:
+def objective(out: dict, labels, key, cfg: LossConfig, k=None) -> tuple[jax.Array, dict]:
     """The loss of one step from the model's outputs; ``(loss, aux metrics)``.
 
     CuDAM: ``L_seg`` on the (maybe) rewarded logits P; correctness for psi (Eq. 7) and lambda
     (Eq. 9) is judged on the model's own logits P_a, since with the reward nearly every pixel is
-    "correct".
+    "correct". ``k`` (B, H, W): L_att's anomaly score, by default ``training_anomaly_score``.
     """
     logits = out["logits"].astype(jnp.float32)
     if cfg.method == "plain":
@@ -99,8 +110,8 @@ def objective(out: dict, labels, key, cfg: LossConfig) -> tuple[jax.Array, dict]
     attention_up = upsample_attention(out["attention"], labels.shape[1:])
     rewarded, study = losses.study_logits(key, logits, attention_up, labels, cfg.tau, cfg.reward_prob, cfg.ignore)
     seg = losses.cross_entropy(rewarded, labels, cfg.ignore, cfg.class_weights)
-    att = losses.attention_loss(attention_up, logits, labels, training_anomaly_score(logits),
-                                cfg.beta, cfg.attention_literal, cfg.ignore)
+    k = training_anomaly_score(logits) if k is None else k
+    att = losses.attention_loss(attention_up, logits, labels, k, cfg.beta, cfg.attention_literal, cfg.ignore)
     lam = losses.self_regulated_lambda(logits, labels, cfg.ignore)
     return seg + lam * att, {"seg_loss": seg, "attention_loss": att, "lambda": lam, "study": study}
 
@@ -114,16 +125,22 @@ def train_step(state: TrainState, batch: dict, *, model, tx: optax.GradientTrans
         variables = {"params": params, "batch_stats": state.batch_stats}
         out, updated = _forward(model, variables, batch["image"], cfg, train=True,
                                 mutable=["batch_stats"], rngs={"dropout": dropout_key})
-        loss, aux = objective(out, batch["label"], study_key, cfg)
-        return loss, (updated.get("batch_stats", {}), aux)
+        sml_stats, k = state.sml_stats, None
+        if cfg.method == "cudam" and cfg.attention_k == "running_sml":
+            logits = out["logits"].astype(jnp.float32)
+            sml_stats = running_stats_update(sml_stats, logits, batch["label"] != cfg.ignore, cfg.sml_decay)
+            k = running_sml_score(sml_stats, logits)
+        loss, aux = objective(out, batch["label"], study_key, cfg, k)
+        return loss, (updated.get("batch_stats", {}), sml_stats, aux)
 
-    (loss, (batch_stats, aux)), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params)
+    (loss, (batch_stats, sml_stats, aux)), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params)
     updates, opt_state = tx.update(grads, state.opt_state, state.params)
     new_state = state.replace(
         params=optax.apply_updates(state.params, updates),
         batch_stats=_cast(batch_stats, jnp.float32),
         opt_state=opt_state,
         step=state.step + 1,
+        sml_stats=sml_stats,
     )
     metrics = {"loss": loss, "grad_norm": optax.tree.norm(grads), **aux}
     return new_state, jax.tree.map(lambda x: x.astype(jnp.float32), metrics)
