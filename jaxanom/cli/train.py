@@ -45,21 +45,26 @@ def add_parser(commands) -> None:
 
 
 def run(args) -> None:
+    import jax
+
     from jaxanom.experiment import load_experiment, run_training
 
     if args.distributed:  # before any JAX work: loading the data or the model may touch devices
         from jaxanom.train.sharding import initialize_distributed
 
         initialize_distributed()
+    lead = jax.process_index() == 0  # on many hosts the first process checks and claims --out for all
     out = Path(args.out)
     if args.resume:
         if args.config or args.init_from or args.init_modules:
             raise CommandError("--resume continues the run's own experiment.json; do not pass --config or --init-*")
         experiment = load_experiment(out)
-        claim(out / CLAIM, f"--out {out}")
+        if lead:
+            claim(out / CLAIM, f"--out {out}")
     else:
         experiment = load_config(args.config) if args.config else _base_experiment(args.init_from)
-        out_folder(args.out, overwrite=False, hint="continue the run there with --resume")
+        if lead:
+            out_folder(args.out, overwrite=False, hint="continue the run there with --resume")
     experiment = _override(experiment, args)
     if not args.resume:
         experiment = with_cudam_tau(experiment, args.cudam_tau)
@@ -67,8 +72,6 @@ def run(args) -> None:
         print(f"CuDAM tau = {experiment.train.loss.tau:.6g} (position {experiment.cudam_position}, "
               f"gate {experiment.cudam_gate})")
     run_training(experiment, out, progress=not args.no_progress)
-    import jax
-
     print(f"trained {experiment.train.steps} steps on {jax.device_count()} devices ({jax.process_count()} "
           f"processes); checkpoints in {out / 'checkpoints'}")
 
