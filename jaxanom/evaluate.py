@@ -15,7 +15,7 @@ import numpy as np
 from jaxanom import methods as scoring
 from jaxanom.cudam_score import upsample_attention
 from jaxanom.metrics import AnomalyMetricAccumulator, confusion_matrix, miou, per_class_iou, pixel_accuracy
-from jaxanom.metrics import pr_curve, roc_curve
+from jaxanom.metrics import pr_curve, restrict_to_roi, roc_curve
 from jaxanom.train.step import model_input
 
 
@@ -52,7 +52,7 @@ def class_statistics(predict: Callable, batches: Iterable[dict]):
 def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, cudam_sigma: float = 2e4,
                     mode: str = "exact", fpr_convention: str = "first", ap_convention: str = "step",
                     keep_curves: bool = False) -> tuple[dict, dict]:
-    """Pooled metrics per method over batches ``{"logits", "label", "attention_up"?}``.
+    """Pooled metrics per method over batches ``{"logits", "label", "attention_up"?, "roi"?}``.
 
     ``stats``: SML ``(mean, std)``; ``cudam_sigma``: the ensemble weight of Eq. 10.
     Returns ``(metrics[name], curves[name])``; ``curves[name] = {"roc": (fpr, tpr), "pr":
@@ -64,6 +64,8 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, cudam_
         names = scoring.check_methods(method_names, have_stats=stats is not None,
                                       have_attention="attention_up" in batch)
         labels = np.asarray(batch["label"])
+        if "roi" in batch:  # evaluate inside the region of interest only (MMF: the road)
+            labels = restrict_to_roi(labels, batch["roi"])
         for name in names:
             score = scoring.score_batch(name, batch["logits"], stats=stats, attention_up=batch.get("attention_up"),
                                         cudam_sigma=cudam_sigma)

@@ -93,6 +93,21 @@ def test_score_logits_saved_by_numpy_match_scikit_learn(tmp_path):
         np.testing.assert_allclose(maps["max_logit"], max_logit, rtol=1e-6)
 
 
+def test_score_reports_the_envelope_ap(tmp_path):
+    from jaxanom.metrics import anomaly_metrics
+
+    rng = np.random.default_rng(1)
+    logits = rng.normal(size=(2, 4, 6, 7)).astype(np.float32)
+    labels = rng.choice(np.array([0, 1, 255], np.uint8), size=(2, 6, 7), p=[0.6, 0.3, 0.1])
+    np.save(tmp_path / "logits.npy", logits)
+    np.save(tmp_path / "labels.npy", labels)
+    assert main(["score", "--logits", str(tmp_path / "logits.npy"), "--labels", str(tmp_path / "labels.npy"),
+                 "--methods", "max_logit", "--ap-convention", "envelope", "--out", str(tmp_path / "out")]) == 0
+    got = json.loads((tmp_path / "out" / "metrics.json").read_text())["metrics"]["max_logit"]
+    assert got["ap_convention"] == "envelope"
+    assert got["ap"] == pytest.approx(anomaly_metrics(-logits.max(axis=1), labels, ap_convention="envelope")["ap"])
+
+
 @pytest.mark.parametrize("problem, message", [
     ("nan", "finite"), ("stats", "classes"), ("labels", "labels"), ("rank", "4 dimensions")])
 def test_score_bad_input_is_one_line(tmp_path, capsys, problem, message):

@@ -32,7 +32,7 @@ def test_exact_accumulator_equals_metrics_of_the_concatenation(levels):
         accumulator.update(scores, labels.astype(np.int32) if i % 2 else labels)
     all_scores, all_labels = concatenated(batch)
     for fpr_convention in ("first", "interp", "nearest", "strict"):
-        for ap_convention in ("step", "trapz"):
+        for ap_convention in ("step", "trapz", "envelope"):
             settings = dict(fpr_convention=fpr_convention, ap_convention=ap_convention, tpr=0.9)
             got, expected = accumulator.compute(**settings), anomaly_metrics(all_scores, all_labels, **settings)
             for key in ("ap", "auroc", "fpr_at_tpr"):
@@ -63,7 +63,7 @@ def test_binned_within_the_stated_bound():
         for scores, labels in batch:
             accumulator.update(scores, labels)
         for fpr_convention in ("first", "interp", "strict"):
-            for ap_convention in ("step", "trapz"):
+            for ap_convention in ("step", "trapz", "envelope"):
                 settings = dict(fpr_convention=fpr_convention, ap_convention=ap_convention)
                 got, exact = accumulator.compute(**settings), anomaly_metrics(all_scores, all_labels, **settings)
                 assert abs(got["ap"] - exact["ap"]) <= got["ap_error_bound"] + 1e-12

@@ -218,3 +218,44 @@ def test_arrays_sharded_over_the_four_devices():
     result = anomaly_metrics(jax.device_put(scores.astype(np.float32), sharding), jax.device_put(labels, sharding))
     np.testing.assert_allclose(result["auroc"], sk.roc_auc_score(labels[kept], scores[kept].astype(np.float32)),
                                rtol=1e-9)
+
+
+def voc_all_point_ap(scores, labels):
+    """VOC all-point interpolated AP (MMF Eq. 7) from the PR points, one per distinct score."""
+    kept = labels != 255
+    scores, labels = scores[kept], labels[kept]
+    thresholds = np.unique(scores)[::-1]
+    tp = np.array([np.sum((scores >= t) & (labels == 1)) for t in thresholds], float)
+    fp = np.array([np.sum((scores >= t) & (labels == 0)) for t in thresholds], float)
+    recall = np.concatenate([[0.0], tp / labels.sum(), [1.0]])
+    precision = np.concatenate([[0.0], tp / (tp + fp), [0.0]])
+    for i in range(len(precision) - 2, -1, -1):  # the upper envelope, from the right
+        precision[i] = max(precision[i], precision[i + 1])
+    steps = np.flatnonzero(recall[1:] != recall[:-1])
+    return float(np.sum((recall[steps + 1] - recall[steps]) * precision[steps + 1]))
+
+
+def test_envelope_ap_hand_example():
+    # ranked labels 1, 0, 1, 1 (P = 3): (recall, precision) = (1/3, 1), (1/3, 1/2), (2/3, 2/3),
+    # (1, 3/4). Step AP = 1/3 * 1 + 1/3 * 2/3 + 1/3 * 3/4 = 29/36; the envelope lifts the
+    # precision at recall 2/3 to max(2/3, 3/4) = 3/4: 1/3 * 1 + 1/3 * 3/4 + 1/3 * 3/4 = 5/6.
+    scores, labels = np.array([0.9, 0.8, 0.7, 0.6]), np.array([1, 0, 1, 1], np.uint8)
+    assert anomaly_metrics(scores, labels, ap_convention="envelope")["ap"] == pytest.approx(5 / 6, abs=1e-12)
+    assert anomaly_metrics(scores, labels)["ap"] == pytest.approx(29 / 36, abs=1e-12)
+
+
+@pytest.mark.parametrize("size,levels", CASES)
+def test_envelope_ap_matches_voc_reference_on_tied_data(size, levels):
+    rng = np.random.default_rng(size + 7)
+    scores, labels = random_case(rng, size, levels)
+    got = anomaly_metrics(scores, labels, ap_convention="envelope")
+    np.testing.assert_allclose(got["ap"], voc_all_point_ap(scores, labels), rtol=1e-12)
+    assert got["ap"] >= anomaly_metrics(scores, labels)["ap"] - 1e-15  # the envelope only raises precision
+
+
+def test_envelope_equals_step_when_precision_never_rises():
+    # all positives above all negatives, then ties: precision is non-increasing along the curve
+    scores = np.array([5.0, 4.0, 4.0, 3.0, 2.0, 2.0, 1.0])
+    labels = np.array([1, 1, 1, 1, 0, 1, 0], np.uint8)
+    step = anomaly_metrics(scores, labels)["ap"]
+    assert anomaly_metrics(scores, labels, ap_convention="envelope")["ap"] == pytest.approx(step, abs=1e-15)

@@ -19,12 +19,14 @@ def add_common(parser, progress: bool, overwrite: bool = True) -> None:
 def add_scoring(parser) -> None:
     """Flags of the commands that score anomalies: statistics, methods, metric conventions, --out."""
     from jaxanom.methods import METHODS
+    from jaxanom.metrics.anomaly import AP_CONVENTIONS
 
     parser.add_argument("--stats", help="SML statistics .npz (from fit-stats); needed by the sml* and cudam methods")
     parser.add_argument("--methods", default="msp,max_logit,entropy,energy,sml,sml_post",
                         help=f"comma-separated, from {', '.join(METHODS)} (default: %(default)s)")
     parser.add_argument("--fpr-convention", choices=["first", "interp", "nearest", "strict"], default="first")
-    parser.add_argument("--ap-convention", choices=["step", "trapz"], default="step")
+    parser.add_argument("--ap-convention", choices=AP_CONVENTIONS, default="step",
+                        help="step (scikit-learn), trapz (SMIYC before 2023) or envelope (VOC, MMF Eq. 7)")
     parser.add_argument("--out", required=True, help="output folder")
 
 

@@ -111,12 +111,12 @@ class AnomalyMetricAccumulator:
             edge = lambda key: low + (self.num_bins - 1 - int(key)) * (high - low) / self.num_bins  # noqa: E731
             metrics["threshold_at_tpr"] = edge(summary["first_key"])
             metrics["best_f1_threshold"] = edge(summary["best_f1_key"])
-            metrics.update(binned_error_bounds(positives, negatives, tpr, fpr_convention))
+            metrics.update(binned_error_bounds(positives, negatives, tpr, fpr_convention, ap_convention))
         return metrics
 
 
 def binned_error_bounds(positives: np.ndarray, negatives: np.ndarray, tpr: float,
-                        fpr_convention: str) -> dict:
+                        fpr_convention: str, ap_convention: str = "step") -> dict:
     """Bounds on |binned - exact| from per-bin counts ordered from the highest bin down.
 
     Bin edges are exact curve points; inside bin b (n+_b positives, n-_b negatives, counts
@@ -124,6 +124,9 @@ def binned_error_bounds(positives: np.ndarray, negatives: np.ndarray, tpr: float
     spans, whose precision lies in [L_b, U_b] = [TP_s / (TP_s + FP_e), TP_e / (TP_e + FP_s)]
     ([0, 1] for the first non-empty bin). Hence
     - AP (step or trapz): sum_b (n+_b / P) (U_b - L_b);
+    - AP envelope: sum_b (n+_b / P) (M_b - E_b), with E_b the largest bin-end precision at or
+      after b (the binned envelope, a lower bound of the exact one there) and M_b the largest
+      U_b' at or after b (an upper bound);
     - AUROC: sum_b (n-_b / N) (n+_b / P) / 2 (a staircase against the box's diagonal);
     - FPR ("first", "interp", "strict"): n-_b / N of the bin in which the TPR crosses tpr.
     """
@@ -139,7 +142,13 @@ def binned_error_bounds(positives: np.ndarray, negatives: np.ndarray, tpr: float
     tpr_end = tp_end / p
     crossed = tpr_end > tpr if fpr_convention == "strict" else tpr_end >= tpr
     fpr_bound = neg[np.argmax(crossed)] / n if crossed.any() else 0.0
-    return {"ap_error_bound": float(np.sum(pos / p * (upper - lower))),
+    if ap_convention == "envelope":
+        ends = np.maximum.accumulate((tp_end / np.maximum(tp_end + fp_end, 1))[::-1])[::-1]
+        highest = np.maximum.accumulate(upper[::-1])[::-1]
+        ap_bound = np.sum(pos / p * (highest - ends))
+    else:
+        ap_bound = np.sum(pos / p * (upper - lower))
+    return {"ap_error_bound": float(ap_bound),
             "auroc_error_bound": float(np.sum(neg / n * pos / p) / 2),
             "fpr_error_bound": float(fpr_bound)}
 

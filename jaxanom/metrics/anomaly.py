@@ -17,7 +17,7 @@ from jaxanom.metrics.placement import on_one_device
 from jaxanom.metrics.ranking import NEGATIVE, POSITIVE, keys_to_scores, sort_pixels
 
 FPR_CONVENTIONS = ("first", "interp", "nearest", "strict")
-AP_CONVENTIONS = ("step", "trapz")
+AP_CONVENTIONS = ("step", "trapz", "envelope")
 
 
 def check_scores_labels(scores, labels) -> tuple[jnp.ndarray, jnp.ndarray, dict]:

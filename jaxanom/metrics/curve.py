@@ -11,6 +11,8 @@ origin (TP_0 = FP_0 = 0):
 - AP "step"  = sum_k (R_k - R_{k-1}) Prec_k                      (scikit-learn, Fishyscapes)
 - AP "trapz" = sum_{k>=2} (R_k - R_{k-1}) (Prec_k + Prec_{k-1}) / 2   (np.trapz over the
   curve's points, no artificial (0, 1) start: SMIYC before Aug 2023)
+- AP "envelope" = sum_k (R_k - R_{k-1}) max_{j>=k} Prec_j   (VOC all-point interpolation,
+  MMF Eq. 7 with r_0 = 0: precision replaced by its upper envelope from the right)
 - AUROC      = sum_k (FPR_k - FPR_{k-1}) (TPR_k + TPR_{k-1}) / 2
 - FPR at TPR t, four conventions (METHODS.md §6), see ``curve_summary``.
 """
@@ -70,6 +72,7 @@ def curve_summary(keys, pos, neg, tpr):
     d_recall = (tpf - tpp) / p
     tpr_k = tpf / p
     distance = jnp.abs(tpr_k - tpr)
+    envelope = lax.cummax(jnp.where(end, precision, -jnp.inf), reverse=True)
     per_entry = (  # one term per point; all reduced in a single pass (see _combine)
         jnp.where(end, d_recall * precision, 0.0),
         jnp.where(end & (tpp + fpp > 0), d_recall * (precision + precision_prev) / 2, 0.0),
@@ -81,11 +84,12 @@ def curve_summary(keys, pos, neg, tpr):
         jnp.where(end & (tpp < p), index, -1),
         jnp.where(end, 2.0 * tpf / (tpf + fpf + p), -1.0),
         index,
+        jnp.where(end, d_recall * envelope, 0.0),
     )
-    start = (0.0, 0.0, 0.0, 0, size - 1, size, jnp.inf, -1, -jnp.inf, size)
+    start = (0.0, 0.0, 0.0, 0, size - 1, size, jnp.inf, -1, -jnp.inf, size, 0.0)
     start = tuple(jnp.asarray(v, x.dtype) for v, x in zip(start, per_entry))
     (ap_step, ap_trapz, auroc, num_thresholds, first, strict, nearest_distance, nearest, best_f1,
-     best) = lax.reduce(per_entry, start, _combine, (0,))
+     best, ap_envelope) = lax.reduce(per_entry, start, _combine, (0,))
 
     fpr_at = lambda i: fp[i].astype(f64) / n  # noqa: E731
     fpr_strict = jnp.where(strict < size, fpr_at(jnp.minimum(strict, size - 1)), jnp.nan)
@@ -93,7 +97,7 @@ def curve_summary(keys, pos, neg, tpr):
     fpr_interp = jnp.where(t1 == tpr, f1, f0 + (tpr - t0) * (f1 - f0) / (t1 - t0))
     fpr_nearest = jnp.where(tpr < nearest_distance, 0.0, fpr_at(jnp.maximum(nearest, 0)))
     return {
-        "ap_step": ap_step, "ap_trapz": ap_trapz, "auroc": auroc / (2.0 * p * n),
+        "ap_step": ap_step, "ap_trapz": ap_trapz, "ap_envelope": ap_envelope, "auroc": auroc / (2.0 * p * n),
         "fpr_first": f1, "fpr_interp": fpr_interp, "fpr_nearest": fpr_nearest, "fpr_strict": fpr_strict,
         "first_key": keys[first], "best_f1": best_f1, "best_f1_key": keys[best],
         "num_positives": tp[-1], "num_negatives": fp[-1], "num_thresholds": num_thresholds,
@@ -102,11 +106,11 @@ def curve_summary(keys, pos, neg, tpr):
 
 def _combine(a, b):
     """Reducer of ``curve_summary``'s per-point terms: three sums, a count, the first index
-    with TPR >= t and > t, the nearest TPR (ties to the later point: larger FPR) and the best
-    F1 (ties to the earlier point: higher threshold)."""
+    with TPR >= t and > t, the nearest TPR (ties to the later point: larger FPR), the best
+    F1 (ties to the earlier point: higher threshold) and the envelope AP's sum."""
     sums = tuple(x + y for x, y in zip(a[:4], b[:4]))
     take_b_nearest = (b[6] < a[6]) | ((b[6] == a[6]) & (b[7] > a[7]))
     take_b_best = (b[8] > a[8]) | ((b[8] == a[8]) & (b[9] < a[9]))
     return (*sums, jnp.minimum(a[4], b[4]), jnp.minimum(a[5], b[5]),
             jnp.where(take_b_nearest, b[6], a[6]), jnp.where(take_b_nearest, b[7], a[7]),
-            jnp.where(take_b_best, b[8], a[8]), jnp.where(take_b_best, b[9], a[9]))
+            jnp.where(take_b_best, b[8], a[8]), jnp.where(take_b_best, b[9], a[9]), a[10] + b[10])

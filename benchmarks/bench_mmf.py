@@ -1,0 +1,119 @@
+"""MMF's post-processor: SLIC superpixels (Algorithm 1) and the superpixel score (Eq. 6).
+
+- ``slic``: ``superpixels.slic_batch(rgb_to_lab(images))`` against scikit-image's ``slic`` on the
+  same RGB frames (its own Lab conversion, the same K, compactness 10, 10 iterations, no
+  connectivity enforcement), one call per image. The two algorithms differ in detail (grid
+  offsets, distance scaling), so the check before timing is agreement by adjusted Rand index.
+- ``eq6``: ``mmf.postprocess.superpixel_score_batch`` against the same equation in NumPy
+  (bincount statistics, a K x K weight matrix, one image at a time); the maps must agree.
+
+Frames: real Road Anomaly frames (``../shared/realdata`` or ``JAXANOM_REALDATA``) resized to the
+evaluation size of MMF.md D16, else a synthetic blocky image. Step S = 8 px. Rows give
+ratio = this row's time / jaxanom's (above 1: jaxanom is faster).
+
+    PYTHONPATH=. python benchmarks/bench_mmf.py [--quick]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.timing import environment, markdown_table, median_ms
+
+STEP = 8
+
+
+def frames(count: int, height: int, width: int) -> tuple[np.ndarray, str]:
+    """(count, H, W, 3) uint8 RGB frames and where they come from."""
+    import cv2
+
+    root = Path(os.environ.get("JAXANOM_REALDATA", Path(__file__).resolve().parents[2] / "shared" / "realdata"))
+    paths = sorted((root / "RoadAnomaly_sample" / "frames").glob("*.jpg"))
+    if paths:
+        images = [cv2.resize(cv2.cvtColor(cv2.imread(str(paths[i % len(paths)])), cv2.COLOR_BGR2RGB), (width, height),
+                             interpolation=cv2.INTER_AREA) for i in range(count)]
+        return np.stack(images), "Road Anomaly frames"
+    rng = np.random.default_rng(0)
+    blocks = rng.integers(0, 256, (count, -(-height // 24), -(-width // 24), 3), dtype=np.uint8)
+    images = np.repeat(np.repeat(blocks, 24, 1), 24, 2)[:, :height, :width]
+    return np.clip(images + rng.normal(0, 8, images.shape), 0, 255).astype(np.uint8), "synthetic blocks"
+
+
+def numpy_superpixel_score(anomaly, road, labels, k):
+    """Eq. 6 (MMF.md A2.8) for one image in NumPy float64."""
+    height, width = labels.shape
+    flat = labels.ravel()
+    counts = np.bincount(flat, minlength=k).astype(np.float64)
+    valid = counts > 0
+    mean = lambda v: np.bincount(flat, v.ravel(), minlength=k) / np.maximum(counts, 1)  # noqa: E731
+    ys, xs = np.mgrid[:height, :width]
+    alpha, p, cy, cx = mean(anomaly), mean(road), mean(ys), mean(xs)
+    r2 = (cy[:, None] - cy[None]) ** 2 + (cx[:, None] - cx[None]) ** 2
+    i, j = np.triu_indices(k, 1)
+    omega = np.median(np.sqrt(r2[i, j][valid[i] & valid[j]]))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        weight = np.where(r2 == 0, 1.0, np.exp(-r2 / (2 * omega**2)))
+    pair = valid[None, :] & ~np.eye(k, dtype=bool)
+    score = alpha * np.sum(np.where(pair, p * counts / (height * width) * weight, 0.0), axis=1)
+    low, high = score[valid].min(), score[valid].max()
+    normalised = np.where(valid, (score - low) / (high - low), 0.0) if high > low else np.zeros(k)
+    return normalised[labels]
+
+
+def run(quick: bool = False) -> list[dict]:
+    import jax
+    from skimage.segmentation import slic as skimage_slic
+    from sklearn.metrics import adjusted_rand_score
+
+    from jaxanom.mmf.postprocess import superpixel_score_batch
+    from jaxanom.superpixels import num_superpixels, rgb_to_lab, slic_batch
+
+    height, width = (128, 256) if quick else (256, 512)
+    k = num_superpixels((height, width), STEP)
+    rows = []
+    for batch in (1, 8):
+        images, source = frames(batch, height, width)
+        images_jax = jax.device_put(images)
+        ours = lambda: slic_batch(rgb_to_lab(images_jax), STEP)  # noqa: E731
+        labels = np.asarray(ours())
+        theirs = lambda: [skimage_slic(image, n_segments=k, compactness=10.0, max_num_iter=10,  # noqa: E731
+                                       enforce_connectivity=False, start_label=0) for image in images]
+        ari = min(adjusted_rand_score(t.ravel(), o.ravel()) for t, o in zip(theirs(), labels))
+        if ari < 0.5:
+            raise AssertionError(f"jaxanom and scikit-image SLIC disagree: ARI {ari:.2f} at batch {batch}")
+        case = f"{batch}x{height}x{width}, K={k}"
+        repeats = 5 if quick else 3
+        jax_ms = median_ms(ours, repeats=repeats, warmup=1)
+        rows.append(dict(benchmark="slic", case=case, impl="jaxanom", median_ms=jax_ms, ms_per_frame=jax_ms / batch,
+                         ratio=1.0, note=f"rgb_to_lab + slic_batch, {source}"))
+        peer_ms = median_ms(theirs, repeats=repeats, warmup=1)
+        rows.append(dict(benchmark="slic", case=case, impl="scikit-image slic", median_ms=peer_ms,
+                         ms_per_frame=peer_ms / batch, ratio=peer_ms / jax_ms, note=f"min ARI vs jaxanom {ari:.2f}"))
+
+        rng = np.random.default_rng(batch)
+        anomaly, road = rng.random((2, batch, height, width)).astype(np.float32)
+        anomaly_jax, road_jax, labels_jax = (jax.device_put(x) for x in (anomaly, road, labels))
+        ours = lambda: superpixel_score_batch(anomaly_jax, road_jax, labels_jax, k)  # noqa: E731
+        reference = np.asarray(ours())
+        theirs = lambda: [numpy_superpixel_score(a, r, l, k) for a, r, l in zip(anomaly, road, labels)]  # noqa: E731
+        diff = float(np.max(np.abs(np.stack(theirs()) - reference)))
+        if diff > 1e-4:
+            raise AssertionError(f"jaxanom and NumPy Eq. 6 disagree by {diff} at batch {batch}")
+        jax_ms = median_ms(ours, repeats=repeats, warmup=1)
+        rows.append(dict(benchmark="eq6", case=case, impl="jaxanom", median_ms=jax_ms, ms_per_frame=jax_ms / batch,
+                         ratio=1.0, note="superpixel_score_batch (jit(vmap))"))
+        peer_ms = median_ms(theirs, repeats=repeats, warmup=1)
+        rows.append(dict(benchmark="eq6", case=case, impl="numpy", median_ms=peer_ms, ms_per_frame=peer_ms / batch,
+                         ratio=peer_ms / jax_ms, note=f"float64, max |diff| {diff:.1e}"))
+    return rows
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="128x256 frames (K = 512) instead of 256x512 (K = 2048)")
+    args = parser.parse_args()
+    print(environment())
+    print(markdown_table(run(quick=args.quick)))

@@ -1,0 +1,217 @@
+"""SLIC superpixels (MMF Algorithm 1) and sRGB -> CIE Lab, in pure JAX.
+
+``slic(lab, step)`` segments one image ``(H, W, 3)`` into ``K = num_superpixels((H, W), step)``
+clusters and returns int32 labels ``(H, W)`` in ``[0, K)``, one per pixel (MMF.md A2.7):
+
+1. grid: centres on the pixels ``(S//2 + a S, S//2 + b S)`` inside the image;
+2. perturbation: each centre moves to the pixel of least gradient
+   ``G = |I(y, x+1) - I(y, x-1)|^2 + |I(y+1, x) - I(y-1, x)|^2`` (edge-replicated) in its 3x3
+   neighbourhood (clipped to the image), ties to the first offset in row-major order;
+3. distance ``D = d_lab^2 + (m / S)^2 d_xy^2``;
+4. assignment: centres in index order, each over the ``2S x 2S`` window
+   ``[round(y_k) - S, round(y_k) + S) x [round(x_k) - S, round(x_k) + S)`` setting a pixel's
+   label where ``D < d(i)``. Done as a scatter-min of ``D``, then a scatter-min of ``k`` over
+   the pixels attaining it (ties -> smallest k, as the sequential strict ``<``). ``d`` restarts
+   at infinity every iteration; a pixel no window covers takes its initial grid cell;
+5. update: centre = mean ``[l, a, b, y, x]`` of its pixels; an empty cluster keeps its centre;
+6. stop after ``iterations`` updates, or earlier once the residual E <= ``tol``; a last
+   assignment to the final centres gives the labels.
+
+``round`` is half-to-even (NumPy's). There is no connectivity enforcement (not in Algorithm 1).
+The work dtype is float32, or float64 for float64 input under ``jax.enable_x64``.
+"""
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxanom._validate import check_finite, check_rank, dtype_of, is_concrete
+
+# sRGB (D65) -> XYZ and the D65 white point, as scikit-image's ``rgb2lab`` uses them.
+_XYZ_FROM_RGB = np.array([[0.412453, 0.357580, 0.180423],
+                          [0.212671, 0.715160, 0.072169],
+                          [0.019334, 0.119193, 0.950227]])
+_D65_WHITE = np.array([0.95047, 1.0, 1.08883])
+
+
+def _rgb_to_lab(rgb: jax.Array) -> jax.Array:
+    linear = jnp.where(rgb > 0.04045, ((rgb + 0.055) / 1.055) ** 2.4, rgb / 12.92)
+    xyz = linear @ jnp.asarray(_XYZ_FROM_RGB.T / _D65_WHITE, rgb.dtype)
+    f = jnp.where(xyz > 0.008856, jnp.cbrt(xyz), 7.787 * xyz + 16.0 / 116.0)
+    fx, fy, fz = f[..., 0], f[..., 1], f[..., 2]
+    return jnp.stack([116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz)], axis=-1)
+
+
+def _work_dtype(x) -> jnp.dtype:
+    return jnp.float64 if dtype_of(x) == np.float64 and jax.config.jax_enable_x64 else jnp.float32
+
+
+def rgb_to_lab(image) -> jax.Array:
+    """sRGB ``(..., 3)`` (uint8, or float in [0, 1]) -> CIE Lab ``(..., 3)`` (D65, 2-degree observer).
+
+    The formulas of scikit-image's ``rgb2lab``: L in [0, 100], a and b roughly in [-128, 128].
+    """
+    if np.ndim(image) < 1 or np.shape(image)[-1] != 3:
+        raise ValueError(f"image must have 3 channels in its last axis (..., 3), got shape {np.shape(image)}")
+    dtype = dtype_of(image)
+    if dtype == np.uint8:
+        return _rgb_to_lab_jit(jnp.asarray(image, jnp.float32) / 255.0)
+    if not np.issubdtype(dtype, np.floating):
+        raise ValueError(f"image must be uint8 or float in [0, 1], got dtype {dtype}")
+    if is_concrete(image):
+        values = np.asarray(image)
+        nan, outside = np.isnan(values), (values < 0) | (values > 1)
+        if nan.any() or outside.any():
+            raise ValueError(f"image must hold floats in [0, 1], got {nan.sum()} NaN and "
+                             f"{outside.sum()} value(s) outside, such as {values[outside][:3].tolist()}")
+    return _rgb_to_lab_jit(jnp.asarray(image, _work_dtype(image)))
+
+
+def grid_shape(shape: tuple[int, int], step: int) -> tuple[int, int]:
+    """Rows and columns of the initial SLIC grid (centres at ``S//2 + a S`` inside the image)."""
+    return tuple(len(range(step // 2, size, step)) for size in shape)
+
+
+def num_superpixels(shape: tuple[int, int], step: int) -> int:
+    """K, the number of SLIC clusters (and label values) for an image of ``shape`` (H, W) at grid step S."""
+    rows, cols = grid_shape(shape, step)
+    return rows * cols
+
+
+def _gradient_energy(lab: jax.Array) -> jax.Array:
+    """Step 2's ``G`` (H, W): squared central differences with edge replication."""
+    p = jnp.pad(lab, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    dx = p[1:-1, 2:] - p[1:-1, :-2]
+    dy = p[2:, 1:-1] - p[:-2, 1:-1]
+    return jnp.sum(dx * dx, axis=-1) + jnp.sum(dy * dy, axis=-1)
+
+
+def _initial_centres(lab: jax.Array, step: int) -> jax.Array:
+    """Steps 1-2: (K, 5) centres ``[l, a, b, y, x]`` on the grid, moved to the 3x3 gradient minimum."""
+    height, width = lab.shape[:2]
+    rows, cols = grid_shape((height, width), step)
+    ys, xs = jnp.meshgrid(step // 2 + step * jnp.arange(rows), step // 2 + step * jnp.arange(cols), indexing="ij")
+    ys, xs = ys.ravel(), xs.ravel()
+    offsets = jnp.array([(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)])  # row-major order
+    cand_y = jnp.clip(ys[:, None] + offsets[:, 0], 0, height - 1)
+    cand_x = jnp.clip(xs[:, None] + offsets[:, 1], 0, width - 1)
+    best = jnp.argmin(_gradient_energy(lab)[cand_y, cand_x], axis=1)  # first minimum on ties
+    y = jnp.take_along_axis(cand_y, best[:, None], 1)[:, 0]
+    x = jnp.take_along_axis(cand_x, best[:, None], 1)[:, 0]
+    return jnp.concatenate([lab[y, x], jnp.stack([y, x], axis=1).astype(lab.dtype)], axis=1)
+
+
+def _grid_cells(height: int, width: int, step: int) -> jax.Array:
+    """(H, W) index of the grid cell holding each pixel: the label of a pixel no window covers."""
+    rows, cols = grid_shape((height, width), step)
+    row = jnp.minimum(jnp.arange(height) // step, rows - 1)
+    col = jnp.minimum(jnp.arange(width) // step, cols - 1)
+    return (row[:, None] * cols + col[None, :]).astype(jnp.int32)
+
+
+def _assign(lab: jax.Array, centres: jax.Array, step: int, compactness) -> jax.Array:
+    """Step 4: labels (H, W) int32 from centres (K, 5)."""
+    height, width = lab.shape[:2]
+    k = centres.shape[0]
+    window = jnp.arange(-step, step)
+    top = jnp.round(centres[:, 3]).astype(jnp.int32)
+    left = jnp.round(centres[:, 4]).astype(jnp.int32)
+    y = top[:, None, None] + window[None, :, None]  # (K, 2S, 1)
+    x = left[:, None, None] + window[None, None, :]  # (K, 1, 2S)
+    inside = (y >= 0) & (y < height) & (x >= 0) & (x < width)
+    pixel = jnp.where(inside, y * width + x, height * width)  # out of the image: dropped
+    colour = lab[jnp.clip(y, 0, height - 1), jnp.clip(x, 0, width - 1)]  # (K, 2S, 2S, 3)
+    d_lab = jnp.sum((colour - centres[:, None, None, :3]) ** 2, axis=-1)
+    d_xy = (y - centres[:, 3, None, None]) ** 2 + (x - centres[:, 4, None, None]) ** 2
+    distance = d_lab + (compactness / step) ** 2 * d_xy
+    best = jnp.full(height * width, jnp.inf, distance.dtype).at[pixel].min(distance, mode="drop")
+    winner = jnp.where(distance == best.at[pixel].get(mode="fill", fill_value=-1.0),
+                       jnp.arange(k, dtype=jnp.int32)[:, None, None], k)
+    label = jnp.full(height * width, k, jnp.int32).at[pixel].min(winner, mode="drop")
+    label = jnp.where(label == k, _grid_cells(height, width, step).ravel(), label)
+    return label.reshape(height, width)
+
+
+def _update(lab: jax.Array, labels: jax.Array, centres: jax.Array) -> jax.Array:
+    """Step 5: (K, 5) mean ``[l, a, b, y, x]`` per cluster; an empty cluster keeps its centre."""
+    height, width = labels.shape
+    ys, xs = jnp.meshgrid(jnp.arange(height), jnp.arange(width), indexing="ij")
+    ones = jnp.ones((height, width, 1), lab.dtype)  # a sixth column counts the pixels: one scatter
+    features = jnp.concatenate([lab, jnp.stack([ys, xs], -1).astype(lab.dtype), ones], -1).reshape(-1, 6)
+    sums = jax.ops.segment_sum(features, labels.ravel(), centres.shape[0])
+    counts = sums[:, 5:]
+    return jnp.where(counts > 0, sums[:, :5] / jnp.maximum(counts, 1), centres)
+
+
+def _slic(lab: jax.Array, compactness, tol, step: int, iterations: int) -> jax.Array:
+    """Steps 1-6: at most ``iterations`` updates, stopping once E = sum_k |dy_k| + |dx_k| <= tol."""
+
+    def going_on(state):
+        count, _, residual = state
+        return (count < iterations) & (residual > tol)
+
+    def one_iteration(state):
+        count, centres, _ = state
+        moved = _update(lab, _assign(lab, centres, step, compactness), centres)
+        return count + 1, moved, jnp.sum(jnp.abs(moved[:, 3:] - centres[:, 3:]))
+
+    start = (0, _initial_centres(lab, step), jnp.asarray(jnp.inf, lab.dtype))
+    _, centres, _ = jax.lax.while_loop(going_on, one_iteration, start)
+    return _assign(lab, centres, step, compactness)
+
+
+_rgb_to_lab_jit = jax.jit(_rgb_to_lab)
+_slic_jit = jax.jit(_slic, static_argnames=("step", "iterations"))
+
+
+@functools.partial(jax.jit, static_argnames=("step", "iterations"))
+def _slic_batch(lab: jax.Array, compactness, tol, step: int, iterations: int) -> jax.Array:
+    return jax.vmap(_slic, in_axes=(0, None, None, None, None))(lab, compactness, tol, step, iterations)
+
+
+def _check_slic(lab, step, compactness, iterations, tol, batched: bool):
+    check_rank("lab", lab, 4 if batched else 3, "(B, H, W, 3)" if batched else "(H, W, 3)")
+    if np.shape(lab)[-1] != 3:
+        raise ValueError(f"lab must have 3 channels (L, a, b) in its last axis, got shape {np.shape(lab)}")
+    if not np.issubdtype(dtype_of(lab), np.floating):
+        raise ValueError(f"lab must be a float array (from rgb_to_lab), got dtype {dtype_of(lab)}")
+    height, width = np.shape(lab)[-3:-1]
+    if not isinstance(step, (int, np.integer)) or not 1 <= step <= min(height, width):
+        raise ValueError(f"step must be an integer in [1, min(H, W)] = [1, {min(height, width)}], got {step!r}")
+    if not isinstance(iterations, (int, np.integer)) or iterations < 0:
+        raise ValueError(f"iterations must be an integer >= 0, got {iterations!r}")
+    if is_concrete(compactness) and not (np.isfinite(compactness) and compactness > 0):
+        raise ValueError(f"compactness must be finite and > 0, got {compactness}")
+    if tol is not None and is_concrete(tol) and not (np.isfinite(tol) and tol >= 0):
+        raise ValueError(f"tol must be None or finite and >= 0, got {tol}")
+    check_finite("lab", lab)
+    dtype = _work_dtype(lab)
+    tol = jnp.asarray(-1.0 if tol is None else tol, dtype)  # -1: E >= 0 never stops the loop early
+    return jnp.asarray(lab, dtype), jnp.asarray(compactness, dtype), tol, int(step), int(iterations)
+
+
+def slic(lab, step: int, compactness: float = 10.0, iterations: int = 10, tol: float | None = None) -> jax.Array:
+    """SLIC (MMF Algorithm 1) of one image: lab ``(H, W, 3)`` float -> labels ``(H, W)`` int32.
+
+    Labels lie in ``[0, num_superpixels((H, W), step))``; every pixel has one. ``step`` S (grid
+    step in pixels, 1 <= S <= min(H, W)) and ``iterations`` are static; ``compactness`` m weighs
+    the spatial distance (``D = d_lab^2 + (m/S)^2 d_xy^2``). ``tol``: stop before ``iterations``
+    once the centres move by E = sum_k |dy_k| + |dx_k| <= tol (Algorithm 1's residual error);
+    None runs every iteration. Pass Lab from ``rgb_to_lab`` (MMF.md D3: the image, not the
+    anomaly map, is segmented).
+    """
+    *args, step, iterations = _check_slic(lab, step, compactness, iterations, tol, batched=False)
+    return _slic_jit(*args, step=step, iterations=iterations)
+
+
+def slic_batch(lab, step: int, compactness: float = 10.0, iterations: int = 10,
+               tol: float | None = None) -> jax.Array:
+    """``slic`` over a batch: lab ``(B, H, W, 3)`` -> labels ``(B, H, W)`` int32 (each image stops on its own)."""
+    *args, step, iterations = _check_slic(lab, step, compactness, iterations, tol, batched=True)
+    return _slic_batch(*args, step=step, iterations=iterations)
+
+
+__all__ = ["grid_shape", "num_superpixels", "rgb_to_lab", "slic", "slic_batch"]

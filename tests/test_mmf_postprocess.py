@@ -1,0 +1,155 @@
+"""MMF Eq. 6 (superpixel anomaly scores) against a hand-worked example and a NumPy loop."""
+import jax
+import numpy as np
+import pytest
+
+from jaxanom.mmf.postprocess import superpixel_score, superpixel_score_batch, superpixel_scores
+
+
+def reference_scores(anomaly, road, labels, k, include_self=False):
+    """Eq. 6 with D1/D2/D5, one superpixel at a time, float64."""
+    height, width = labels.shape
+    ids = [j for j in range(k) if np.any(labels == j)]
+    stats = {}
+    for j in ids:
+        ys, xs = np.nonzero(labels == j)
+        stats[j] = dict(n=len(ys) / (height * width), alpha=anomaly[ys, xs].astype(np.float64).mean(),
+                        p=road[ys, xs].astype(np.float64).mean(), c=np.array([ys.mean(), xs.mean()]))
+    pairs = [np.linalg.norm(stats[i]["c"] - stats[j]["c"]) for a, i in enumerate(ids) for j in ids[a + 1:]]
+    omega = np.median(pairs) if pairs else np.nan
+    raw = np.zeros(k)
+    for i in ids:
+        total = 0.0
+        for j in ids:
+            if j == i and not include_self:
+                continue
+            r = np.linalg.norm(stats[i]["c"] - stats[j]["c"])
+            total += stats[j]["p"] * stats[j]["n"] * (1.0 if r == 0 else np.exp(-r**2 / (2 * omega**2)))
+        raw[i] = stats[i]["alpha"] * total
+    values = raw[ids]
+    out = np.zeros(k)
+    if values.max() > values.min():
+        out[ids] = (values - values.min()) / (values.max() - values.min())
+    return out
+
+
+def test_hand_worked_two_by_three():
+    # superpixel 0 = top-left pair, 1 = right column, 2 = bottom-left pair; each has 2 of 6
+    # pixels, so n = 1/3. alpha = (0.3, 0.9, 0.3); p = (1, 0, 0.5); centroids (0, 0.5),
+    # (0.5, 2), (1, 0.5) -> r01 = r12 = sqrt(2.5), r02 = 1; omega = median = sqrt(2.5), so
+    # 2 omega^2 = 5 and the weights are w01 = w12 = e^-0.5, w02 = e^-0.2.
+    labels = np.array([[0, 0, 1], [2, 2, 1]])
+    anomaly = np.array([[0.2, 0.4, 1.0], [0.0, 0.6, 0.8]], np.float32)
+    road = np.array([[1.0, 1.0, 0.0], [0.5, 0.5, 0.0]], np.float32)
+    s0 = 0.3 * (0.0 * (1 / 3) * np.exp(-0.5) + 0.5 * (1 / 3) * np.exp(-0.2))  # = 0.05 e^-0.2
+    s1 = 0.9 * (1.0 * (1 / 3) * np.exp(-0.5) + 0.5 * (1 / 3) * np.exp(-0.5))  # = 0.45 e^-0.5
+    s2 = 0.3 * (1.0 * (1 / 3) * np.exp(-0.2) + 0.0 * (1 / 3) * np.exp(-0.5))  # = 0.1 e^-0.2
+    assert s0 < s2 < s1  # so min-max gives 0, (s2 - s0) / (s1 - s0), 1
+    expected = np.array([0.0, 1.0, (s2 - s0) / (s1 - s0)])
+    scores, valid = superpixel_scores(anomaly, road, labels, 3)
+    np.testing.assert_allclose(np.asarray(scores), expected, rtol=1e-5, atol=1e-7)
+    assert np.asarray(valid).all()
+    score_map = np.asarray(superpixel_score(anomaly, road, labels, 3))
+    np.testing.assert_allclose(score_map, expected[labels], rtol=1e-5, atol=1e-7)
+    assert score_map.dtype == np.float32
+
+
+def random_case(rng, height, width, k, used):
+    ids = rng.choice(k, size=used, replace=False)  # some ids stay empty
+    labels = ids[rng.integers(0, used, (height, width))]
+    labels.ravel()[:used] = ids  # every chosen id has a pixel
+    return rng.random((height, width)).astype(np.float32), rng.random((height, width)).astype(np.float32), labels
+
+
+@pytest.mark.parametrize("height,width,k,used,include_self", [
+    (7, 9, 12, 8, False), (15, 11, 30, 30, False), (15, 11, 30, 17, True), (4, 5, 6, 2, False),
+])
+def test_matches_numpy_loop(height, width, k, used, include_self):
+    anomaly, road, labels = random_case(np.random.default_rng(height * k), height, width, k, used)
+    scores, valid = superpixel_scores(anomaly, road, labels, k, include_self=include_self)
+    expected = reference_scores(anomaly, road, labels, k, include_self)
+    np.testing.assert_allclose(np.asarray(scores), expected, rtol=1e-4, atol=1e-5)
+    np.testing.assert_array_equal(np.asarray(valid), np.isin(np.arange(k), labels))
+
+
+def test_blocky_labels_like_slic_match_numpy():
+    # contiguous blocks: centroid distances repeat exactly, so omega sits on ties
+    rng = np.random.default_rng(7)
+    labels = (np.arange(12)[:, None] // 4) * 5 + np.arange(20)[None, :] // 4
+    anomaly, road = rng.random((2, 12, 20)).astype(np.float32)
+    np.testing.assert_allclose(np.asarray(superpixel_scores(anomaly, road, labels, 15)[0]),
+                               reference_scores(anomaly, road, labels, 15), rtol=1e-4, atol=1e-5)
+
+
+def test_invariant_to_relabelling():
+    rng = np.random.default_rng(1)
+    anomaly, road, labels = random_case(rng, 13, 17, 20, 14)
+    permutation = rng.permutation(20)
+    before = np.asarray(superpixel_score(anomaly, road, labels, 20))
+    after = np.asarray(superpixel_score(anomaly, road, permutation[labels], 20))
+    np.testing.assert_allclose(after, before, rtol=1e-5, atol=1e-6)
+
+
+def test_no_road_and_single_superpixel_give_zero():
+    rng = np.random.default_rng(2)
+    anomaly, road, labels = random_case(rng, 9, 10, 8, 8)
+    np.testing.assert_array_equal(np.asarray(superpixel_score(anomaly, np.zeros_like(road), labels, 8)), 0.0)
+    np.testing.assert_array_equal(np.asarray(superpixel_score(anomaly, road, np.full((9, 10), 3), 8)), 0.0)
+
+
+def test_monotone_in_anomaly_of_one_superpixel():
+    rng = np.random.default_rng(3)
+    anomaly, road, labels = random_case(rng, 12, 12, 10, 10)
+    before = np.asarray(superpixel_scores(anomaly, road, labels, 10)[0])
+    raised = np.where(labels == 4, np.minimum(anomaly + 0.5, 1.0), anomaly)
+    after = np.asarray(superpixel_scores(raised, road, labels, 10)[0])
+    assert after[4] >= before[4]
+
+
+def test_batch_matches_single_and_callers_jit():
+    rng = np.random.default_rng(4)
+    cases = [random_case(rng, 10, 14, 16, 11) for _ in range(3)]
+    anomaly, road, labels = (np.stack(x) for x in zip(*cases))
+    batch = np.asarray(superpixel_score_batch(anomaly, road, labels, 16))
+    for b in range(3):
+        np.testing.assert_allclose(batch[b], np.asarray(superpixel_score(anomaly[b], road[b], labels[b], 16)), atol=1e-6)
+    wrapped = jax.jit(lambda a: superpixel_score(a, road[0], labels[0], 16))
+    np.testing.assert_allclose(np.asarray(wrapped(anomaly[0])), batch[0], atol=1e-6)
+
+
+@pytest.mark.parametrize("args,message", [
+    ((np.zeros((4, 5, 1)), np.zeros((4, 5)), np.zeros((4, 5), int), 3), "anomaly must have rank 2"),
+    ((np.zeros((4, 5)), np.zeros((4, 6)), np.zeros((4, 5), int), 3), "road_probability must have the shape"),
+    ((np.zeros((4, 5)), np.zeros((4, 5)), np.zeros((5, 4), int), 3), "labels must have the shape"),
+    ((np.zeros((4, 5)), np.zeros((4, 5)), np.zeros((4, 5)), 3), "labels must hold integer"),
+    ((np.zeros((4, 5)), np.zeros((4, 5)), np.full((4, 5), 3), 3), r"labels must lie in \[0, num_segments\)"),
+    ((np.zeros((4, 5)), np.zeros((4, 5)), np.full((4, 5), -1), 3), r"labels must lie in"),
+    ((np.zeros((4, 5)), np.zeros((4, 5)), np.zeros((4, 5), int), 0), "num_segments must be"),
+    ((np.full((4, 5), np.nan), np.zeros((4, 5)), np.zeros((4, 5), int), 3), "anomaly must be finite"),
+    ((np.zeros((4, 5)), np.full((4, 5), np.nan), np.zeros((4, 5), int), 3), "road_probability must be finite"),
+])
+def test_bad_input_raises(args, message):
+    with pytest.raises(ValueError, match=message):
+        superpixel_score(*args)
+
+
+def test_batch_needs_rank_three():
+    with pytest.raises(ValueError, match="anomaly must have rank 3"):
+        superpixel_score_batch(np.zeros((4, 5)), np.zeros((4, 5)), np.zeros((4, 5), int), 3)
+
+
+@pytest.mark.parametrize("k,used", [(9, 9), (10, 6), (40, 33), (5, 1)])
+def test_median_distance_matches_numpy(k, used):
+    from jaxanom.mmf.postprocess import _median_distance
+
+    rng = np.random.default_rng(k)
+    centres = rng.integers(0, 6, (k, 2)).astype(np.float32) / 2  # repeated distances: ties
+    valid = np.zeros(k, bool)
+    valid[rng.choice(k, used, replace=False)] = True
+    i, j = np.triu_indices(k, 1)
+    pairs = np.linalg.norm(centres[i] - centres[j], axis=1)[valid[i] & valid[j]]
+    got = float(_median_distance(centres, valid))
+    if pairs.size:  # odd and even pair counts (36, 15, 528)
+        assert got == pytest.approx(np.median(pairs), rel=1e-6)
+    else:
+        assert np.isnan(got)
