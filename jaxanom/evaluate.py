@@ -52,7 +52,7 @@ def class_statistics(predict: Callable, batches: Iterable[dict]):
 def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, cudam_sigma: float = 2e4,
                     mode: str = "exact", fpr_convention: str = "first", ap_convention: str = "step",
                     keep_curves: bool = False) -> tuple[dict, dict]:
-    """Pooled metrics per method over batches ``{"logits", "label", "attention_up"?, "roi"?}``.
+    """Pooled metrics per method over batches ``{"logits", "label", "attention_up"?, "roi"?, "mmf_maps"?}``.
 
     ``stats``: SML ``(mean, std)``; ``cudam_sigma``: the ensemble weight of Eq. 10.
     Returns ``(metrics[name], curves[name])``; ``curves[name] = {"roc": (fpr, tpr), "pr":
@@ -62,13 +62,13 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, cudam_
     accumulators, kept = {}, {}
     for batch in outputs:
         names = scoring.check_methods(method_names, have_stats=stats is not None,
-                                      have_attention="attention_up" in batch)
+                                      have_attention="attention_up" in batch, have_mmf="mmf_maps" in batch)
         labels = np.asarray(batch["label"])
         if "roi" in batch:  # evaluate inside the region of interest only (MMF: the road)
             labels = restrict_to_roi(labels, batch["roi"])
         for name in names:
             score = scoring.score_batch(name, batch["logits"], stats=stats, attention_up=batch.get("attention_up"),
-                                        cudam_sigma=cudam_sigma)
+                                        cudam_sigma=cudam_sigma, mmf_maps=batch.get("mmf_maps"))
             accumulators.setdefault(name, AnomalyMetricAccumulator(mode)).update(score, labels)
             if keep_curves:
                 kept.setdefault(name, []).append((np.asarray(score).ravel(), labels.ravel()))
