@@ -12,6 +12,8 @@ def add_parser(commands) -> None:
                                  "SML statistics, evaluate MSP / max logit / entropy / energy / SML / SML + "
                                  "post-processing / CuDAM on a synthetic anomaly split; write a table, "
                                  "results.json and pictures.")
+    parser.add_argument("variant", nargs="?", choices=("mmf",),
+                        help="mmf: the multi-mechanism fusion pipeline (jaxanom.mmf.demo) instead of CuDAM + SML")
     parser.add_argument("--out", default="jaxanom-demo", help="output folder (default: %(default)s)")
     parser.add_argument("--quick", action="store_true", help="a seconds-long smoke run of the same path")
     parser.add_argument("--steps", type=int, help="training steps (default: 1500; --quick: 3)")
@@ -20,6 +22,10 @@ def add_parser(commands) -> None:
 
 
 def run(args) -> None:
+    if args.variant == "mmf":
+        from jaxanom.mmf.demo import run_cli
+
+        return run_cli(args)
     from jaxanom.demo import DemoConfig, run_demo
 
     config = DemoConfig.quick() if args.quick else DemoConfig()
