@@ -5,9 +5,10 @@ Readers and the generator need only NumPy and OpenCV; the grain input pipeline l
 """
 from jaxanom.data.cityscapes import Cityscapes
 from jaxanom.data.fishyscapes import FishyscapesLostAndFound, FishyscapesStatic
+from jaxanom.data.lostandfound import LostAndFound
 from jaxanom.data.road_anomaly import RoadAnomaly
 from jaxanom.data.smiyc import RoadAnomaly21, RoadObstacle21, SegmentMeIfYouCan
 from jaxanom.data.synthetic import SyntheticScenes, generate
 
-__all__ = ["Cityscapes", "FishyscapesLostAndFound", "FishyscapesStatic", "RoadAnomaly",
+__all__ = ["Cityscapes", "FishyscapesLostAndFound", "FishyscapesStatic", "LostAndFound", "RoadAnomaly",
            "RoadAnomaly21", "RoadObstacle21", "SegmentMeIfYouCan", "SyntheticScenes", "generate"]
