@@ -55,7 +55,7 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, cudam_
                     mode: str = "exact", fpr_convention: str = "first", ap_convention: str = "step",
                     keep_curves: bool = False) -> tuple[dict, dict]:
     """Pooled metrics per method over batches ``{"logits", "label", "attention_up"?, "attention_positions"?,
-    "roi"?}``.
+    "roi"?, "mmf_maps"?}``.
 
     ``stats``: SML ``(mean, std)``; ``cudam_sigma``: the ensemble weight of Eq. 10, by default
     (None) the paper-equivalent weight for each batch's attention-map size
@@ -68,7 +68,7 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, cudam_
     accumulators, kept, sigmas = {}, {}, set()
     for batch in outputs:
         names = scoring.check_methods(method_names, have_stats=stats is not None,
-                                      have_attention="attention_up" in batch)
+                                      have_attention="attention_up" in batch, have_mmf="mmf_maps" in batch)
         labels = np.asarray(batch["label"])
         if "roi" in batch:  # evaluate inside the region of interest only (MMF: the road)
             labels = restrict_to_roi(labels, batch["roi"])
@@ -78,7 +78,7 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, cudam_
             sigmas.add(sigma)
         for name in names:
             score = scoring.score_batch(name, batch["logits"], stats=stats, attention_up=batch.get("attention_up"),
-                                        cudam_sigma=sigma)
+                                        cudam_sigma=sigma, mmf_maps=batch.get("mmf_maps"))
             accumulators.setdefault(name, AnomalyMetricAccumulator(mode)).update(score, labels)
             if keep_curves:
                 kept.setdefault(name, []).append((np.asarray(score).ravel(), labels.ravel()))

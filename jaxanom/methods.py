@@ -9,7 +9,11 @@
   smoothing, or both (SML Table 3);
 - ``msp_post``, ``max_logit_post``: suppression + smoothing applied to MSP / max logit
   (SML Table 7), using the network's prediction for the boundaries;
-- ``cudam``: the CuDAM ensemble (Eq. 10) of ``sml_post`` and the upsampled attention map.
+- ``cudam``: the CuDAM ensemble (Eq. 10) of ``sml_post`` and the upsampled attention map;
+- ``mmf_raw``, ``resynthesis``: MMF's dissimilarity map a (with / without the assistant maps
+  A, D and the RGB-D semantics); ``mmf``, ``resynthesis_post``: the same through MMF's
+  superpixel post-processor (Eq. 6), with the road probability from the logits. They read
+  ``mmf_maps`` (``jaxanom.mmf.pipeline.MMFPipeline.maps`` computes it).
 """
 from __future__ import annotations
 
@@ -36,12 +40,17 @@ _SML_OPTIONS = {
 }
 _POSTPROCESSED = {"msp_post": "msp", "max_logit_post": "max_logit"}
 
-METHODS: tuple[str, ...] = (*_PLAIN, *_SML_OPTIONS, *_POSTPROCESSED, "cudam")
+# MMF rows: the dissimilarity map each reads, and whether Eq. 6 post-processes it.
+_MMF = {"mmf_raw": ("mmf", False), "mmf": ("mmf", True),
+        "resynthesis": ("resynthesis", False), "resynthesis_post": ("resynthesis", True)}
+
+METHODS: tuple[str, ...] = (*_PLAIN, *_SML_OPTIONS, *_POSTPROCESSED, "cudam", *_MMF)
 NEEDS_STATS = frozenset({*_SML_OPTIONS, "cudam"})
 NEEDS_ATTENTION = frozenset({"cudam"})
+NEEDS_MMF = frozenset(_MMF)
 
 
-def check_methods(names, *, have_stats: bool, have_attention: bool) -> tuple[str, ...]:
+def check_methods(names, *, have_stats: bool, have_attention: bool, have_mmf: bool = False) -> tuple[str, ...]:
     """Validate a list of method names against what is available; returns them as a tuple."""
     names = tuple(names)
     unknown = [n for n in names if n not in METHODS]
@@ -51,17 +60,35 @@ def check_methods(names, *, have_stats: bool, have_attention: bool) -> tuple[str
         raise ValueError(f"methods {missing} need SML class statistics (mean, std); none were given")
     if not have_attention and (missing := [n for n in names if n in NEEDS_ATTENTION]):
         raise ValueError(f"methods {missing} need an attention map; the model has no CuDAM module")
+    if not have_mmf and (missing := [n for n in names if n in NEEDS_MMF]):
+        raise ValueError(f"methods {missing} need MMF's maps (a trained jaxanom.mmf.pipeline); none were given")
     return names
 
 
-def score_batch(name: str, logits, *, stats=None, attention_up=None, cudam_sigma: float = 2e4) -> jax.Array:
+def _mmf_score(name: str, logits, maps: dict) -> jax.Array:
+    from jaxanom.mmf.postprocess import superpixel_score_batch
+
+    source, post = _MMF[name]
+    anomaly = jnp.asarray(maps[source], jnp.float32)
+    if not post:
+        return anomaly
+    road = jax.nn.softmax(jnp.asarray(logits, jnp.float32), axis=-1)[..., maps.get("road_class", 0)]
+    return superpixel_score_batch(anomaly, road, maps["superpixels"], int(maps["num_segments"]))
+
+
+def score_batch(name: str, logits, *, stats=None, attention_up=None, cudam_sigma: float = 2e4,
+                mmf_maps: dict | None = None) -> jax.Array:
     """Scores of method ``name`` for logits ``(B, H, W, C)`` -> float32 ``(B, H, W)``.
 
     ``stats``: ``(mean, std)`` each ``(C,)`` for the SML methods; ``attention_up``:
     ``(B, H, W)`` attention already upsampled to the logits' size, and ``cudam_sigma`` (Eq. 10),
-    for ``cudam``.
+    for ``cudam``. ``mmf_maps``: ``{"mmf", "resynthesis"}`` dissimilarity maps (B, H, W),
+    ``"superpixels"`` (B, H, W) int labels in [0, ``"num_segments"``) for the MMF rows.
     """
-    check_methods([name], have_stats=stats is not None, have_attention=attention_up is not None)
+    check_methods([name], have_stats=stats is not None, have_attention=attention_up is not None,
+                  have_mmf=mmf_maps is not None)
+    if name in _MMF:
+        return _mmf_score(name, logits, mmf_maps)
     if name in _PLAIN:
         return _PLAIN[name](logits)
     if name in _SML_OPTIONS:

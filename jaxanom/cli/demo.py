@@ -12,8 +12,9 @@ def add_parser(commands) -> None:
                                  "SML statistics, evaluate MSP / max logit / entropy / energy / SML / SML + "
                                  "post-processing / CuDAM on a synthetic anomaly split; write a table, "
                                  "results.json and pictures.")
-    parser.add_argument("paper", nargs="?", choices=["offroad"],
-                        help="another paper's demo instead: offroad (active + contrastive off-road segmentation)")
+    parser.add_argument("paper", nargs="?", choices=["mmf", "offroad"],
+                        help="another paper's demo instead: mmf (multi-mechanism fusion, jaxanom.mmf.demo) or "
+                        "offroad (active + contrastive off-road segmentation, jaxanom.offroad.demo)")
     parser.add_argument("--out", default="jaxanom-demo", help="output folder (default: %(default)s)")
     parser.add_argument("--quick", action="store_true", help="a seconds-long smoke run of the same path")
     parser.add_argument("--steps", type=int, help="training steps (default: 1500; --quick: 3)")
@@ -27,6 +28,10 @@ def run(args) -> None:
         from jaxanom.offroad.demo import run_from_args
 
         return run_from_args(args)
+    if args.paper == "mmf":
+        from jaxanom.mmf.demo import run_cli
+
+        return run_cli(args)
     from jaxanom.demo import DemoConfig, run_demo
 
     config = DemoConfig.quick() if args.quick else DemoConfig()

@@ -1,7 +1,9 @@
 """Cityscapes reader (official layout), fine labels mapped to the 19 trainIds.
 
 Layout: ``<root>/leftImg8bit/<split>/<city>/<city>_<seq>_<frame>_leftImg8bit.png`` and
-``<root>/gtFine/<split>/<city>/<city>_<seq>_<frame>_gtFine_labelIds.png``.
+``<root>/gtFine/<split>/<city>/<city>_<seq>_<frame>_gtFine_labelIds.png``; with
+``with_disparity=True`` also ``<root>/disparity/<split>/<city>/<name>_disparity.png`` and
+``<root>/camera/<split>/<city>/<name>_camera.json`` (MMF's depth input).
 """
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxanom.data.cityscapes_labels import LABEL_ID_TO_TRAIN_ID, NUM_LABEL_IDS
+from jaxanom.data.disparity import read_camera, read_disparity
 from jaxanom.data.frames import FrameReader
 from jaxanom.data.image_io import check_values, require_dir, require_file
 
@@ -21,9 +24,10 @@ def _train_ids(raw: np.ndarray, path: Path) -> np.ndarray:
 
 
 class Cityscapes(FrameReader):
-    """``Cityscapes(root, split)[i]`` -> image, trainId label (255 = ignore), name ``<city>_<seq>_<frame>``."""
+    """``Cityscapes(root, split)[i]`` -> image, trainId label (255 = ignore), name ``<city>_<seq>_<frame>``;
+    with ``with_disparity``: ``"disparity"`` (H, W) float32 pixels (0 invalid) and ``"camera"``."""
 
-    def __init__(self, root: str | Path, split: str = "train"):
+    def __init__(self, root: str | Path, split: str = "train", with_disparity: bool = False):
         image_dir = require_dir(Path(root) / "leftImg8bit" / split, "Cityscapes images")
         label_dir = require_dir(Path(root) / "gtFine" / split, "Cityscapes fine labels")
         images = sorted(image_dir.glob(f"*/*{_IMAGE_SUFFIX}"))
@@ -35,3 +39,21 @@ class Cityscapes(FrameReader):
             label = label_dir / image.parent.name / f"{name}_gtFine_labelIds.png"
             frames.append((name, image, require_file(label, "Cityscapes label")))
         super().__init__(frames, _train_ids)
+        self._stereo = []
+        if with_disparity:
+            for name, image, _ in frames:
+                city = image.parent.name
+                self._stereo.append((
+                    require_file(Path(root) / "disparity" / split / city / f"{name}_disparity.png", "Cityscapes disparity"),
+                    require_file(Path(root) / "camera" / split / city / f"{name}_camera.json", "Cityscapes camera")))
+
+    def __getitem__(self, index: int) -> dict:
+        frame = super().__getitem__(index)
+        if self._stereo:
+            disparity_path, camera_path = self._stereo[index]
+            frame["disparity"] = read_disparity(disparity_path)
+            if frame["disparity"].shape != frame["label"].shape:
+                raise ValueError(f"disparity: size {frame['disparity'].shape} of {disparity_path} differs from "
+                                 f"its image's {frame['label'].shape}")
+            frame["camera"] = read_camera(camera_path)
+        return frame

@@ -16,6 +16,7 @@ from jaxanom.data.cityscapes_labels import CLASS_COLORS
 (ROAD, SIDEWALK, BUILDING, WALL, FENCE, POLE, LIGHT, SIGN, VEGETATION, TERRAIN, SKY, PERSON,
  RIDER, CAR, TRUCK, BUS, TRAIN, MOTORCYCLE, BICYCLE) = range(19)
 ANOMALY = 19  # class code of anomaly surfaces inside the generator (255 in semantic maps)
+CLUTTER = 20  # class code of void clutter (MMF's void-as-anomaly training objects; 255 in semantic maps)
 
 
 
@@ -153,3 +154,25 @@ def anomaly_object(rng, size):
         centre = rng.uniform(-0.3, 0.3) * w, rng.uniform(0.6, 0.8) * size
         parts.append((ANOMALY, c2, _ellipse(*centre, 0.08 * w, 0.08 * size, n=8)))
     return parts, w
+
+
+def clutter_object(rng):
+    """Street clutter that no class covers (bin, board, pallet, sack) in a muted colour: the
+    synthetic analogue of Cityscapes void, unlike the saturated anomalies; returns (parts, width)."""
+    kind = rng.integers(4)
+    hsv = np.uint8([[[rng.integers(0, 180), rng.integers(20, 90), rng.integers(70, 170)]]])
+    c1 = cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)[0, 0].astype(np.float32)
+    c2 = np.clip(c1 * rng.uniform(0.6, 0.85), 0, 255)
+    if kind == 0:  # wheelie bin: body and lid
+        w, h = rng.uniform(0.5, 0.8), rng.uniform(0.9, 1.2)
+        return [(CLUTTER, c1, _rect(-w / 2, 0, w / 2, h)), (CLUTTER, c2, _rect(-0.55 * w, h, 0.55 * w, 1.08 * h))], w
+    if kind == 1:  # advertising board on two legs
+        w, h = rng.uniform(0.6, 1.2), rng.uniform(0.8, 1.3)
+        return [(CLUTTER, c2, _rect(-0.4 * w, 0, -0.3 * w, 0.4 * h)), (CLUTTER, c2, _rect(0.3 * w, 0, 0.4 * w, 0.4 * h)),
+                (CLUTTER, c1, _rect(-w / 2, 0.35 * h, w / 2, h))], w
+    if kind == 2:  # stacked pallets: slats
+        w, h = rng.uniform(1.0, 1.3), rng.uniform(0.3, 0.8)
+        slats = np.arange(0.0, h, 0.15)
+        return [(CLUTTER, c1 if k % 2 else c2, _rect(-w / 2, y, w / 2, min(y + 0.15, h))) for k, y in enumerate(slats)], w
+    w = rng.uniform(0.5, 0.9)  # sack: a squat blob
+    return [(CLUTTER, c1, _ellipse(0, 0.25 * w, w / 2, 0.25 * w, n=12, rng=rng, rough=0.1))], w

@@ -4,6 +4,9 @@ Layout of both tracks (``dataset_AnomalyTrack`` / ``dataset_ObstacleTrack``):
 ``<root>/images/<frame>.<jpg|webp|png>`` and ``<root>/labels_masks/<frame>_labels_semantic.png``
 with 0 = in-distribution, 1 = anomaly / obstacle, 255 = void. Only the validation frames have
 label masks (the test labels are held out), so the reader lists the frames that have one.
+The tracks ship no depth: for MMF's RGB-D module pass ``depth_root``, a folder of
+``<frame>_disparity.png`` in Cityscapes' 16-bit encoding (e.g. from a stereo or monocular
+estimator); every labelled frame then needs one, and frames gain ``"disparity"`` (MMF.md D11).
 """
 from __future__ import annotations
 
@@ -11,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxanom.data.disparity import read_disparity
 from jaxanom.data.frames import FrameReader
 from jaxanom.data.image_io import ANOMALY_LABEL_VALUES, check_values, require_dir
 
@@ -23,9 +27,10 @@ def _anomaly_labels(raw: np.ndarray, path: Path) -> np.ndarray:
 
 
 class SegmentMeIfYouCan(FrameReader):
-    """``SegmentMeIfYouCan(root)[i]`` -> image, label 0 / 1 / 255, name; root is one track's folder."""
+    """``SegmentMeIfYouCan(root)[i]`` -> image, label 0 / 1 / 255, name; root is one track's folder.
+    With ``depth_root``: also ``"disparity"`` (H, W) float32 pixels from user-supplied files."""
 
-    def __init__(self, root: str | Path):
+    def __init__(self, root: str | Path, depth_root: str | Path | None = None):
         image_dir = require_dir(Path(root) / "images", "SegmentMeIfYouCan images")
         label_dir = require_dir(Path(root) / "labels_masks", "SegmentMeIfYouCan label masks")
         labels = sorted(label_dir.glob(f"*{_LABEL_SUFFIX}"))
@@ -40,6 +45,24 @@ class SegmentMeIfYouCan(FrameReader):
                                         f"in {image_dir} for label {label}")
             frames.append((name, images[0], label))
         super().__init__(frames, _anomaly_labels)
+        self._disparity = []
+        if depth_root is not None:
+            depth_dir = require_dir(Path(depth_root), "SegmentMeIfYouCan depth (depth_root)")
+            for name, _, _ in frames:
+                path = depth_dir / f"{name}_disparity.png"
+                if not path.is_file():
+                    raise FileNotFoundError(f"SegmentMeIfYouCan depth: no {path.name} in {depth_dir}; the track has "
+                                            f"no depth of its own: supply one disparity PNG per labelled frame")
+                self._disparity.append(path)
+
+    def __getitem__(self, index: int) -> dict:
+        frame = super().__getitem__(index)
+        if self._disparity:
+            frame["disparity"] = read_disparity(self._disparity[index])
+            if frame["disparity"].shape != frame["label"].shape:
+                raise ValueError(f"disparity: size {frame['disparity'].shape} of {self._disparity[index]} differs "
+                                 f"from its image's {frame['label'].shape}")
+        return frame
 
 
 RoadAnomaly21 = SegmentMeIfYouCan

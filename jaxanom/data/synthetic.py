@@ -19,6 +19,17 @@ pixels around each anomaly (annotations are uncertain at object borders, as in F
 with ``off_road_void=True`` every pixel that is neither road nor anomaly is void as well (as in
 SegmentMeIfYouCan RoadObstacle21, which scores the road only).
 
+For MMF (seed 003), all off by default (frames are then byte-identical to those without the
+options): ``disparity=True`` adds ``"disparity"`` = f B / Z in pixels (0 on the sky) with the
+Cityscapes stereo baseline B = ``BASELINE`` and the frame's focal length, plus ``"camera"``
+(Cityscapes' camera-file fields), with ``disparity_noise=(sigma_rel, hole_fraction)`` for a
+multiplicative Gaussian error and randomly missing (0) pixels; ``void_objects=k`` places up to k
+muted street-clutter objects (bins, boards, pallets, sacks) on the road of ``"train"`` / ``"val"``
+frames, 255 in ``"label"`` / ``"semantic"`` and True in ``"void"`` (the analogue of Cityscapes
+void, which MMF trains on as anomaly); ``roi=True`` adds ``"roi"``, the road region (road,
+anomalies and clutter standing on it), where MMF is evaluated. Clutter and noise draw from their
+own random streams, so a frame's scene and image elsewhere are those of the plain frame.
+
 Depth is metric (float32, metres along the optical axis); the sky gets ``SKY_DEPTH``.
 NumPy and OpenCV only (no grain, no JAX).
 """
@@ -32,17 +43,19 @@ import numpy as np
 
 from jaxanom.data.cityscapes_labels import CLASS_COLORS, IGNORE_INDEX
 from jaxanom.data.scene_objects import (
-    ANOMALY, BICYCLE, BUILDING, BUS, CAR, FENCE, LIGHT, MOTORCYCLE, POLE, ROAD, SIDEWALK, SIGN, SKY,
-    TERRAIN, TRAIN, TRUCK, VEGETATION, WALL, anomaly_object, person, pole, tone, tree, two_wheeler, vehicle)
+    ANOMALY, BICYCLE, BUILDING, BUS, CAR, CLUTTER, FENCE, LIGHT, MOTORCYCLE, POLE, ROAD, SIDEWALK, SIGN, SKY,
+    TERRAIN, TRAIN, TRUCK, VEGETATION, WALL, anomaly_object, clutter_object, person, pole, tone, tree, two_wheeler,
+    vehicle)
 
 SPLITS = {"train": 0, "val": 1, "anomaly": 2, "anomaly_small": 3, "anomaly_large": 4}
 ANOMALY_SPLITS = ("anomaly", "anomaly_small", "anomaly_large")
 SKY_DEPTH = 1000.0
+BASELINE = 0.209313  # metres: the Cityscapes stereo baseline (camera/*.json "extrinsic")
 
 
-# Texture strength (relative luminance noise) of each class, then of anomalies.
+# Texture strength (relative luminance noise) of each class, then of anomalies and clutter.
 _TEXTURE = np.array([0.06, 0.06, 0.09, 0.08, 0.10, 0.05, 0.05, 0.04, 0.28, 0.16, 0.02, 0.09,
-                     0.09, 0.05, 0.06, 0.05, 0.05, 0.07, 0.07, 0.18], dtype=np.float32)
+                     0.09, 0.05, 0.06, 0.05, 0.05, 0.07, 0.07, 0.18, 0.12], dtype=np.float32)
 _GROUND, _SIDE, _FRONTAL, _SKY = range(4)  # depth models of a surface
 _Z_NEAR = 0.3  # metres: polygons are clipped to z >= _Z_NEAR before projection
 
@@ -228,13 +241,26 @@ def _place_things(rng: np.random.Generator, s: _Street, anomalies: list[tuple]) 
     return things
 
 
-def _layout(painter: _Painter, rng: np.random.Generator, split: str) -> None:
-    """Sample one street and draw it into ``painter``, far to near."""
+def _place_clutter(rng: np.random.Generator, s: _Street, count: int) -> list[tuple]:
+    """0..``count`` void clutter objects ``(z, x, width, parts)`` standing on the road, 5-60 m away."""
+    clutter = []
+    for _ in range(rng.integers(0, count + 1)):
+        parts, w = clutter_object(rng)
+        clutter.append((rng.uniform(5, 60), rng.uniform(-s.road_l + w / 2, s.road_r - w / 2), w, parts))
+    return clutter
+
+
+def _layout(painter: _Painter, rng: np.random.Generator, split: str, clutter_rng: np.random.Generator | None,
+            void_objects: int) -> None:
+    """Sample one street and draw it into ``painter``, far to near (clutter from ``clutter_rng``)."""
     street = _Street.sample(rng)
     _draw_ground(painter, rng, street)
     _draw_roadside(painter, rng, street)
     anomalies = _place_anomalies(rng, street, split, painter.cam.f) if split in ANOMALY_SPLITS else []
-    for z, x, _, parts in sorted(anomalies + _place_things(rng, street, anomalies), key=lambda o: -o[0]):
+    objects = anomalies + _place_things(rng, street, anomalies)
+    if void_objects and split not in ANOMALY_SPLITS:
+        objects += _place_clutter(clutter_rng, street, void_objects)
+    for z, x, _, parts in sorted(objects, key=lambda o: -o[0]):
         painter.frontal(parts, x, z)
 
 
@@ -275,13 +301,36 @@ def _render(painter: _Painter, rng: np.random.Generator) -> tuple[np.ndarray, np
     return np.stack(channels, axis=-1), cls, depth
 
 
+def _disparity(depth: np.ndarray, sky: np.ndarray, focal: float, noise: tuple[float, float],
+               rng: np.random.Generator) -> np.ndarray:
+    """f B / Z in pixels, 0 on the sky; then ``noise = (sigma_rel, hole_fraction)``."""
+    disparity = np.where(sky, np.float32(0), np.float32(focal * BASELINE) / depth).astype(np.float32)
+    sigma, holes = noise
+    if sigma:
+        disparity *= np.maximum(1 + np.float32(sigma) * rng.standard_normal(depth.shape, dtype=np.float32), 0)
+    if holes:
+        disparity[rng.random(depth.shape) < holes] = 0
+    return disparity
+
+
+def _check_mmf_options(disparity_noise, void_objects) -> None:
+    sigma, holes = disparity_noise
+    if sigma < 0 or not 0 <= holes <= 1 or void_objects < 0:
+        raise ValueError(f"disparity_noise, void_objects: expected (sigma >= 0, 0 <= hole fraction <= 1) and "
+                         f"void_objects >= 0, got {disparity_noise}, {void_objects}")
+
+
 def generate(split: str, index: int, seed: int = 0, *, height: int = 256, width: int = 512,
-             void_band: int = 2, off_road_void: bool = False) -> dict[str, Any]:
+             void_band: int = 2, off_road_void: bool = False, disparity: bool = False,
+             disparity_noise: tuple[float, float] = (0.0, 0.0), void_objects: int = 0,
+             roi: bool = False) -> dict[str, Any]:
     """One synthetic frame, a pure function of its arguments.
 
     Returns a dict: ``"image"`` (H, W, 3) uint8 RGB; ``"label"`` (H, W) uint8 (trainIds 0..18 for
     ``"train"`` / ``"val"``; 0 / 1 / 255 for anomaly splits); ``"semantic"`` (H, W) uint8 trainIds
-    with 255 on anomalies; ``"depth"`` (H, W) float32 metres; ``"name"`` str.
+    with 255 on anomalies; ``"depth"`` (H, W) float32 metres; ``"name"`` str. With the MMF
+    options (module docstring): ``"disparity"`` (H, W) float32 pixels and ``"camera"`` dict
+    (``baseline`` m, ``fx``, ``fy``, ``u0``, ``v0`` px); ``"void"`` (H, W) bool; ``"roi"`` (H, W) bool.
     """
     if split not in SPLITS:
         raise ValueError(f"split: expected one of {sorted(SPLITS)}, got {split!r}")
@@ -289,14 +338,15 @@ def generate(split: str, index: int, seed: int = 0, *, height: int = 256, width:
         raise ValueError(f"height, width: expected >= 8 pixels each, got {height} x {width}")
     if index < 0 or seed < 0 or void_band < 0:
         raise ValueError(f"index, seed, void_band: expected >= 0, got {index}, {seed}, {void_band}")
+    _check_mmf_options(disparity_noise, void_objects)
     rng = np.random.default_rng([seed, SPLITS[split], index])
     camera = _Camera(height, width, f=width * rng.uniform(1.0, 1.2), cx=width * rng.uniform(0.42, 0.58),
                      cy=height * rng.uniform(0.36, 0.48), h=rng.uniform(1.2, 1.8))
     painter = _Painter(camera)
-    _layout(painter, rng, split)
+    _layout(painter, rng, split, np.random.default_rng([seed, SPLITS[split], index, 1]), void_objects)
     image, cls, depth = _render(painter, rng)
-    anomaly = cls == ANOMALY
-    semantic = np.where(anomaly, IGNORE_INDEX, cls).astype(np.uint8)
+    anomaly, clutter = cls == ANOMALY, cls == CLUTTER
+    semantic = np.where(anomaly | clutter, IGNORE_INDEX, cls).astype(np.uint8)
     if split in ANOMALY_SPLITS:
         label = anomaly.astype(np.uint8)
         if void_band:
@@ -307,21 +357,34 @@ def generate(split: str, index: int, seed: int = 0, *, height: int = 256, width:
             label[(semantic != ROAD) & ~anomaly] = IGNORE_INDEX
     else:
         label = semantic
-    return {"image": image, "label": label, "semantic": semantic, "depth": depth,
-            "name": f"{split}_{seed}_{index:06d}"}
+    frame = {"image": image, "label": label, "semantic": semantic, "depth": depth,
+             "name": f"{split}_{seed}_{index:06d}"}
+    if disparity:
+        noise_rng = np.random.default_rng([seed, SPLITS[split], index, 2])
+        frame["disparity"] = _disparity(depth, cls == SKY, camera.f, disparity_noise, noise_rng)
+        frame["camera"] = {"baseline": BASELINE, "fx": camera.f, "fy": camera.f, "u0": camera.cx, "v0": camera.cy}
+    if void_objects:
+        frame["void"] = clutter
+    if roi:
+        frame["roi"] = (cls == ROAD) | anomaly | clutter
+    return frame
 
 
 class SyntheticScenes:
     """Random-access source of ``num_frames`` frames of one split (``len``, ``[index]``)."""
 
     def __init__(self, split: str, num_frames: int, seed: int = 0, *, height: int = 256,
-                 width: int = 512, void_band: int = 2, off_road_void: bool = False):
+                 width: int = 512, void_band: int = 2, off_road_void: bool = False, disparity: bool = False,
+                 disparity_noise: tuple[float, float] = (0.0, 0.0), void_objects: int = 0, roi: bool = False):
         if split not in SPLITS:
             raise ValueError(f"split: expected one of {sorted(SPLITS)}, got {split!r}")
         if num_frames < 1:
             raise ValueError(f"num_frames: expected >= 1, got {num_frames}")
+        _check_mmf_options(disparity_noise, void_objects)
         self.split, self.num_frames, self.seed = split, num_frames, seed
         self._kwargs = dict(height=height, width=width, void_band=void_band, off_road_void=off_road_void)
+        mmf = dict(disparity=disparity, disparity_noise=tuple(disparity_noise), void_objects=void_objects, roi=roi)
+        self._kwargs.update({k: v for k, v in mmf.items() if v != generate.__kwdefaults__[k]})
 
     def __len__(self) -> int:
         return self.num_frames

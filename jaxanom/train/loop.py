@@ -34,7 +34,7 @@ from jaxanom.train.runlog import RunLog
 from jaxanom.train.sharding import global_batch, initialize_distributed, make_mesh, replicated
 from jaxanom.train.running_sml import running_sml_classes
 from jaxanom.train.state import TrainState
-from jaxanom.train.step import LossConfig, make_steps, model_input
+from jaxanom.train.step import LossConfig, make_steps, model_extras, model_input
 
 
 class NonFiniteLossError(FloatingPointError):
@@ -79,16 +79,17 @@ def pad_batch(batch: dict, multiple: int, ignore: int) -> dict:
             for name, value in ((n, np.asarray(v)) for n, v in batch.items())}
 
 
-def step_inputs(batch: dict) -> dict:
-    """The arrays a step reads; other entries of a pipeline's batch (names, depth) stay on the host."""
-    return {"image": batch["image"], "label": batch["label"]}
+def step_inputs(batch: dict, model=None) -> dict:
+    """The arrays a step reads (with ``model``'s ``extra_inputs``); other entries of a pipeline's
+    batch (names, depth) stay on the host."""
+    return {"image": batch["image"], "label": batch["label"], **model_extras(model, batch)}
 
 
-def evaluate(eval_step, variables, batches: Iterable[dict], mesh, ignore: int) -> dict[str, float]:
+def evaluate(eval_step, variables, batches: Iterable[dict], mesh, ignore: int, model=None) -> dict[str, float]:
     """mIoU and pixel accuracy of ``variables`` over ``batches`` (summed confusion matrix)."""
     total = None
     for batch in batches:
-        batch = global_batch(pad_batch(step_inputs(batch), len(mesh.local_devices), ignore), mesh)
+        batch = global_batch(pad_batch(step_inputs(batch, model), len(mesh.local_devices), ignore), mesh)
         confusion = eval_step(variables, batch)
         total = confusion if total is None else total + confusion
     if total is None:
@@ -114,8 +115,14 @@ def check_batch(batch: Any, num_classes: int, ignore: int) -> None:
                          f"{num_classes} classes), got {np.unique(label[bad])[:10].tolist()}")
 
 
-def _num_classes(model, image) -> int:
-    out = jax.eval_shape(lambda x: model.init_with_output(jax.random.key(0), model_input(x), train=False)[0], image[:1])
+def _init_inputs(model, batch: dict) -> tuple[jax.Array, dict]:
+    """The first example of ``batch`` as ``model.init`` wants it: (images, extra keyword inputs)."""
+    return model_input(np.asarray(batch["image"][:1])), {k: np.asarray(v[:1]) for k, v in model_extras(model, batch).items()}
+
+
+def _num_classes(model, batch: dict) -> int:
+    images, extras = _init_inputs(model, batch)
+    out = jax.eval_shape(lambda x, e: model.init_with_output(jax.random.key(0), x, train=False, **e)[0], images, extras)
     return out["logits"].shape[-1]
 
 
@@ -158,13 +165,13 @@ def _run(config: TrainConfig, model, train_data, val_data, variables, mesh, tx, 
     source = iter(train_data)
     resumable = hasattr(source, "get_state") and hasattr(source, "set_state")
     first = next(source)
-    num_classes = _num_classes(model, np.asarray(first["image"]))
+    num_classes = _num_classes(model, first)
     check_batch(first, num_classes, config.loss.ignore)
 
     init_key, state_key = jax.random.split(jax.random.key(config.seed))
     if variables is None:
-        variables = jax.jit(model.init, static_argnames="train")(
-            init_key, model_input(np.asarray(first["image"][:1])), train=False)
+        images, extras = _init_inputs(model, first)
+        variables = jax.jit(model.init, static_argnames="train")(init_key, images, train=False, **extras)
     sml_classes = running_sml_classes(config.loss, num_classes)
     state = jax.device_put(TrainState.create(variables, tx, state_key, sml_classes), replicated(mesh))
 
@@ -189,7 +196,7 @@ def _run(config: TrainConfig, model, train_data, val_data, variables, mesh, tx, 
     try:
         for step in range(start + 1, config.steps + 1):
             tick = time.perf_counter()
-            batch = global_batch(step_inputs(next(batches)), mesh)
+            batch = global_batch(step_inputs(next(batches), model), mesh)
             images = batch["image"].shape[0]
             state, metrics = train_step(state, batch)
             metrics = {name: float(value) for name, value in jax.device_get(metrics).items()}
@@ -205,7 +212,7 @@ def _run(config: TrainConfig, model, train_data, val_data, variables, mesh, tx, 
                             img_s=f"{metrics['images_per_s']:.1f}")
             log.scalars(step, {f"train/{name}": value for name, value in metrics.items()})
             if val_data is not None and (step % config.eval_every == 0 or step == config.steps):
-                log.scalars(step, evaluate(eval_step, state.variables, val_data, mesh, config.loss.ignore))
+                log.scalars(step, evaluate(eval_step, state.variables, val_data, mesh, config.loss.ignore, model))
             if step == config.steps or checkpointer.is_due(step):
                 checkpointer.save(step, state, _data_state(source) if resumable else None)
         checkpointer.wait()

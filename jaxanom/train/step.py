@@ -4,7 +4,9 @@ The model contract (``jaxanom.models``): ``model.apply(variables, images, train=
 dict with ``"logits"`` (B, H, W, C) at input size, plus ``"attention"`` (B, h, w) for CuDAM or
 ``"branch_weights"`` (B, 3) for MSAAM; with ``train=True, mutable=["batch_stats"]`` it also
 returns the updated BatchNorm statistics. A batch is ``{"image": (B, H, W, 3) uint8 RGB or float32 normalised,
-"label": (B, H, W) int32}`` with 255 on void pixels.
+"label": (B, H, W) int32}`` with 255 on void pixels. A model with further inputs names them in a
+class attribute ``extra_inputs`` (e.g. MMF's RGBDNet: ``("depth",)``); the batch then carries
+them under those names and they are passed to ``apply`` as keyword arguments.
 """
 from __future__ import annotations
 
@@ -78,6 +80,11 @@ def _forward(model, variables, images, cfg: LossConfig, **kwargs):
     return model.apply(variables, model_input(images).astype(dtype), **kwargs)
 
 
+def model_extras(model, batch: dict) -> dict:
+    """The batch entries named by ``model.extra_inputs`` (none for the segmenters)."""
+    return {name: batch[name] for name in getattr(model, "extra_inputs", ())}
+
+
 def model_input(images) -> jax.Array:
     """Images as the model wants them: uint8 RGB batches are normalised here, on the device
     (4x fewer bytes to transfer than float32); float batches are taken as already normalised."""
@@ -124,7 +131,7 @@ def train_step(state: TrainState, batch: dict, *, model, tx: optax.GradientTrans
     def loss_fn(params):
         variables = {"params": params, "batch_stats": state.batch_stats}
         out, updated = _forward(model, variables, batch["image"], cfg, train=True,
-                                mutable=["batch_stats"], rngs={"dropout": dropout_key})
+                                mutable=["batch_stats"], rngs={"dropout": dropout_key}, **model_extras(model, batch))
         sml_stats, k = state.sml_stats, None
         if cfg.method == "cudam" and cfg.attention_k == "running_sml":
             logits = out["logits"].astype(jnp.float32)
@@ -148,7 +155,7 @@ def train_step(state: TrainState, batch: dict, *, model, tx: optax.GradientTrans
 
 def eval_step(variables: dict, batch: dict, *, model, cfg: LossConfig) -> jax.Array:
     """Confusion matrix (C, C) of one batch, no reward, BatchNorm in inference mode."""
-    out = _forward(model, variables, batch["image"], cfg, train=False)
+    out = _forward(model, variables, batch["image"], cfg, train=False, **model_extras(model, batch))
     logits = out["logits"]
     return confusion_counts(jnp.argmax(logits, axis=-1), batch["label"], logits.shape[-1], cfg.ignore)
 

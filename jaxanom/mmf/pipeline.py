@@ -1,0 +1,264 @@
+"""MMF end to end (MMF.md A1): train the parts once, cache them, score frames with every row.
+
+    config = MMFConfig()                       # one description of every trainable part
+    pipe = MMFPipeline.build(config, "runs/mmf")   # trains or loads each part
+    maps = pipe.maps(batch)                    # logits, A, D, a (with / without assistant maps), ...
+
+Parts, each in ``root/<part>-<hash>/`` where the hash covers its settings and those of the parts
+it depends on (an edited config retrains only what changed; an interrupted part resumes from
+its checkpoints):
+
+1. segmenter: the library's DeepLabV3+ (``jaxanom.experiment``), without attention;
+2. RGB-D net (``models.rgbd``), on the segmenter's frames with disparity (D11);
+3. class-mean synthesizer (``mmf.synthesis``), fitted on the segmenter's frames;
+4. two dissimilarity nets (``models.dissimilarity``), with and without the assistant maps
+   [A, D] and Ŝ_D, trained on frames the segmenter never saw (D14, another seed) with void
+   clutter as anomaly (void -> 1, labelled -> 0).
+
+Synthetic data only (real-data training needs Cityscapes disparity, not wired here).
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import io
+import json
+from pathlib import Path
+from typing import Callable, Iterator
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxanom.data.synthetic import SyntheticScenes
+from jaxanom.data.transforms import normalize
+from jaxanom.experiment import Experiment, build_network, jsonable, run_training
+from jaxanom.io import write_bytes_atomic
+from jaxanom.mmf.perceptual import anomaly_map_batch, perceptual_difference_batch
+from jaxanom.mmf.synthesis import ClassMeanSynthesizer
+from jaxanom.mmf.uncertainty import uncertainty_maps_batch
+from jaxanom.models.dissimilarity import DissimilarityNet, anomaly_probability
+from jaxanom.models.resnet import RESNETS, ResNet
+from jaxanom.models.rgbd import RGBDNet, depth_input
+from jaxanom.superpixels import num_superpixels, rgb_to_lab, slic_batch
+from jaxanom.train.loop import TrainConfig, train
+from jaxanom.train.optim import OptimConfig
+
+_SEGMENTER = Experiment(
+    attention=None, train_frames=128, height=64, width=128, crop=(64, 128), scale_range=(0.75, 1.25), batch_size=8,
+    train=TrainConfig(run_dir="", steps=400, eval_every=400, save_every=200, keep=1,
+                      optim=OptimConfig(name="adamw", lr=2e-3, weight_decay=1e-4, warmup_steps=20)))
+
+
+@dataclasses.dataclass(frozen=True)
+class MMFConfig:
+    """Every trainable part of MMF on synthetic scenes (sizes for a CPU; ``quick()`` for tests).
+
+    ``segmenter``: the segmenter's experiment (its frames, size and schedule are the pipeline's);
+    ``rgbd_*``: RGB-D net backbone, decoder width, steps; ``dissim_*``: dissimilarity nets' width
+    multiplier, steps, learning rate (Adam, betas 0.9 / 0.999), frames and void clutter per frame;
+    ``slic_step``: SLIC grid step S in pixels (D16); ``batch_size`` for the RGB-D and dissimilarity
+    nets.
+    """
+
+    segmenter: Experiment = _SEGMENTER
+    rgbd_backbone: str = "resnet_tiny"
+    rgbd_channels: int = 32
+    rgbd_steps: int = 200
+    dissim_width: float = 1 / 8
+    dissim_steps: int = 300
+    dissim_lr: float = 1e-3
+    dissim_frames: int = 96
+    void_objects: int = 4
+    batch_size: int = 8
+    slic_step: int = 8
+
+    def __post_init__(self):
+        s = self.segmenter
+        if s.data != "synthetic" or s.height % 8 or s.width % 8 or tuple(s.crop) != (s.height, s.width):
+            raise ValueError(f"segmenter: expected synthetic data, height and width divisible by 8 and crop = "
+                             f"(height, width), got {s.data}, {s.height} x {s.width}, crop {s.crop}")
+        if min(self.rgbd_steps, self.dissim_steps, self.dissim_frames, self.batch_size) < 1:
+            raise ValueError("rgbd_steps, dissim_steps, dissim_frames, batch_size: expected >= 1")
+
+    @classmethod
+    def quick(cls) -> "MMFConfig":
+        """A seconds-long run of the same path (tests, ``demo mmf --quick``)."""
+        seg = dataclasses.replace(_SEGMENTER, train_frames=4, height=32, width=64, crop=(32, 64), batch_size=4,
+                                  train=dataclasses.replace(_SEGMENTER.train, steps=2, eval_every=2, save_every=2,
+                                                            optim=dataclasses.replace(_SEGMENTER.train.optim,
+                                                                                      warmup_steps=0)))
+        return cls(segmenter=seg, rgbd_channels=8, rgbd_steps=2, dissim_width=1 / 16, dissim_steps=2,
+                   dissim_frames=4, batch_size=4)
+
+    def key(self, *fields: str) -> str:
+        """A 12-hex hash of the named settings (the segmenter's as its JSON)."""
+        values = {f: jsonable(self.segmenter) if f == "segmenter" else getattr(self, f) for f in fields}
+        return hashlib.sha256(json.dumps(values, sort_keys=True).encode()).hexdigest()[:12]
+
+
+_PARTS = {"segmenter": ("segmenter",),
+          "rgbd": ("segmenter", "rgbd_backbone", "rgbd_channels", "rgbd_steps", "batch_size"),
+          "synthesizer": ("segmenter",),
+          "dissimilarity": tuple(f.name for f in dataclasses.fields(MMFConfig) if f.name != "slic_step")}
+
+
+def training_stream(arrays: dict[str, np.ndarray], batch_size: int, seed: int) -> Iterator[dict]:
+    """Endless random batches (with horizontal flips) of equally long host arrays; a pure
+    function of ``seed`` and the step, so a resumed run may skip the batches it used."""
+    count = len(arrays["image"])
+    for step in range(1 << 62):
+        rng = np.random.default_rng([seed, step])
+        index = rng.choice(count, batch_size, replace=count < batch_size)
+        flip = rng.random(batch_size) < 0.5
+        batch = {}
+        for name, value in arrays.items():
+            chosen = value[index]
+            batch[name] = np.where(flip.reshape((-1,) + (1,) * (chosen.ndim - 1)), chosen[:, :, ::-1], chosen)
+        yield batch
+
+
+def _train_config(run_dir: Path, steps: int, lr: float, seed: int, progress: bool, adam: bool = False) -> TrainConfig:
+    optim = OptimConfig(name="adamw", lr=lr, weight_decay=0.0 if adam else 1e-4, poly_power=0.0 if adam else 0.9)
+    return TrainConfig(run_dir=str(run_dir), steps=steps, seed=seed, optim=optim, eval_every=steps,
+                       save_every=max(1, steps // 2), keep=1, progress=progress)
+
+
+@dataclasses.dataclass
+class MMFPipeline:
+    """The trained parts and the jitted map computation (``maps``)."""
+
+    config: MMFConfig
+    segmenter: tuple          # (model, variables)
+    rgbd: tuple
+    synthesizer: ClassMeanSynthesizer
+    dissimilarity: dict       # {"mmf": (model, variables), "resynthesis": (model, variables)}
+
+    @classmethod
+    def build(cls, config: MMFConfig, root: str | Path, *, progress: bool = True,
+              log: Callable[[str], None] = print) -> "MMFPipeline":
+        """Train (or load, or resume) every part under ``root``; see the module docstring."""
+        root = Path(root)
+        seg_cfg = config.segmenter
+        seed = seg_cfg.train.seed
+        log("MMF 1/4: segmenter")
+        seg_vars = run_training(seg_cfg, root / f"segmenter-{config.key(*_PARTS['segmenter'])}",
+                                progress=progress, validate=False)
+        segmenter = (build_network(seg_cfg), seg_vars)
+
+        log("MMF 2/4: RGB-D network")
+        frames = [SyntheticScenes("train", seg_cfg.train_frames, seed, height=seg_cfg.height, width=seg_cfg.width,
+                                  disparity=True)[i] for i in range(seg_cfg.train_frames)]
+        arrays = {"image": np.stack([f["image"] for f in frames]),
+                  "label": np.stack([f["label"] for f in frames]).astype(np.int32),
+                  "depth": depth_input(np.stack([f["disparity"] for f in frames]), seg_cfg.width)[..., None]}
+        rgbd_model = RGBDNet(seg_cfg.num_classes, config.rgbd_backbone, config.rgbd_channels,
+                             max(1, config.rgbd_channels // 4))
+        run = root / f"rgbd-{config.key(*_PARTS['rgbd'])}"
+        state = train(_train_config(run, config.rgbd_steps, 2e-3, seed, progress), rgbd_model,
+                      training_stream(arrays, config.batch_size, seed))
+        rgbd = (rgbd_model, jax.device_get(state.variables))
+
+        log("MMF 3/4: class-mean synthesizer")
+        synth_file = root / f"synthesizer-{config.key(*_PARTS['synthesizer'])}.npz"
+        if synth_file.exists():
+            synthesizer = ClassMeanSynthesizer(np.load(synth_file)["means"])
+        else:
+            synthesizer = ClassMeanSynthesizer.fit(frames, seg_cfg.num_classes)
+            buffer = io.BytesIO()
+            np.savez(buffer, means=synthesizer.means)
+            write_bytes_atomic(synth_file, buffer.getvalue())
+
+        pipe = cls(config, segmenter, rgbd, synthesizer, {})
+        log("MMF 4/4: dissimilarity networks (with and without assistant maps)")
+        dissim_frames = SyntheticScenes("train", config.dissim_frames, seed + 1, height=seg_cfg.height,
+                                        width=seg_cfg.width, disparity=True, void_objects=config.void_objects)
+        batches = []
+        for j in range(0, len(dissim_frames), config.batch_size):
+            chunk = [dissim_frames[i] for i in range(j, min(j + config.batch_size, len(dissim_frames)))]
+            batches.append(pipe._dissimilarity_inputs(chunk, pipe._network_maps(chunk)))
+        arrays = {k: np.concatenate([b[k] for b in batches]) for k in batches[0]}
+        for name, assisted in (("mmf", True), ("resynthesis", False)):
+            model = DissimilarityNet(seg_cfg.num_classes, uncertainty_channels=2 if assisted else 0,
+                                     use_depth=assisted, width=config.dissim_width)
+            run = root / f"dissimilarity-{name}-{config.key(*_PARTS['dissimilarity'])}"
+            data = {k: arrays[k] for k in ("image", "label", *model.extra_inputs)}
+            state = train(_train_config(run, config.dissim_steps, config.dissim_lr, seed, progress, adam=True),
+                          model, training_stream(data, config.batch_size, seed + 2))
+            pipe.dissimilarity[name] = (model, jax.device_get(state.variables))
+        return pipe
+
+    def _network_maps(self, frames: list[dict]) -> dict[str, np.ndarray]:
+        """Segmenter, RGB-D net, resynthesis and Eqs. 1-4 for frames with ``image`` and ``disparity``."""
+        images = np.stack([f["image"] for f in frames])
+        disparity = np.stack([f["disparity"] for f in frames])
+        out = _forward(self.segmenter, self.rgbd, self.synthesizer.means, images,
+                       depth_input(disparity, images.shape[2])[..., None])
+        return {k: np.asarray(v) for k, v in out.items()}
+
+    @staticmethod
+    def _dissimilarity_inputs(frames: list[dict], out: dict) -> dict[str, np.ndarray]:
+        """The dissimilarity nets' inputs (and void-as-anomaly labels where frames have ``void``)."""
+        images = np.stack([f["image"] for f in frames])
+        inputs = {"image": normalize(images), "resynthesis": out["resynthesis_normalized"],
+                  "semantic": out["prediction"], "semantic_depth": out["prediction_depth"],
+                  "uncertainty": np.stack([out["anomaly"], out["distance"]], axis=-1)}
+        if "void" in frames[0]:  # void as anomaly (1), labelled pixels 0
+            inputs["label"] = np.stack([f["void"] for f in frames]).astype(np.int32)
+        return inputs
+
+    def maps(self, frames: list[dict]) -> dict[str, np.ndarray]:
+        """Every map of MMF for a list of equally sized frames (``image``, ``disparity``):
+        ``logits``, ``entropy`` (U), ``distance`` (D), ``perceptual`` (L), ``anomaly`` (A),
+        ``resynthesis`` (r, [0, 1]), ``mmf`` / ``resynthesis_score`` (a of the two nets),
+        ``superpixels`` and ``num_segments`` (SLIC on the image)."""
+        out = self._network_maps(frames)
+        inputs = self._dissimilarity_inputs(frames, out)
+        for name, (model, variables) in self.dissimilarity.items():
+            kw = {k: inputs[k] for k in model.extra_inputs}
+            logits = _dissimilarity_forward(model, variables, inputs["image"], kw)
+            out["mmf" if name == "mmf" else "resynthesis_score"] = np.asarray(anomaly_probability(logits))
+        images = np.stack([f["image"] for f in frames])
+        lab = rgb_to_lab(images.astype(np.float32) / 255.0)
+        out["superpixels"] = np.asarray(slic_batch(lab, self.config.slic_step))
+        out["num_segments"] = num_superpixels(images.shape[1:3], self.config.slic_step)
+        return out
+
+
+_JITTED: dict = {}  # one jitted function per (frozen, hashable) Flax module or pair of modules
+
+
+def _dissimilarity_forward(model, variables, images, kw):
+    if model not in _JITTED:
+        _JITTED[model] = jax.jit(lambda v, x, extra: model.apply(v, x, **extra)["logits"])
+    return _JITTED[model](variables, images, kw)
+
+
+def _forward(segmenter, rgbd, means, images, depth) -> dict:
+    """Segmenter, RGB-D net, resynthesis and the maps of Eqs. 1-4 for a batch (one jitted call)."""
+    (seg_model, seg_vars), (rgbd_model, rgbd_vars) = segmenter, rgbd
+    key = (seg_model, rgbd_model)
+    if key not in _JITTED:
+        _JITTED[key] = jax.jit(lambda *args: _maps(seg_model, rgbd_model, *args))
+    return _JITTED[key](seg_vars, rgbd_vars, jnp.asarray(means), images, depth)
+
+
+def _maps(seg_model, rgbd_model, seg_vars, rgbd_vars, means, images, depth) -> dict:
+    x = normalize(images)
+    logits = seg_model.apply(seg_vars, x)["logits"]
+    maps = uncertainty_maps_batch(logits)
+    prediction = maps["prediction"]
+    classes = means.shape[0] - 1
+    resynthesis = means[jnp.where(prediction < classes, prediction, classes)]
+    r = normalize(jnp.round(resynthesis * 255).astype(jnp.uint8))
+    # perceptual features: the segmenter's own ResNet stages (D10)
+    backbone = ResNet(RESNETS[seg_model.backbone], seg_model.output_stride)
+    sub = {"params": seg_vars["params"]["backbone"], "batch_stats": seg_vars["batch_stats"]["backbone"]}
+    fx, fr = backbone.apply(sub, x), backbone.apply(sub, r)
+    taps = [f"layer{i}" for i in range(1, 5)]
+    perceptual = perceptual_difference_batch([fx[t] for t in taps], [fr[t] for t in taps], images.shape[1:3])
+    depth_logits = rgbd_model.apply(rgbd_vars, x, depth=depth)["logits"]
+    return {"logits": logits, "entropy": maps["entropy"], "distance": maps["distance"], "road": maps["road"],
+            "prediction": prediction, "prediction_depth": jnp.argmax(depth_logits, -1).astype(jnp.int32),
+            "resynthesis": resynthesis, "resynthesis_normalized": r, "perceptual": perceptual,
+            "anomaly": anomaly_map_batch(maps["entropy"], perceptual)}
