@@ -16,9 +16,12 @@ import orbax.checkpoint as ocp
 
 
 def _abstract(tree):
-    """Shapes, dtypes and shardings to restore into; host arrays go to the first local device."""
+    """Shapes, dtypes and shardings to restore into; host arrays and shapes without a sharding
+    (``jax.eval_shape``) go to the first local device, whatever devices the writer had (a run
+    trained on many hosts is read on one)."""
     default = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
-    return jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=getattr(x, "sharding", default)), tree)
+    return jax.tree.map(
+        lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=getattr(x, "sharding", None) or default), tree)
 
 
 class Checkpointer:
