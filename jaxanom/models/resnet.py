@@ -44,12 +44,6 @@ RESNETS: dict[str, ResNetSpec] = {
 }
 
 
-def stage_channels(spec: ResNetSpec) -> tuple[int, ...]:
-    """Output channels of ``layer1 .. layer4`` for ``spec``."""
-    expansion = 4 if spec.bottleneck else 1
-    return tuple(spec.width * 2**i * expansion for i in range(len(spec.stage_sizes)))
-
-
 def stage_dilations(output_stride: int) -> tuple[tuple[int, int], ...]:
     """(stride, dilation) of the first block of ``layer1 .. layer4`` for an output stride."""
     if output_stride == 32:
