@@ -2,6 +2,7 @@
 
     python -m experiments                         # every table on synthetic scenes (~20 min, 2 cores)
     python -m experiments --only cudam_table2     # one table
+    python -m experiments --size 64 128 --train-frames 128 --steps 300   # smaller networks (RESULTS.md)
     python -m experiments --cityscapes /data/cityscapes --anomaly road_anomaly:/data/RoadAnomaly --out results/
 
 Networks are cached in ``--runs`` by configuration, so tables that share a network train it once
@@ -33,6 +34,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--only", nargs="+", choices=EXPERIMENTS, default=list(EXPERIMENTS), metavar="NAME",
                         help=f"experiments to run (default: all of {', '.join(EXPERIMENTS)})")
     parser.add_argument("--steps", type=int, help="training steps per network (default: Scale's)")
+    parser.add_argument("--size", type=int, nargs=2, metavar=("H", "W"), help="frame height and width (default: Scale's)")
+    parser.add_argument("--train-frames", type=int, help="synthetic training scenes (default: Scale's)")
     parser.add_argument("--seeds", type=int, default=3,
                         help="train every network once per seed (seed, seed + 1, ...); tables give mean ± std "
                         "(default: %(default)s)")
@@ -47,7 +50,9 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 def scale_from(args: argparse.Namespace) -> Scale:
     scale = Scale.smoke() if args.smoke else Scale()
-    changes = {"steps": args.steps, "cityscapes_root": args.cityscapes, "anomaly": args.anomaly}
+    height, width = args.size or (None, None)
+    changes = {"steps": args.steps, "height": height, "width": width, "train_frames": args.train_frames,
+               "cityscapes_root": args.cityscapes, "anomaly": args.anomaly}
     return dataclasses.replace(scale, **{k: v for k, v in changes.items() if v is not None})
 
 

@@ -2,9 +2,14 @@
 import os
 from pathlib import Path
 
-import jax
-import pytest
-from hypothesis import settings
+# The suite is bound by XLA compile time, not by run time: LLVM's optimisation passes off (level 0)
+# compile 2-3x faster. Numerics are unchanged (fast-math is off at every level). Set before JAX
+# starts a backend; subprocesses started by tests inherit it.
+os.environ["XLA_FLAGS"] = " ".join([os.environ.get("XLA_FLAGS", ""), "--xla_backend_optimization_level=0"]).strip()
+
+import jax  # noqa: E402
+import pytest  # noqa: E402
+from hypothesis import settings  # noqa: E402
 
 jax.config.update("jax_num_cpu_devices", 4)
 jax.config.update("jax_platforms", "cpu")

@@ -176,3 +176,11 @@ def test_seeds_aggregate_to_mean_and_sample_std_and_findings_need_the_spread():
     assert [s.seed for s in seed_scales(Scale(seed=4), 3)] == [4, 5, 6]
     with pytest.raises(ValueError, match="seeds"):
         seed_scales(Scale(), 0)
+
+
+def test_command_line_sets_the_scale():
+    from experiments.__main__ import parse_args, scale_from
+
+    scale = scale_from(parse_args(["--size", "64", "128", "--train-frames", "128", "--steps", "300"]))
+    assert (scale.height, scale.width, scale.train_frames, scale.steps) == (64, 128, 128, 300)
+    assert scale_from(parse_args([])) == Scale()
