@@ -1,11 +1,15 @@
 """Test set-up: 4 simulated CPU devices (configured before JAX starts a backend), real sample data."""
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
-# The suite is bound by XLA compile time, not by run time: LLVM's optimisation passes off (level 0)
-# compile 2-3x faster. Numerics are unchanged (fast-math is off at every level). Set before JAX
-# starts a backend; subprocesses started by tests inherit it.
-os.environ["XLA_FLAGS"] = " ".join([os.environ.get("XLA_FLAGS", ""), "--xla_backend_optimization_level=0"]).strip()
+# The suite is bound by XLA compile time. A persistent compilation cache for this session (an
+# empty folder each run) lets tests that build the same computation, in this process or in the
+# subprocesses they start, compile it once. Set before JAX reads its configuration.
+_XLA_CACHE = None if "JAX_COMPILATION_CACHE_DIR" in os.environ else tempfile.mkdtemp(prefix="jaxanom-tests-xla-")
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", _XLA_CACHE or "")
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
 
 import jax  # noqa: E402
 import pytest  # noqa: E402
@@ -30,3 +34,9 @@ def road_anomaly_sample() -> Path:
     if not root.is_dir():
         pytest.skip(f"real Road Anomaly sample not found at {root} (set JAXANOM_REALDATA)")
     return root
+
+
+def pytest_unconfigure(config):
+    """Remove this session's compilation cache (not one the caller named)."""
+    if _XLA_CACHE:
+        shutil.rmtree(_XLA_CACHE, ignore_errors=True)
