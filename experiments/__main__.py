@@ -112,13 +112,14 @@ def summary(results: list[dict], failures: dict[str, str] | None = None) -> str:
         "",
         f"Written by `python -m experiments` on {datetime.date.today().isoformat()}. Every network is the tiny "
         f"DeepLabV3+ (`deeplabv3plus_tiny`, output stride 16) trained for the steps its table states, batch "
-        f"{scale.batch_size}, on {data} (unless a table states another size), with AdamW (lr 2e-3) instead of the papers' SGD schedule. SML "
+        f"{scale.batch_size}, on {data}, with AdamW (lr 2e-3) instead of the papers' SGD schedule. SML "
         f"statistics come from {scale.stats_frames} training frames; anomaly metrics pool all non-void pixels "
         f"of {anomaly}; mIoU is on {scale.val_frames} validation frames. Numbers are percent: AP is the step sum "
         "(scikit-learn's average precision), FPR95 the FPR at the first ROC point with TPR >= 95% (Fishyscapes' "
         "convention), AUROC the trapezoid. Rows with the same network hash share one trained network.",
         "",
         *seed_lines(results),
+        *other_sizes(results),
         "",
         f"CuDAM's tau and sigma are rescaled to this run's attention-map size so that `tau * M_att` keeps the "
         f"paper's magnitude: tau = {matched_tau(scale):.4g} (paper: 5e4 on 180 x 180 maps), sigma = "
@@ -157,6 +158,14 @@ def seed_lines(results: list[dict]) -> list[str]:
         lines[0] += (f" Tables with a single seed ({', '.join(single)}): differences of a point or two are within "
                      "what another seed could change; read those findings as indications, not evidence.")
     return lines
+
+
+def other_sizes(results: list[dict]) -> list[str]:
+    """A line naming the tables whose frames or training scenes differ from the first table's."""
+    size = lambda r: (r["scale"]["height"], r["scale"]["width"], r["scale"]["train_frames"])  # noqa: E731
+    others = [f"`{r['name']}` ({h} x {w}, {n} scenes, {r['scale']['steps']} steps)"
+              for r in results for h, w, n in [size(r)] if (h, w, n) != size(results[0])]
+    return ["", "**Other sizes.** Trained at another size than stated above: " + ", ".join(others) + "."] if others else []
 
 
 def _anchor(title: str) -> str:

@@ -196,19 +196,10 @@ def _read_json(path: Path):
 
 
 def load_variables(run_dir: str | os.PathLike, step: int | None = None) -> tuple[Experiment, dict]:
-    """``(experiment, variables)`` of the newest (or ``step``) checkpoint in ``run_dir``."""
-    from jaxanom.train.checkpoint import restore_checkpoint
-    from jaxanom.train.optim import make_optimizer
-    from jaxanom.train.running_sml import running_sml_classes
-    from jaxanom.train.state import TrainState
+    """``(experiment, variables)`` of the newest (or ``step``) checkpoint in ``run_dir`` (read-only)."""
+    from jaxanom.train.restore import trained_variables
 
     experiment = load_experiment(run_dir)
-    model = build_network(experiment)
-    image = np.zeros((1, *experiment.crop, 3), np.float32)
-    tx, _ = make_optimizer(experiment.train.optim, experiment.train.steps)
-    sml_classes = running_sml_classes(experiment.train.loss, experiment.num_classes)
-    # shapes only (nothing compiled): the arrays come from the checkpoint, to the host
-    template = jax.eval_shape(lambda x: TrainState.create(model.init(jax.random.key(0), x, train=False), tx,
-                                                          jax.random.key(0), sml_classes), image)
-    state, _ = restore_checkpoint(Path(run_dir) / "checkpoints", template, step)
-    return experiment, jax.device_get(state.variables)
+    config = dataclasses.replace(experiment.train, run_dir=os.fspath(run_dir))
+    example = {"image": np.zeros((1, *experiment.crop, 3), np.float32)}
+    return experiment, trained_variables(config, build_network(experiment), example, step)

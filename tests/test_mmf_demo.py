@@ -1,4 +1,6 @@
-"""``jaxanom demo mmf --quick``: the whole MMF path (every part trained, cached, scored) in miniature."""
+"""``jaxanom demo mmf --quick``: the whole MMF path (every part trained, cached, scored) in miniature;
+``--config`` and ``jaxanom evaluate --mmf`` on the parts it trained."""
+import dataclasses
 import json
 
 import numpy as np
@@ -6,7 +8,10 @@ import pytest
 
 from jaxanom.cli import main
 from jaxanom.data.image_io import read_rgb
-from jaxanom.mmf.demo import ROWS
+from jaxanom.data.synthetic import SyntheticScenes
+from jaxanom.evaluate import anomaly_results
+from jaxanom.mmf.demo import ROWS, MMFDemoConfig, scored_batches
+from jaxanom.mmf.pipeline import MMFPipeline
 
 
 @pytest.fixture(scope="module")
@@ -28,11 +33,65 @@ def test_quick_mmf_demo_writes_the_ablation_and_pictures(demo_dir):
     assert parts == ["dissimilarity", "dissimilarity", "rgbd", "segmenter", "synthesizer"]
 
 
-def test_a_second_run_reuses_every_trained_part(demo_dir, capsys):
+def _tree(folder):
+    """Every file under ``folder`` with its size and modification time."""
+    return {p: (p.stat().st_size, p.stat().st_mtime_ns) for p in folder.rglob("*")}
+
+
+def test_a_second_run_from_its_config_file_reuses_every_trained_part(demo_dir, capsys):
     before = {p: sorted(q.name for q in (p / "checkpoints").iterdir())
               for p in (demo_dir / "runs").iterdir() if p.is_dir()}
-    assert main(["demo", "mmf", "--quick", "--out", str(demo_dir), "--overwrite", "--no-progress"]) == 0
+    config = demo_dir / "config.json"
+    config.write_text(json.dumps(json.loads((demo_dir / "results.json").read_text())["config"]))
+    assert main(["demo", "mmf", "--config", str(config), "--out", str(demo_dir), "--overwrite", "--no-progress"]) == 0
     after = {p: sorted(q.name for q in (p / "checkpoints").iterdir()) for p in before}
     assert before == after and len(before) == 4
     first = json.loads((demo_dir / "results.json").read_text())["metrics"]
     assert np.isfinite(first["mmf"]["ap"])
+
+
+def test_evaluate_scores_a_dataset_with_the_trained_pipeline_without_changing_it(demo_dir, tmp_path, capsys):
+    runs = _tree(demo_dir / "runs")
+    out = tmp_path / "eval"
+    assert main(["evaluate", "--mmf", str(demo_dir), "--dataset", "synthetic", "--path", "anomaly", "--frames", "2",
+                 "--out", str(out)]) == 0
+    record = json.loads((out / "metrics.json").read_text())
+    assert set(record["metrics"]) == {row[0] for row in ROWS} and record["frames"] == 2
+    assert _tree(demo_dir / "runs") == runs  # read-only
+    # the same as scoring those frames with the library
+    pipe = MMFPipeline.load(MMFDemoConfig.quick().pipeline, demo_dir / "runs")
+    frames = SyntheticScenes("anomaly", 2, seed=1, height=32, width=64, disparity=True, roi=True)
+    metrics, _ = anomaly_results(scored_batches(pipe, frames, 1), [row[0] for row in ROWS])
+    for name, values in metrics.items():
+        assert record["metrics"][name]["ap"] == pytest.approx(values["ap"], abs=1e-12)
+
+
+def test_evaluate_mmf_refuses_what_it_cannot_score(demo_dir, tmp_path, capsys):
+    assert main(["evaluate", "--mmf", str(tmp_path), "--dataset", "synthetic", "--path", "anomaly",
+                 "--out", str(tmp_path / "a")]) == 2
+    assert "results.json" in capsys.readouterr().err
+    assert main(["evaluate", "--mmf", str(demo_dir), "--dataset", "fishyscapes-laf", "--path", str(tmp_path),
+                 "--base", str(tmp_path), "--out", str(tmp_path / "b")]) == 2
+    assert "disparity" in capsys.readouterr().err
+    with pytest.raises(SystemExit, match="2"):  # argparse: --run and --mmf exclude each other
+        main(["evaluate", "--mmf", str(demo_dir), "--run", str(demo_dir), "--dataset", "synthetic",
+              "--path", "anomaly", "--out", str(tmp_path / "c")])
+
+
+def test_pipeline_load_names_a_missing_part(demo_dir, tmp_path):
+    config = MMFDemoConfig.quick().pipeline
+    for part in (demo_dir / "runs").iterdir():
+        if part.name.startswith(("segmenter", "rgbd")):
+            (tmp_path / part.name).symlink_to(part)
+    with pytest.raises(ValueError, match="synthesizer"):
+        MMFPipeline.load(config, tmp_path)
+
+
+def test_config_round_trips_and_rejects_unknown_fields():
+    config = MMFDemoConfig.quick()
+    assert MMFDemoConfig.from_dict(json.loads(json.dumps(dataclasses.asdict(config)))) == config
+    assert MMFDemoConfig.from_dict({"anomaly_frames": 5}) == MMFDemoConfig(anomaly_frames=5)
+    with pytest.raises(ValueError, match="config"):
+        MMFDemoConfig.from_dict({"pipeline": {"dissim_stepz": 3}})
+    with pytest.raises(ValueError, match="config"):
+        MMFDemoConfig.from_dict([1, 2])

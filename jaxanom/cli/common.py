@@ -8,6 +8,7 @@ import zipfile
 import zlib
 from pathlib import Path
 
+DEFAULT_METHODS = "msp,max_logit,entropy,energy,sml,sml_post"
 CLAIM = ".jaxanom-claim"  # marker of a command writing into a folder (or beside a file), removed at its end
 _claimed: list[Path] = []
 # what NumPy and zipfile raise for empty, truncated or damaged .npy / .npz files
@@ -40,8 +41,7 @@ def add_scoring(parser) -> None:
     from jaxanom.metrics.anomaly import AP_CONVENTIONS
 
     parser.add_argument("--stats", help="SML statistics .npz (from fit-stats); needed by the sml* and cudam methods")
-    parser.add_argument("--methods", default="msp,max_logit,entropy,energy,sml,sml_post",
-                        help=f"comma-separated, from {', '.join(METHODS)} (default: %(default)s)")
+    parser.add_argument("--methods", help=f"comma-separated, from {', '.join(METHODS)} (default: {DEFAULT_METHODS})")
     parser.add_argument("--fpr-convention", choices=["first", "interp", "nearest", "strict"], default="first")
     parser.add_argument("--ap-convention", choices=AP_CONVENTIONS, default="step",
                         help="step (scikit-learn), trapz (SMIYC before 2023) or envelope (VOC, MMF Eq. 7)")

@@ -18,7 +18,8 @@ def add_parser(commands) -> None:
     parser.add_argument("--out", default="jaxanom-demo", help="output folder (default: %(default)s)")
     parser.add_argument("--quick", action="store_true", help="a seconds-long smoke run of the same path")
     parser.add_argument("--steps", type=int, help="training steps (default: 1500; --quick: 3)")
-    parser.add_argument("--config", help="offroad: a JSON config file (fields of OffroadDemoConfig)")
+    parser.add_argument("--config", help="offroad: a JSON file of OffroadDemoConfig fields; mmf: a JSON file of "
+                        "MMFDemoConfig fields, e.g. the \"config\" of a results.json (every trainable part)")
     add_common(parser, progress=True)
     parser.set_defaults(handler=run)
 

@@ -1,7 +1,7 @@
 """``jaxanom evaluate``: pooled anomaly metrics of a trained run on an anomaly dataset."""
 from __future__ import annotations
 
-from jaxanom.cli.common import CommandError, add_common, add_scoring, load_stats, out_folder
+from jaxanom.cli.common import DEFAULT_METHODS, CommandError, add_common, add_scoring, load_stats, out_folder
 
 DATASETS = {
     "synthetic": "synthetic anomaly split (PATH = split name: anomaly, anomaly_small, anomaly_large)",
@@ -9,17 +9,24 @@ DATASETS = {
     "smiyc": "SegmentMeIfYouCan RoadAnomaly21 / RoadObstacle21 (PATH holds images/, labels_masks/)",
     "fishyscapes-laf": "Fishyscapes Lost & Found (PATH = masks folder; --base = Lost & Found root)",
     "fishyscapes-static": "Fishyscapes Static (PATH = masks folder; --base = Cityscapes root)",
+    "lost-and-found": "Lost and Found (PATH = root with leftImg8bit/, gtCoarse/, disparity/; for --mmf)",
 }
+MMF_DEFAULT_METHODS = "entropy,resynthesis,resynthesis_post,mmf_raw,mmf"
 
 
 def add_parser(commands) -> None:
     parser = commands.add_parser("evaluate", help="score an anomaly dataset with a trained run",
                                  description="Pooled AP / AUROC / FPR@95 per method on an anomaly dataset. "
                                  "Datasets: " + "; ".join(f"{k}: {v}" for k, v in DATASETS.items()))
-    parser.add_argument("--run", required=True, help="training run folder")
+    model = parser.add_mutually_exclusive_group(required=True)
+    model.add_argument("--run", help="training run folder")
+    model.add_argument("--mmf", help="an MMF pipeline: a folder written by `jaxanom demo mmf` (its results.json and "
+                       f"runs/); frames need disparity; default methods {MMF_DEFAULT_METHODS}, in the road ROI "
+                       "where the dataset has one")
     parser.add_argument("--dataset", required=True, choices=list(DATASETS))
     parser.add_argument("--path", required=True, help="dataset folder (see the list above)")
     parser.add_argument("--base", help="base dataset root (Fishyscapes only)")
+    parser.add_argument("--depth", help="smiyc with --mmf: folder of <name>_disparity.png files (the tracks have none)")
     parser.add_argument("--frames", type=int, default=64, help="synthetic frames (default: %(default)s)")
     add_scoring(parser)
     parser.add_argument("--cudam-sigma", type=float,
@@ -30,16 +37,19 @@ def add_parser(commands) -> None:
     parser.set_defaults(handler=run)
 
 
-def anomaly_source(args):
-    """The dataset reader that ``--dataset``, ``--path`` and ``--base`` name."""
+def anomaly_source(args, size: dict | None = None):
+    """The dataset reader that ``--dataset``, ``--path`` and ``--base`` name; ``size``: keyword
+    arguments of the synthetic scenes (MMF: its size, disparity and road ROI)."""
     from jaxanom import data
 
     if args.dataset == "synthetic":
-        return data.SyntheticScenes(args.path, args.frames, seed=1)
+        return data.SyntheticScenes(args.path, args.frames, seed=1, **(size or {}))
     if args.dataset == "road-anomaly":
         return data.RoadAnomaly(args.path)
     if args.dataset == "smiyc":
-        return data.SegmentMeIfYouCan(args.path)
+        return data.SegmentMeIfYouCan(args.path, depth_root=args.depth)
+    if args.dataset == "lost-and-found":
+        return data.LostAndFound(args.path)
     if not args.base:
         raise CommandError(f"--base: the {args.dataset} dataset needs the root of its base images")
     reader = data.FishyscapesLostAndFound if args.dataset == "fishyscapes-laf" else data.FishyscapesStatic
@@ -53,27 +63,52 @@ def run(args) -> None:
     from jaxanom.experiment import build_network, load_variables
     from jaxanom.io import write_json_atomic
 
-    source = anomaly_source(args)
     stats = load_stats(args.stats)
+    if args.mmf:
+        source, batches = mmf_batches(args)
+        names = (args.methods or MMF_DEFAULT_METHODS).split(",")
+    else:
+        source = anomaly_source(args)
+        experiment, variables = load_variables(args.run)
+        predict = predictor(build_network(experiment), variables)
+        batches = predictions(predict, evaluation_batches(source, batch_size=1))
+        names = (args.methods or DEFAULT_METHODS).split(",")
     out = out_folder(args.out, args.overwrite)
-    experiment, variables = load_variables(args.run)
-    predict = predictor(build_network(experiment), variables)
-    names = args.methods.split(",")
-    batches = evaluation_batches(source, batch_size=1)
-    metrics, _ = anomaly_results(predictions(predict, batches), names, stats=stats, cudam_sigma=args.cudam_sigma,
+    metrics, _ = anomaly_results(batches, names, stats=stats, cudam_sigma=args.cudam_sigma,
                                  fpr_convention=args.fpr_convention, ap_convention=args.ap_convention)
     record = {"dataset": args.dataset, "path": args.path, "frames": len(source), "metrics": metrics}
+    if args.mmf:
+        record["mmf"] = args.mmf
     if stats is not None:
         record["sml_statistics"] = statistics_record(args.stats)
     if "cudam" in metrics:
         record["cudam_sigma"] = {"values": metrics["cudam"]["sigma"],
                                  "source": "given" if args.cudam_sigma is not None else "paper-equivalent"}
     write_json_atomic(out / "metrics.json", record)
-    if args.pictures:
+    if args.pictures and not args.mmf:  # MMF's pictures: jaxanom demo mmf
         from jaxanom.demo import write_pictures
 
         write_pictures(out, predict, source, stats, args.pictures)
     print(results_table(metrics))
+
+
+def mmf_batches(args):
+    """``(source, batches)``: the dataset scored by the MMF pipeline in ``--mmf`` (read-only)."""
+    from pathlib import Path
+
+    from jaxanom.mmf.demo import load_config, scored_batches
+    from jaxanom.mmf.pipeline import MMFPipeline
+
+    folder = Path(args.mmf)
+    if not (folder / "results.json").is_file():
+        raise CommandError(f"--mmf {folder}: expected a folder written by `jaxanom demo mmf` (with results.json)")
+    config = load_config(folder / "results.json").pipeline
+    if args.dataset.startswith("fishyscapes") or (args.dataset == "smiyc" and not args.depth):
+        raise CommandError(f"--mmf: the {args.dataset} dataset has no disparity; use synthetic, lost-and-found or "
+                           "smiyc with --depth")
+    seg = config.segmenter
+    source = anomaly_source(args, {"height": seg.height, "width": seg.width, "disparity": True, "roi": True})
+    return source, scored_batches(MMFPipeline.load(config, folder / "runs"), source, batch_size=1)
 
 
 def statistics_record(path: str) -> dict:

@@ -8,7 +8,7 @@ distinct score (see ``jaxanom.metrics.accumulator``).
 """
 from __future__ import annotations
 
-from jaxanom.cli.common import CommandError, StreamedArray, add_common, add_scoring, load_stats, out_folder
+from jaxanom.cli.common import DEFAULT_METHODS, CommandError, StreamedArray, add_common, add_scoring, load_stats, out_folder
 
 
 def add_parser(commands) -> None:
@@ -54,7 +54,8 @@ def run(args) -> None:
     stats = load_stats(args.stats)
     if stats is not None and len(stats[0]) != classes:
         raise CommandError(f"--stats: has {len(stats[0])} classes, the logits have {classes}")
-    names = scoring.check_methods(args.methods.split(","), have_stats=stats is not None, have_attention=False)
+    names = scoring.check_methods((args.methods or DEFAULT_METHODS).split(","), have_stats=stats is not None,
+                                  have_attention=False)
     out = out_folder(args.out, args.overwrite)
     accumulators = {name: AnomalyMetricAccumulator() for name in names}
     label_images = iter(labels if labels is not None else ())

@@ -9,6 +9,7 @@ superpixels | final score (Eq. 6).
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
 from pathlib import Path
 
@@ -16,6 +17,7 @@ import numpy as np
 
 from jaxanom.data.synthetic import SyntheticScenes
 from jaxanom.evaluate import anomaly_results
+from jaxanom.experiment import Experiment
 from jaxanom.io import write_bytes_atomic, write_json_atomic, write_png_atomic
 from jaxanom.mmf.pipeline import MMFConfig, MMFPipeline
 
@@ -37,6 +39,21 @@ class MMFDemoConfig:
     def quick(cls) -> "MMFDemoConfig":
         return cls(pipeline=MMFConfig.quick(), anomaly_frames=2, pictures=1)
 
+    @classmethod
+    def from_dict(cls, values: dict) -> "MMFDemoConfig":
+        """The inverse of ``dataclasses.asdict`` (``results.json``'s ``"config"``); fields left out
+        keep their defaults, a ``pipeline.segmenter`` given is a whole ``Experiment``."""
+        if not isinstance(values, dict):
+            raise ValueError(f"config: expected a JSON object, got {type(values).__name__}")
+        values = dict(values)
+        pipeline = dict(values.pop("pipeline", {}))
+        try:
+            if "segmenter" in pipeline:
+                pipeline["segmenter"] = Experiment.from_dict(pipeline["segmenter"])
+            return cls(pipeline=MMFConfig(**pipeline), **values)
+        except (TypeError, KeyError) as error:  # an unknown or missing field
+            raise ValueError(f"config: {type(error).__name__}: {error}") from None
+
 
 def evaluation_frames(config: MMFDemoConfig) -> SyntheticScenes:
     """Anomaly frames with disparity and the road ROI, seed = segmenter seed + 2."""
@@ -46,7 +63,7 @@ def evaluation_frames(config: MMFDemoConfig) -> SyntheticScenes:
 
 
 def scored_batches(pipe: MMFPipeline, source, batch_size: int, keep: int = 0, kept: list | None = None):
-    """Batches ``{"logits", "label", "roi", "mmf_maps"}`` for ``evaluate.anomaly_results``; the
+    """Batches ``{"logits", "label", "roi"?, "mmf_maps"}`` for ``evaluate.anomaly_results``; the
     first ``keep`` frames' maps are appended to ``kept`` (for pictures)."""
     for start in range(0, len(source), batch_size):
         frames = [source[i] for i in range(start, min(start + batch_size, len(source)))]
@@ -54,10 +71,12 @@ def scored_batches(pipe: MMFPipeline, source, batch_size: int, keep: int = 0, ke
         if kept is not None:
             for i, frame in enumerate(frames[:max(0, keep - start)]):
                 kept.append((frame, {k: v[i] for k, v in maps.items() if k != "num_segments"}))
-        yield {"logits": maps["logits"], "label": np.stack([f["label"] for f in frames]),
-               "roi": np.stack([f["roi"] for f in frames]),
-               "mmf_maps": {"mmf": maps["mmf"], "resynthesis": maps["resynthesis_score"],
-                            "superpixels": maps["superpixels"], "num_segments": maps["num_segments"]}}
+        batch = {"logits": maps["logits"], "label": np.stack([f["label"] for f in frames]),
+                 "mmf_maps": {"mmf": maps["mmf"], "resynthesis": maps["resynthesis_score"],
+                              "superpixels": maps["superpixels"], "num_segments": maps["num_segments"]}}
+        if "roi" in frames[0]:  # the road region of interest, where the dataset has one
+            batch["roi"] = np.stack([f["roi"] for f in frames])
+        yield batch
 
 
 def table(metrics: dict) -> str:
@@ -118,11 +137,28 @@ def run_mmf_demo(out_dir: str | Path, config: MMFDemoConfig = MMFDemoConfig(), *
     return results
 
 
-def run_cli(args) -> None:
-    """``jaxanom demo mmf [--quick] [--steps N] [--out DIR] [--overwrite]`` (N: segmenter steps)."""
-    from jaxanom.cli.common import out_folder
+def load_config(path: str | Path) -> MMFDemoConfig:
+    """An ``MMFDemoConfig`` from a JSON file: the ``"config"`` of a ``results.json``, or any part of it."""
+    try:
+        values = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as error:
+        raise ValueError(f"config {path}: cannot be read as JSON ({error})") from None
+    try:
+        return MMFDemoConfig.from_dict(values.get("config", values) if isinstance(values, dict) else values)
+    except ValueError as error:
+        raise ValueError(f"{path}: {error}") from None
 
-    config = MMFDemoConfig.quick() if args.quick else MMFDemoConfig()
+
+def run_cli(args) -> None:
+    """``jaxanom demo mmf [--quick | --config FILE] [--steps N] [--out DIR] [--overwrite]`` (N: segmenter steps)."""
+    from jaxanom.cli.common import CommandError, out_folder
+
+    if args.quick and args.config:
+        raise CommandError("--quick, --config: give one of them")
+    try:
+        config = load_config(args.config) if args.config else MMFDemoConfig.quick() if args.quick else MMFDemoConfig()
+    except ValueError as error:
+        raise CommandError(f"--config {error}") from None
     if args.steps is not None:
         seg = config.pipeline.segmenter
         seg = dataclasses.replace(seg, train=dataclasses.replace(seg.train, steps=args.steps))

@@ -32,7 +32,7 @@ import numpy as np
 
 from jaxanom.data.synthetic import SyntheticScenes
 from jaxanom.data.transforms import normalize
-from jaxanom.experiment import Experiment, build_network, jsonable, run_training
+from jaxanom.experiment import Experiment, build_network, jsonable, load_variables, run_training
 from jaxanom.io import write_bytes_atomic
 from jaxanom.mmf.perceptual import anomaly_map_batch, perceptual_difference_batch
 from jaxanom.mmf.synthesis import ClassMeanSynthesizer
@@ -42,6 +42,7 @@ from jaxanom.models.resnet import RESNETS, ResNet
 from jaxanom.models.rgbd import RGBDNet, depth_input
 from jaxanom.superpixels import num_superpixels, rgb_to_lab, slic_batch
 from jaxanom.train.loop import TrainConfig, train
+from jaxanom.train.restore import trained_variables
 from jaxanom.train.optim import OptimConfig
 
 _SEGMENTER = Experiment(
@@ -124,6 +125,30 @@ def _train_config(run_dir: Path, steps: int, lr: float, seed: int, progress: boo
                        save_every=max(1, steps // 2), keep=1, progress=progress)
 
 
+def _run_dir(config: MMFConfig, root: Path, part: str, name: str = "") -> Path:
+    """``root/<part>[-<name>]-<hash of the part's settings>``."""
+    return root / "-".join(filter(None, (part, name, config.key(*_PARTS[part]))))
+
+
+def _rgbd_model(config: MMFConfig) -> RGBDNet:
+    return RGBDNet(config.segmenter.num_classes, config.rgbd_backbone, config.rgbd_channels,
+                   max(1, config.rgbd_channels // 4))
+
+
+def _rgbd_train_config(config: MMFConfig, run: Path, progress: bool) -> TrainConfig:
+    return _train_config(run, config.rgbd_steps, 2e-3, config.segmenter.train.seed, progress)
+
+
+def _dissimilarity_model(config: MMFConfig, assisted: bool) -> DissimilarityNet:
+    return DissimilarityNet(config.segmenter.num_classes, uncertainty_channels=2 if assisted else 0,
+                            use_depth=assisted, width=config.dissim_width)
+
+
+def _dissimilarity_train_config(config: MMFConfig, root: Path, name: str, progress: bool) -> TrainConfig:
+    return _train_config(_run_dir(config, root, "dissimilarity", name), config.dissim_steps, config.dissim_lr,
+                         config.segmenter.train.seed, progress, adam=True)
+
+
 @dataclasses.dataclass
 class MMFPipeline:
     """The trained parts and the jitted map computation (``maps``)."""
@@ -142,7 +167,7 @@ class MMFPipeline:
         seg_cfg = config.segmenter
         seed = seg_cfg.train.seed
         log("MMF 1/4: segmenter")
-        seg_vars = run_training(seg_cfg, root / f"segmenter-{config.key(*_PARTS['segmenter'])}",
+        seg_vars = run_training(seg_cfg, _run_dir(config, root, "segmenter"),
                                 progress=progress, validate=False)
         segmenter = (build_network(seg_cfg), seg_vars)
 
@@ -152,15 +177,14 @@ class MMFPipeline:
         arrays = {"image": np.stack([f["image"] for f in frames]),
                   "label": np.stack([f["label"] for f in frames]).astype(np.int32),
                   "depth": depth_input(np.stack([f["disparity"] for f in frames]), seg_cfg.width)[..., None]}
-        rgbd_model = RGBDNet(seg_cfg.num_classes, config.rgbd_backbone, config.rgbd_channels,
-                             max(1, config.rgbd_channels // 4))
-        run = root / f"rgbd-{config.key(*_PARTS['rgbd'])}"
-        state = train(_train_config(run, config.rgbd_steps, 2e-3, seed, progress), rgbd_model,
+        rgbd_model = _rgbd_model(config)
+        run = _run_dir(config, root, "rgbd")
+        state = train(_rgbd_train_config(config, run, progress), rgbd_model,
                       training_stream(arrays, config.batch_size, seed))
         rgbd = (rgbd_model, jax.device_get(state.variables))
 
         log("MMF 3/4: class-mean synthesizer")
-        synth_file = root / f"synthesizer-{config.key(*_PARTS['synthesizer'])}.npz"
+        synth_file = _run_dir(config, root, "synthesizer").with_suffix(".npz")
         if synth_file.exists():
             synthesizer = ClassMeanSynthesizer(np.load(synth_file)["means"])
         else:
@@ -179,14 +203,42 @@ class MMFPipeline:
             batches.append(pipe._dissimilarity_inputs(chunk, pipe._network_maps(chunk)))
         arrays = {k: np.concatenate([b[k] for b in batches]) for k in batches[0]}
         for name, assisted in (("mmf", True), ("resynthesis", False)):
-            model = DissimilarityNet(seg_cfg.num_classes, uncertainty_channels=2 if assisted else 0,
-                                     use_depth=assisted, width=config.dissim_width)
-            run = root / f"dissimilarity-{name}-{config.key(*_PARTS['dissimilarity'])}"
+            model = _dissimilarity_model(config, assisted)
             data = {k: arrays[k] for k in ("image", "label", *model.extra_inputs)}
-            state = train(_train_config(run, config.dissim_steps, config.dissim_lr, seed, progress, adam=True),
+            state = train(_dissimilarity_train_config(config, root, name, progress),
                           model, training_stream(data, config.batch_size, seed + 2))
             pipe.dissimilarity[name] = (model, jax.device_get(state.variables))
         return pipe
+
+    @classmethod
+    def load(cls, config: MMFConfig, root: str | Path) -> "MMFPipeline":
+        """The parts ``build`` trained under ``root``, read-only (nothing is trained or written);
+        ValueError naming the part that is missing or unfinished."""
+        root = Path(root)
+        seg = config.segmenter
+        shape = (1, seg.height, seg.width)
+        try:
+            _, seg_vars = load_variables(_run_dir(config, root, "segmenter"))
+            rgbd_model = _rgbd_model(config)
+            rgbd_vars = trained_variables(_rgbd_train_config(config, _run_dir(config, root, "rgbd"), False), rgbd_model,
+                                          {"image": np.zeros((*shape, 3), np.uint8),
+                                           "depth": np.zeros((*shape, 1), np.float32)}, complete=True)
+            synth_file = _run_dir(config, root, "synthesizer").with_suffix(".npz")
+            if not synth_file.is_file():
+                raise ValueError(f"{synth_file}: no such file")
+            synthesizer = ClassMeanSynthesizer(np.load(synth_file)["means"])
+            dissimilarity = {}
+            for name, assisted in (("mmf", True), ("resynthesis", False)):
+                model = _dissimilarity_model(config, assisted)
+                example = {"image": np.zeros((*shape, 3), np.float32), "resynthesis": np.zeros((*shape, 3), np.float32),
+                           "semantic": np.zeros(shape, np.int32), "semantic_depth": np.zeros(shape, np.int32),
+                           "uncertainty": np.zeros((*shape, 2), np.float32)}
+                variables = trained_variables(_dissimilarity_train_config(config, root, name, False), model,
+                                              {k: example[k] for k in ("image", *model.extra_inputs)}, complete=True)
+                dissimilarity[name] = (model, variables)
+        except ValueError as error:
+            raise ValueError(f"mmf pipeline in {root}: {error} (train it with `jaxanom demo mmf`)") from None
+        return cls(config, (build_network(seg), seg_vars), (rgbd_model, rgbd_vars), synthesizer, dissimilarity)
 
     def _network_maps(self, frames: list[dict]) -> dict[str, np.ndarray]:
         """Segmenter, RGB-D net, resynthesis and Eqs. 1-4 for frames with ``image`` and ``disparity``."""

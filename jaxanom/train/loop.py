@@ -115,13 +115,13 @@ def check_batch(batch: Any, num_classes: int, ignore: int) -> None:
                          f"{num_classes} classes), got {np.unique(label[bad])[:10].tolist()}")
 
 
-def _init_inputs(model, batch: dict) -> tuple[jax.Array, dict]:
+def init_inputs(model, batch: dict) -> tuple[jax.Array, dict]:
     """The first example of ``batch`` as ``model.init`` wants it: (images, extra keyword inputs)."""
     return model_input(np.asarray(batch["image"][:1])), {k: np.asarray(v[:1]) for k, v in model_extras(model, batch).items()}
 
 
-def _num_classes(model, batch: dict) -> int:
-    images, extras = _init_inputs(model, batch)
+def output_classes(model, batch: dict) -> int:
+    images, extras = init_inputs(model, batch)
     out = jax.eval_shape(lambda x, e: model.init_with_output(jax.random.key(0), x, train=False, **e)[0], images, extras)
     return out["logits"].shape[-1]
 
@@ -165,12 +165,12 @@ def _run(config: TrainConfig, model, train_data, val_data, variables, mesh, tx, 
     source = iter(train_data)
     resumable = hasattr(source, "get_state") and hasattr(source, "set_state")
     first = next(source)
-    num_classes = _num_classes(model, first)
+    num_classes = output_classes(model, first)
     check_batch(first, num_classes, config.loss.ignore)
 
     init_key, state_key = jax.random.split(jax.random.key(config.seed))
     if variables is None:
-        images, extras = _init_inputs(model, first)
+        images, extras = init_inputs(model, first)
         variables = jax.jit(model.init, static_argnames="train")(init_key, images, train=False, **extras)
     sml_classes = running_sml_classes(config.loss, num_classes)
     state = jax.device_put(TrainState.create(variables, tx, state_key, sml_classes), replicated(mesh))

@@ -1,0 +1,34 @@
+"""Read a finished (or running) training's variables without touching its folder."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import jax
+
+from jaxanom.train.checkpoint import restore_checkpoint
+from jaxanom.train.loop import TrainConfig, init_inputs, output_classes
+from jaxanom.train.optim import make_optimizer
+from jaxanom.train.running_sml import running_sml_classes
+from jaxanom.train.state import TrainState
+
+
+def trained_variables(config: TrainConfig, model, example: dict, step: int | None = None,
+                      *, complete: bool = False) -> dict:
+    """``{"params", "batch_stats"}`` of the newest (or ``step``) checkpoint in ``config.run_dir``.
+
+    ``example``: one batch as the run's data gives it (``"image"`` and the model's extra inputs;
+    shapes only, nothing is computed). Read-only: a training may be writing the folder. ValueError
+    naming the folder when there is no checkpoint, it is damaged, or (``complete``) the run stopped
+    before ``config.steps``.
+    """
+    images, extras = init_inputs(model, example)
+    tx, _ = make_optimizer(config.optim, config.steps)
+    sml_classes = running_sml_classes(config.loss, output_classes(model, example))
+    template = jax.eval_shape(
+        lambda x, e: TrainState.create(model.init(jax.random.key(0), x, train=False, **e), tx, jax.random.key(0),
+                                       sml_classes), images, extras)
+    state, _ = restore_checkpoint(Path(config.run_dir) / "checkpoints", template, step)
+    if complete and int(state.step) < config.steps:
+        raise ValueError(f"run_dir {config.run_dir}: trained {int(state.step)} of {config.steps} steps; "
+                         "finish the training first")
+    return jax.device_get(state.variables)
