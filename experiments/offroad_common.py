@@ -143,7 +143,6 @@ def run_seeds(name: str, title: str, description: str, scale: Scale, seeds: int,
     """Every seed's values (``seed_values(sizes, log)``, cached), aggregated; the findings checked on the
     means against the spread; ``<name>.json`` and ``<name>.md`` written to ``out_dir``. Returns the result."""
     log(f"{name}: {title}")
-    start = time.perf_counter()
     scales = seed_scales(scale, seeds)
     sizes = [offroad_sizes(s) for s in scales]
     values = aggregate([per_seed(name, z, runs, lambda z=z: seed_values(z, log), log) for z in sizes], tuple(columns))
@@ -160,7 +159,7 @@ def run_seeds(name: str, title: str, description: str, scale: Scale, seeds: int,
               "table": [{"label": k, **v} for k, v in values.items()], "scale": dataclasses.asdict(scales[0]),
               "sizes": json.loads(json.dumps(dataclasses.asdict(sizes[0]), default=str)),
               "findings": [dataclasses.asdict(f) for f in checked], "seeds": seed_text, "num_seeds": len(scales),
-              "seconds": time.perf_counter() - start, "report": report}
+              "report": report}
     out_dir = Path(out_dir)
     write_json_atomic(out_dir / f"{name}.json", result)
     write_bytes_atomic(out_dir / f"{name}.md", (report + "\n").encode())
