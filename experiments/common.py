@@ -306,14 +306,14 @@ def seed_scales(scale: Scale, seeds: int) -> list[Scale]:
     return [dataclasses.replace(scale, seed=scale.seed + i) for i in range(seeds)]
 
 
-def aggregate(per_seed: Sequence[dict]) -> dict:
-    """Per label: the mean over seeds of every metric, ``<metric>_std`` (sample std, ddof 1; 0 for one
-    seed) and ``<metric>_seeds`` (the values); other fields from the first seed, ``networks`` of all."""
+def aggregate(per_seed: Sequence[dict], metrics: Sequence[str] = METRICS) -> dict:
+    """Per label: the mean over seeds of every metric of ``metrics``, ``<metric>_std`` (sample std, ddof 1;
+    0 for one seed) and ``<metric>_seeds`` (the values); other fields from the first seed, ``networks`` of all."""
     values = {}
     for label, first in per_seed[0].items():
-        row = {k: v for k, v in first.items() if k not in METRICS}
+        row = {k: v for k, v in first.items() if k not in metrics}
         row["networks"] = [run[label]["network"] for run in per_seed]
-        for metric in METRICS:
+        for metric in metrics:
             xs = np.array([run[label][metric] for run in per_seed], np.float64)
             row[metric] = float(xs.mean())
             row[f"{metric}_std"] = float(xs.std(ddof=1)) if len(xs) > 1 else 0.0

@@ -59,7 +59,7 @@ def test_a_deepscene_source_gives_resized_frames_and_five_classes(tmp_path):
     import cv2
     import numpy as np
 
-    from jaxanom.offroad.demo import Source, _frames, num_classes
+    from jaxanom.offroad.demo import Source, num_classes, source_frames
 
     for i in range(3):
         for folder, name, value in (("rgb", f"b{i}-1_Clipped.jpg", (90, 90, 90)), ("GT_color", f"b{i}-1_mask.png", (0, 255, 0))):
@@ -67,7 +67,7 @@ def test_a_deepscene_source_gives_resized_frames_and_five_classes(tmp_path):
             cv2.imwrite(str(tmp_path / "train" / folder / name), np.full((40, 60, 3), value[::-1], np.uint8))
     source = Source(reader="deepscene", root=str(tmp_path), name="train", frames=2, start=1)
     config = dataclasses.replace(OffroadDemoConfig.quick(), train=(source,))
-    frames = _frames(source, config)
+    frames = source_frames(source, config)
     assert len(frames) == 2 and num_classes(config) == 5
     assert frames[0]["image"].shape == (48, 64, 3) and frames[0]["label"].shape == (48, 64)
     assert (frames[0]["label"] == 1).all()  # grass

@@ -118,7 +118,8 @@ class OffroadDemoConfig:
             raise ValueError(f"config: {error} in {path}") from None
 
 
-def _frames(source: Source, config: OffroadDemoConfig) -> list[dict]:
+def source_frames(source: Source, config: OffroadDemoConfig) -> list[dict]:
+    """The frames ``{"image" (H, W, 3) uint8, "label" (H, W)}`` of ``source`` at the config's size and granularity."""
     if source.reader != "synthetic":
         reader = source.open()
         picked = range(source.start, min(len(reader), source.start + source.frames * source.step), source.step)
@@ -140,14 +141,16 @@ def num_classes(config: OffroadDemoConfig) -> int:
     return 5 if source.reader == "deepscene" else len(source.open().class_names)
 
 
-def _annotate(frames: list[dict], config: OffroadDemoConfig, salt: int) -> AnnotatedFrames:
+def annotated(frames: list[dict], config: OffroadDemoConfig, salt: int) -> AnnotatedFrames:
+    """Simulated patch annotations of ``frames`` (``config.anchors`` each), seeded by (seed, ``salt``, frame)."""
     size = config.pipeline.encoder.size
     anns = [annotate(f["label"], np.random.default_rng([config.seed, salt, i]), k=config.anchors, size=size,
                      num_classes=num_classes(config)) for i, f in enumerate(frames)]
     return stack_annotations([f["image"] for f in frames], anns, slots=config.anchors)
 
 
-def _as_float(frames: list[dict]) -> np.ndarray:
+def as_float(frames: list[dict]) -> np.ndarray:
+    """(T, H, W, 3) float32 images in [0, 1] of ``frames``."""
     return np.stack([f["image"] for f in frames]).astype(np.float32) / 255.0
 
 
@@ -168,7 +171,7 @@ def _window_panel(seg: dict, index: int, model: OffroadModel, classes: int, shap
 
 def _evaluate(model: OffroadModel, test: list[dict], config: OffroadDemoConfig, progress) -> tuple[dict, dict]:
     pipe, classes = config.pipeline, num_classes(config)
-    images = _as_float(test)
+    images = as_float(test)
     flr = sequence_risk_sweep(model, images, pipe, progress=progress)
     picked = np.linspace(0, len(test) - 1, config.segmented).round().astype(int)
     seg = segment(model, images[picked], pipe, crf=True)
@@ -204,8 +207,8 @@ def run_offroad_demo(out_dir: str | Path, config: OffroadDemoConfig = OffroadDem
     bar = lambda desc: (lambda it: tqdm(it, desc=desc, disable=not progress, dynamic_ncols=True, leave=False))  # noqa: E731
     pipe = config.pipeline
     key = jax.random.key(config.seed)
-    train = [f for source in config.train for f in _frames(source, config)]
-    data = _annotate(train, config, 0)
+    train = [f for source in config.train for f in source_frames(source, config)]
+    data = annotated(train, config, 0)
     log(f"[1/4] S1: encoder on {len(train)} patch-annotated frames of domain {config.train[0].domain} "
         f"({int(data.valid.sum())} patches, {pipe.encoder.steps} steps), GMM by BIC over m in "
         f"{pipe.components[0]}..{pipe.components[-1]}")
@@ -213,8 +216,8 @@ def run_offroad_demo(out_dir: str | Path, config: OffroadDemoConfig = OffroadDem
     chosen_m = model.num_clusters
     log(f"      BIC-chosen cluster count: {chosen_m}; r_sigma = {model.r_sigma:.3f}")
 
-    active = _frames(config.active, config)
-    test = _frames(config.test, config)
+    active = source_frames(config.active, config)
+    test = source_frames(config.test, config)
     log(f"[2/4] S2: risk on the active-learning sequence ({len(active)} frames of {config.active.domain}) "
         f"and the test sequence ({len(test)} frames of {config.test.domain})")
     before, before_detail = _evaluate(model, test, config, bar("test risk"))
@@ -223,14 +226,14 @@ def run_offroad_demo(out_dir: str | Path, config: OffroadDemoConfig = OffroadDem
     log(f"[3/4] S3: active learning round (budget {pipe.budget}, gap {pipe.gap})")
 
     def annotate_frames(indices):
-        return _annotate([active[i] for i in indices], config, 1)
+        return annotated([active[i] for i in indices], config, 1)
 
-    round_ = active_round(jax.random.fold_in(key, 2), model, data, _as_float(active), annotate_frames, pipe,
+    round_ = active_round(jax.random.fold_in(key, 2), model, data, as_float(active), annotate_frames, pipe,
                           force=True, progress=bar("active"))
     after_model = round_["model"]
     chosen = round_["chosen"].tolist()
     write_png_atomic(out_dir / "hard_frames.png", np.concatenate([active[i]["image"] for i in chosen], axis=1))
-    flr_active_after = sequence_risk_sweep(after_model, _as_float(active), pipe, progress=bar("active risk"))
+    flr_active_after = sequence_risk_sweep(after_model, as_float(active), pipe, progress=bar("active risk"))
 
     log("[4/4] evaluating after the round")
     after, after_detail = _evaluate(after_model, test, config, bar("test risk"))

@@ -216,10 +216,26 @@ def active_round(key, model: OffroadModel, base: AnnotatedFrames, images: np.nda
     if not result["triggered"]:
         return result
     chosen = select_hard_frames(flr, config.budget, config.gap, method=config.selection)
-    new = annotate_frames(chosen)
+    result.update(chosen=chosen, model=update_model(key, model, base, annotate_frames(chosen), config,
+                                                    progress=progress))
+    return result
+
+
+def update_model(key, model: OffroadModel, base: AnnotatedFrames, new: AnnotatedFrames, config: OffroadConfig, *,
+                 progress: Callable | None = None) -> OffroadModel:
+    """S3's update (D-B12): fine-tune on the new annotations ``new`` (with ``base`` too when
+    ``replay``) for ``finetune_fraction`` of the initial steps, then refit the category model on
+    P^train u P^AL (``base`` and ``new``)."""
     k_train, k_fit = jax.random.split(key)
+    params = fine_tune(k_train, model.params, base, new, config, progress=progress)
+    return fit_category_model(k_fit, params, concat_frames(base, new), config)
+
+
+def fine_tune(key, params, base: AnnotatedFrames, new: AnnotatedFrames, config: OffroadConfig, *,
+              progress: Callable | None = None):
+    """The encoder part of ``update_model``: ``finetune_fraction`` x the initial steps on ``new``
+    (``base`` and ``new`` with ``replay``); returns the new parameters."""
     tune_data = concat_frames(base, new) if config.replay else new
     steps = max(1, int(round(config.encoder.steps * config.finetune_fraction)))
-    params, _ = train_encoder(k_train, model.params, tune_data, config.encoder, steps=steps, progress=progress)
-    result.update(chosen=chosen, model=fit_category_model(k_fit, params, concat_frames(base, new), config))
-    return result
+    params, _ = train_encoder(key, params, tune_data, config.encoder, steps=steps, progress=progress)
+    return params
