@@ -91,10 +91,21 @@ class MMFConfig:
         return cls(segmenter=seg, rgbd_channels=8, rgbd_steps=2, dissim_width=1 / 16, dissim_steps=2,
                    dissim_frames=4, batch_size=4)
 
+    def to_dict(self) -> dict:
+        """Every setting as plain JSON values (the segmenter's as its experiment JSON)."""
+        return {f.name: jsonable(self.segmenter) if f.name == "segmenter" else getattr(self, f.name)
+                for f in dataclasses.fields(self)}
+
     def key(self, *fields: str) -> str:
         """A 12-hex hash of the named settings (the segmenter's as its JSON)."""
-        values = {f: jsonable(self.segmenter) if f == "segmenter" else getattr(self, f) for f in fields}
+        settings = self.to_dict()
+        values = {f: settings[f] for f in fields}
         return hashlib.sha256(json.dumps(values, sort_keys=True).encode()).hexdigest()[:12]
+
+    def part_key(self, part: str) -> str:
+        """The hash naming a trained part's folder (``segmenter``, ``rgbd``, ``synthesizer``,
+        ``dissimilarity``): its settings and those of the parts it depends on."""
+        return self.key(*_PARTS[part])
 
 
 _PARTS = {"segmenter": ("segmenter",),
@@ -142,7 +153,7 @@ class MMFPipeline:
         seg_cfg = config.segmenter
         seed = seg_cfg.train.seed
         log("MMF 1/4: segmenter")
-        seg_vars = run_training(seg_cfg, root / f"segmenter-{config.key(*_PARTS['segmenter'])}",
+        seg_vars = run_training(seg_cfg, root / f"segmenter-{config.part_key('segmenter')}",
                                 progress=progress, validate=False)
         segmenter = (build_network(seg_cfg), seg_vars)
 
@@ -154,13 +165,13 @@ class MMFPipeline:
                   "depth": depth_input(np.stack([f["disparity"] for f in frames]), seg_cfg.width)[..., None]}
         rgbd_model = RGBDNet(seg_cfg.num_classes, config.rgbd_backbone, config.rgbd_channels,
                              max(1, config.rgbd_channels // 4))
-        run = root / f"rgbd-{config.key(*_PARTS['rgbd'])}"
+        run = root / f"rgbd-{config.part_key('rgbd')}"
         state = train(_train_config(run, config.rgbd_steps, 2e-3, seed, progress), rgbd_model,
                       training_stream(arrays, config.batch_size, seed))
         rgbd = (rgbd_model, jax.device_get(state.variables))
 
         log("MMF 3/4: class-mean synthesizer")
-        synth_file = root / f"synthesizer-{config.key(*_PARTS['synthesizer'])}.npz"
+        synth_file = root / f"synthesizer-{config.part_key('synthesizer')}.npz"
         if synth_file.exists():
             synthesizer = ClassMeanSynthesizer(np.load(synth_file)["means"])
         else:
@@ -181,7 +192,7 @@ class MMFPipeline:
         for name, assisted in (("mmf", True), ("resynthesis", False)):
             model = DissimilarityNet(seg_cfg.num_classes, uncertainty_channels=2 if assisted else 0,
                                      use_depth=assisted, width=config.dissim_width)
-            run = root / f"dissimilarity-{name}-{config.key(*_PARTS['dissimilarity'])}"
+            run = root / f"dissimilarity-{name}-{config.part_key('dissimilarity')}"
             data = {k: arrays[k] for k in ("image", "label", *model.extra_inputs)}
             state = train(_train_config(run, config.dissim_steps, config.dissim_lr, seed, progress, adam=True),
                           model, training_stream(data, config.batch_size, seed + 2))
