@@ -127,13 +127,14 @@ def run(scale: Scale, seeds: int, out_dir: Path = HERE, runs: Path = RUNS, log: 
                                 anomaly_frames=config.anomaly_frames) for s in scales]
     p = config.pipeline
     minutes = ", ".join(f"{i['seconds']['total'] / 60:.1f}" for i in infos)
-    description = (f"{description} Sizes: {seg.height} x {seg.width} frames; segmenter {seg.train.steps} steps on "
-                   f"{seg.train_frames} scenes; RGB-D net ({p.rgbd_backbone}) {p.rgbd_steps} steps; two "
-                   f"dissimilarity nets (width x {p.dissim_width:g}) {p.dissim_steps} steps each on {p.dissim_frames} "
-                   f"other scenes with up to {p.void_objects} void clutter objects; SLIC step {p.slic_step} px; "
-                   f"{config.anomaly_frames} `{config.anomaly_split}` frames scored in the road ROI. Pipeline seed = "
-                   f"{SEED_STRIDE} x table seed (no two seeds share a frame set). Minutes per seed (training + "
-                   f"scoring): {minutes}.")
+    description = (
+        f"{description} Sizes: {seg.height} x {seg.width} frames; segmenter {seg.train.steps} steps (the count "
+        f"stated below the table) on {seg.train_frames} scenes; RGB-D net ({p.rgbd_backbone}) {p.rgbd_steps} steps; "
+        f"two dissimilarity nets (width x {p.dissim_width:g}) {p.dissim_steps} steps each on {p.dissim_frames} "
+        f"other scenes with up to {p.void_objects} void clutter objects; SLIC step {p.slic_step} px; "
+        f"{config.anomaly_frames} `{config.anomaly_split}` frames scored in the road ROI. Pipeline seed = "
+        f"{SEED_STRIDE} x table seed (no two seeds share a frame set). Minutes per seed in the invocation that "
+        f"wrote this table (parts already in the runs folder are restored, not retrained): {minutes}.")
     networks = {k: {"part": part, "mmf_config": i["config"]} for i in infos for part, k in i["keys"].items()}
     return write_table(NAME, TITLE, values, curves, findings, used, networks, out_dir,
                        description.strip())
