@@ -26,7 +26,8 @@ from jaxanom.io import write_bytes_atomic
 
 # Ordered so that the shared networks (plain, CuDAM) are trained by the first tables.
 EXPERIMENTS = ("sml_table3_table7", "cudam_table2", "msaam_table6", "cudam_table3", "cudam_table5",
-               "cudam_fig5", "cudam_fig6", "sml_scarce_stats", "offroad_exp2", "offroad_table2", "offroad_table3")
+               "cudam_fig5", "cudam_fig6", "sml_scarce_stats", "offroad_exp2", "offroad_table2", "offroad_table3",
+               "mmf_table2")
 
 
 def parse_args(argv=None) -> argparse.Namespace:

@@ -322,6 +322,14 @@ def aggregate(per_seed: Sequence[dict], metrics: Sequence[str] = METRICS) -> dic
     return values
 
 
+def over_seeds(seed_values: Callable, scale: Scale, seeds: int, runs: Path, log: Callable) -> tuple:
+    """``seed_values(scale, runs, log) -> (values, curves, extra)`` for each of ``seed_scales(scale, seeds)``;
+    returns ``(scales, aggregate of the values, the first seed's curves, [extra of each seed])``."""
+    scales = seed_scales(scale, seeds)
+    results = [seed_values(s, runs, log) for s in scales]
+    return scales, aggregate([r[0] for r in results]), results[0][1], [r[2] for r in results]
+
+
 def seeds_text(scales: Sequence[Scale]) -> str:
     """How a result's seeds were used, for its report."""
     seeds = [s.seed for s in scales]

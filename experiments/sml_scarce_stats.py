@@ -13,8 +13,8 @@ from typing import Callable
 
 import numpy as np
 
-from experiments.common import (HERE, RUNS, Finding, Scale, _batches, _thin, aggregate, anomaly_source, improves,
-                                plain, seed_scales, trained, write_table)
+from experiments.common import (HERE, RUNS, Finding, Scale, _batches, _thin, anomaly_source, improves, over_seeds,
+                                plain, trained, write_table)
 from jaxanom import methods as scoring
 from jaxanom import sml
 from jaxanom.evaluate import class_statistics, predictions, predictor, segmentation_results
@@ -85,17 +85,11 @@ def run(scale: Scale, seeds: int, out_dir: Path = HERE, runs: Path = RUNS, log: 
         description: str = "") -> dict:
     """Every seed, aggregated; writes ``sml_scarce_stats.json/.md/_roc.png/_pr.png``."""
     log(f"{NAME}: {TITLE}")
-    scales = seed_scales(scale, seeds)
-    per_seed, curves, scarce = [], None, []
-    for s in scales:
-        values, seed_curves, seed_scarce = seed_values(s, runs, log)
-        per_seed.append(values)
-        curves = curves or seed_curves
-        scarce.append(seed_scarce)
+    scales, values, curves, scarce = over_seeds(seed_values, scale, seeds, runs, log)
     counts = ", ".join(f"{c} frames: {[x[c] for x in scarce]}" for c in STATS_FRAMES)
     description = f"{description} Classes under 10 000 predicted pixels, per seed: {counts}."
     networks = {plain(s).key: plain(s).to_dict() for s in scales}
-    return write_table(NAME, TITLE, aggregate(per_seed), curves, findings, scales, networks, out_dir,
+    return write_table(NAME, TITLE, values, curves, findings, scales, networks, out_dir,
                        description.strip())
 
 

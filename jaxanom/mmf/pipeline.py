@@ -92,10 +92,21 @@ class MMFConfig:
         return cls(segmenter=seg, rgbd_channels=8, rgbd_steps=2, dissim_width=1 / 16, dissim_steps=2,
                    dissim_frames=4, batch_size=4)
 
+    def to_dict(self) -> dict:
+        """Every setting as plain JSON values (the segmenter's as its experiment JSON)."""
+        return {f.name: jsonable(self.segmenter) if f.name == "segmenter" else getattr(self, f.name)
+                for f in dataclasses.fields(self)}
+
     def key(self, *fields: str) -> str:
         """A 12-hex hash of the named settings (the segmenter's as its JSON)."""
-        values = {f: jsonable(self.segmenter) if f == "segmenter" else getattr(self, f) for f in fields}
+        settings = self.to_dict()
+        values = {f: settings[f] for f in fields}
         return hashlib.sha256(json.dumps(values, sort_keys=True).encode()).hexdigest()[:12]
+
+    def part_key(self, part: str) -> str:
+        """The hash naming a trained part's folder (``segmenter``, ``rgbd``, ``synthesizer``,
+        ``dissimilarity``): its settings and those of the parts it depends on."""
+        return self.key(*_PARTS[part])
 
 
 _PARTS = {"segmenter": ("segmenter",),
@@ -127,7 +138,7 @@ def _train_config(run_dir: Path, steps: int, lr: float, seed: int, progress: boo
 
 def _run_dir(config: MMFConfig, root: Path, part: str, name: str = "") -> Path:
     """``root/<part>[-<name>]-<hash of the part's settings>``."""
-    return root / "-".join(filter(None, (part, name, config.key(*_PARTS[part]))))
+    return root / "-".join(filter(None, (part, name, config.part_key(part))))
 
 
 def _rgbd_model(config: MMFConfig) -> RGBDNet:
