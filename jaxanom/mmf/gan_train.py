@@ -143,7 +143,7 @@ def make_gan_step(config: GANConfig, generator, discriminator):
                             d_params=optax.apply_updates(state.d_params, d_updates), g_opt=g_opt, d_opt=d_opt,
                             step=state.step + 1)
         metrics = {"g_loss": g_loss, "d_loss": d_loss, **parts,
-                   "g_grad_norm": optax.global_norm(g_grads), "d_grad_norm": optax.global_norm(d_grads)}
+                   "g_grad_norm": optax.tree.norm(g_grads), "d_grad_norm": optax.tree.norm(d_grads)}
         return new, metrics
 
     return step

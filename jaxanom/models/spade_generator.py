@@ -80,13 +80,17 @@ class SPADEGenerator(nn.Module):
     hidden: int = 128
     dtype: Dtype = jnp.float32
 
+    def check(self, semantic) -> None:
+        """The input check of ``__call__`` (ValueError naming ``semantic``)."""
+        check_semantic(semantic, self.num_classes, 2 ** self.upsamples)
+
     def width(self, level: int) -> int:
         return min(16, 2 ** (self.upsamples - level)) * self.nf
 
     @nn.compact
     def __call__(self, semantic: jax.Array, train: bool = False) -> dict[str, jax.Array]:
         scale = 2 ** self.upsamples
-        check_semantic(semantic, self.num_classes, scale)
+        self.check(semantic)
         s = one_hot_semantic(semantic, self.num_classes, self.dtype)
         _, height, width, _ = s.shape
         x = _conv(self.width(0), 3, self.dtype, "head")(resize_nearest(s, height // scale, width // scale))
