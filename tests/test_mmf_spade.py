@@ -75,7 +75,7 @@ def _batch(seed=0):
     semantic[:, : H // 2] = semantic[:, :1]  # blocky upper half
     semantic[0, -3:] = 255  # unknown pixels
     image = rng.integers(0, 256, (B, H, W, 3), dtype=np.uint8)
-    return {"image": image, "semantic": semantic}
+    return {"image": image, "label": semantic}
 
 
 @pytest.fixture(scope="module")
@@ -84,7 +84,7 @@ def state():
 
 
 def test_generator_output_shape_range_and_unknown_label(state):
-    semantic = _batch()["semantic"]
+    semantic = _batch()["label"]
     r = np.asarray(SPADESynthesizer(GENERATOR, state.generator_variables).synthesize_batch(semantic))
     assert r.shape == (B, H, W, 3) and r.dtype == np.float32
     assert np.all(np.isfinite(r)) and r.min() >= 0.0 and r.max() <= 1.0
@@ -92,7 +92,7 @@ def test_generator_output_shape_range_and_unknown_label(state):
 
 def test_discriminator_scales_and_features(state):
     batch = _batch()
-    out = CRITIC.apply({"params": state.d_params}, batch["image"] / 255.0, batch["semantic"])
+    out = CRITIC.apply({"params": state.d_params}, batch["image"] / 255.0, batch["label"])
     assert len(out["logits"]) == 2 and len(out["features"]) == 2
     assert all(len(f) == PIPELINE.gan_layers for f in out["features"])
     assert all(x.shape[-1] == 1 and x.shape[0] == B for x in out["logits"])
@@ -118,8 +118,13 @@ def test_discriminator_and_loop_reject_bad_input(tmp_path):
         CRITIC.apply({}, np.zeros((1, H, W), np.float32), semantic)
     with pytest.raises(ValueError, match="semantic: expected shape"):
         CRITIC.apply({}, np.zeros((1, H, W, 3), np.float32), semantic[:, :-1])
-    with pytest.raises(ValueError, match="batches: expected dicts with 'image' and 'semantic'"):
-        train_gan(GANConfig(str(tmp_path)), GENERATOR, CRITIC, [{"image": np.zeros((1, H, W, 3), np.uint8)}])
+    image = np.zeros((1, H, W, 3), np.uint8)
+    with pytest.raises(ValueError, match="expected batches as dicts with 'image' and 'label'"):
+        train_gan(GANConfig(str(tmp_path)), GENERATOR, CRITIC, [{"image": image}])
+    with pytest.raises(ValueError, match=f"batch\\['label'\\]: expected values in \\[0, {CLASSES}\\) or 255"):
+        train_gan(GANConfig(str(tmp_path)), GENERATOR, CRITIC, [{"image": image, "label": semantic + CLASSES}])
+    with pytest.raises(ValueError, match="semantic: expected H and W divisible by 4"):
+        train_gan(GANConfig(str(tmp_path)), GENERATOR, CRITIC, [{"image": image[:, 1:], "label": semantic[:, 1:]}])
     with pytest.raises(ValueError, match="gan_upsamples"):
         dataclasses.replace(PIPELINE, gan_upsamples=6)
     with pytest.raises(ValueError, match="synthesizer: expected one of"):
@@ -149,7 +154,7 @@ def test_one_step_updates_both_networks(state, tmp_path):
 def test_training_on_one_batch_lowers_l1(tmp_path):
     batch = _batch(3)
     palette = np.random.default_rng(4).integers(0, 256, (256, 3), dtype=np.uint8)
-    batch["image"] = palette[batch["semantic"]]  # one colour per class: learnable from the map
+    batch["image"] = palette[batch["label"]]  # one colour per class: learnable from the map
     _train(tmp_path, 30, iter(lambda: batch, None))
     l1 = [json.loads(line)["train/l1"] for line in (tmp_path / "log.jsonl").read_text().splitlines()]
     assert len(l1) == 30

@@ -3,8 +3,8 @@
     config = GANConfig(run_dir="runs/spade", steps=2000)
     state = train_gan(config, SPADEGenerator(19, nf=8), MultiscaleDiscriminator(19, nf=8), batches)
 
-``batches``: an iterable of ``{"image": (B, H, W, 3) uint8 RGB or float in [0, 1], "semantic":
-(B, H, W) int (255 = unknown)}``, deterministic (a resumed run skips the batches already used).
+``batches``: an iterable of ``{"image": (B, H, W, 3) uint8 RGB or float in [0, 1], "label":
+(B, H, W) int (the semantic map to synthesise from; 255 = unknown)}``, deterministic (a resumed run skips the batches already used).
 Each step (``make_gan_step``) first updates the generator on hinge + 10 feature matching + 10 L1
 (``mmf.gan``) with the critic fixed, then the critic on the hinge loss, with the same batch and
 the fake of the generator before its update (as pix2pixHD; SPADE's trainer draws a new fake
@@ -30,11 +30,10 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from jaxanom._validate import check_integer
 from jaxanom.mmf.gan import FEATURE_WEIGHT, L1_WEIGHT, generator_loss, hinge_discriminator_loss
-from jaxanom.models.spade_generator import check_semantic
+from jaxanom.models.spade_generator import UNKNOWN
 from jaxanom.train.checkpoint import Checkpointer
-from jaxanom.train.loop import NonFiniteLossError
+from jaxanom.train.loop import NonFiniteLossError, check_batch
 from jaxanom.train.runlog import RunLog
 
 
@@ -154,19 +153,11 @@ def _jitted_step(config: GANConfig, generator, discriminator):
     return jax.jit(make_gan_step(config, generator, discriminator), donate_argnums=0)
 
 
-def _inputs(batch: Any) -> tuple[jax.Array, jax.Array]:
-    """``batch`` checked and converted: (image float32 in [0, 1], semantic int32)."""
-    if not isinstance(batch, dict) or not {"image", "semantic"} <= set(batch):
-        got = sorted(batch) if isinstance(batch, dict) else type(batch).__name__
-        raise ValueError(f"batches: expected dicts with 'image' and 'semantic', got {got}")
-    image, semantic = np.asarray(batch["image"]), np.asarray(batch["semantic"])
-    if image.ndim != 4 or image.shape[-1] != 3 or not (image.dtype == np.uint8 or np.issubdtype(image.dtype, np.floating)):
-        raise ValueError(f"batch['image']: expected uint8 or float (B, H, W, 3), got {image.dtype} {image.shape}")
-    if semantic.shape != image.shape[:3]:
-        raise ValueError(f"batch['semantic']: expected shape {image.shape[:3]} (the image's), got {semantic.shape}")
-    check_integer("batch['semantic']", semantic)
+def _inputs(batch: dict) -> tuple[jax.Array, jax.Array]:
+    """(image float32 in [0, 1], semantic int32) of a batch."""
+    image = np.asarray(batch["image"])
     image = image.astype(np.float32) / 255.0 if image.dtype == np.uint8 else image.astype(np.float32)
-    return jnp.asarray(image), jnp.asarray(semantic, jnp.int32)
+    return jnp.asarray(image), jnp.asarray(batch["label"], jnp.int32)
 
 
 def train_gan(config: GANConfig, generator, discriminator, batches: Iterable[dict]) -> GANState:
@@ -175,8 +166,8 @@ def train_gan(config: GANConfig, generator, discriminator, batches: Iterable[dic
     os.makedirs(config.run_dir, exist_ok=True)
     source = iter(batches)
     first = next(source)
-    image, semantic = _inputs(first)
-    check_semantic(semantic, generator.num_classes, 2 ** generator.upsamples)
+    check_batch(first, generator.num_classes, UNKNOWN)
+    generator.check(np.asarray(first["label"]))
     state = init_gan_state(config, generator, discriminator, first)
     # the step depends on the losses and optimisers only: runs that differ elsewhere share it
     step_fn = _jitted_step(dataclasses.replace(config, run_dir="", steps=1, seed=0, save_every=1, keep=1,

@@ -166,7 +166,7 @@ def build_synthesizer(config: MMFConfig, root: Path, frames: list[dict],
         gan = GANConfig(str(root / f"synthesizer-spade-{config.key(*_PARTS['spade'])}"), steps=config.gan_steps,
                         seed=seed, save_every=max(1, config.gan_steps // 2), keep=1, progress=progress)
         arrays = {"image": np.stack([f["image"] for f in frames]),
-                  "semantic": np.stack([f["label"] for f in frames]).astype(np.int32)}
+                  "label": np.stack([f["label"] for f in frames]).astype(np.int32)}
         state = train_gan(gan, generator, critic, training_stream(arrays, config.batch_size, seed + 3))
         return SPADESynthesizer(generator, jax.device_get(state.generator_variables))
     synth_file = root / f"synthesizer-{config.key(*_PARTS['synthesizer'])}.npz"
