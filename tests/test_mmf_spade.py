@@ -16,7 +16,7 @@ from jaxanom.mmf.gan import (feature_matching_loss, generator_loss, hinge_discri
                              l1_loss)
 from jaxanom.mmf.gan_train import GANConfig, init_gan_state, train_gan
 from jaxanom.mmf.pipeline import MMFConfig, build_synthesizer
-from jaxanom.mmf.synthesis import SPADESynthesizer
+from jaxanom.mmf.synthesis import ClassMeanSynthesizer, SPADESynthesizer, resynthesize
 from jaxanom.models.patch_discriminator import MultiscaleDiscriminator
 from jaxanom.models.spade_generator import SPADEGenerator
 
@@ -88,6 +88,12 @@ def test_generator_output_shape_range_and_unknown_label(state):
     r = np.asarray(SPADESynthesizer(GENERATOR, state.generator_variables).synthesize_batch(semantic))
     assert r.shape == (B, H, W, 3) and r.dtype == np.float32
     assert np.all(np.isfinite(r)) and r.min() >= 0.0 and r.max() <= 1.0
+    # the pipeline's jitted maps call resynthesize: the generator, or the class-mean gather
+    inside = jax.jit(resynthesize, static_argnums=0)
+    np.testing.assert_allclose(np.asarray(inside(GENERATOR, state.generator_variables, semantic)), r, atol=1e-6)
+    means = ClassMeanSynthesizer(np.random.default_rng(0).random((CLASSES + 1, 3)).astype(np.float32))
+    np.testing.assert_array_equal(np.asarray(inside(None, means.arrays, semantic)),
+                                  np.asarray(means.synthesize_batch(semantic)))
 
 
 def test_discriminator_scales_and_features(state):
@@ -132,7 +138,7 @@ def test_discriminator_and_loop_reject_bad_input(tmp_path):
 
 
 def _train(run_dir, steps, batches=None):
-    config = GANConfig(str(run_dir), steps=steps, save_every=2, progress=False)
+    config = GANConfig(str(run_dir), steps=steps, save_every=steps, progress=False)  # one save, at the end
     batches = batches if batches is not None else (_batch(seed) for seed in range(1 << 30))
     return train_gan(config, GENERATOR, CRITIC, batches)
 
@@ -165,9 +171,10 @@ def test_training_on_one_batch_lowers_l1(tmp_path):
 
 
 def test_resumed_training_equals_uninterrupted(tmp_path):
-    whole = _train(tmp_path / "whole", 4)
+    whole = _train(tmp_path / "whole", 3)
     _train(tmp_path / "split", 2)
-    resumed = _train(tmp_path / "split", 4)
+    resumed = _train(tmp_path / "split", 3)  # restores step 2, skips the 2 batches used
+    assert int(resumed.step) == 3
     for a, b in zip(jax.tree.leaves(whole), jax.tree.leaves(resumed)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 

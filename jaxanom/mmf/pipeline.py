@@ -38,7 +38,7 @@ from jaxanom.experiment import Experiment, build_network, jsonable, run_training
 from jaxanom.io import write_bytes_atomic
 from jaxanom.mmf.perceptual import anomaly_map_batch, perceptual_difference_batch
 from jaxanom.mmf.gan_train import GANConfig, train_gan
-from jaxanom.mmf.synthesis import ClassMeanSynthesizer, SPADESynthesizer, paint_class_means
+from jaxanom.mmf.synthesis import ClassMeanSynthesizer, SPADESynthesizer, resynthesize
 from jaxanom.mmf.uncertainty import uncertainty_maps_batch
 from jaxanom.models.dissimilarity import DissimilarityNet, anomaly_probability
 from jaxanom.models.patch_discriminator import MultiscaleDiscriminator
@@ -297,10 +297,7 @@ def _maps(seg_model, rgbd_model, generator, seg_vars, rgbd_vars, synth_arrays, i
     logits = seg_model.apply(seg_vars, x)["logits"]
     maps = uncertainty_maps_batch(logits)
     prediction = maps["prediction"]
-    if generator is None:
-        resynthesis = paint_class_means(jnp.asarray(synth_arrays), prediction)
-    else:
-        resynthesis = generator.apply(synth_arrays, prediction)["image"]
+    resynthesis = resynthesize(generator, synth_arrays, prediction)
     r = normalize(jnp.round(resynthesis * 255).astype(jnp.uint8))
     # perceptual features: the segmenter's own ResNet stages (D10)
     backbone = ResNet(RESNETS[seg_model.backbone], seg_model.output_stride)

@@ -5,7 +5,7 @@ its mean training colour, so, like a GAN's output, the resynthesis keeps the lay
 semantic map and has no appearance detail. ``fit`` runs on the host (NumPy); ``synthesize`` is a
 pure-JAX gather with a ``jit(vmap)`` batch twin. ``SPADESynthesizer`` holds a ``SPADEGenerator``
 trained by ``mmf.gan_train`` (Table 4's "lighter" synthesizer). Both expose ``arrays`` and
-``synthesize_batch``; ``paint_class_means`` is the gather for callers' own ``jit``.
+``synthesize_batch``; ``resynthesize`` is either one inside a caller's own ``jit``.
 """
 from __future__ import annotations
 
@@ -112,6 +112,14 @@ class SPADESynthesizer:
         return _generate(self.model, self.variables, jnp.asarray(semantic, jnp.int32))
 
 
+def resynthesize(generator: SPADEGenerator | None, arrays, semantic: jax.Array) -> jax.Array:
+    """semantic (B, H, W) -> r (B, H, W, 3) in [0, 1] for a synthesizer's ``arrays``: class means
+    when ``generator`` is None, else ``generator`` with its variables. No checks (for jit)."""
+    if generator is None:
+        return paint_class_means(jnp.asarray(arrays), semantic)
+    return generator.apply(arrays, semantic)["image"]
+
+
 @functools.partial(jax.jit, static_argnums=0)
 def _generate(model: SPADEGenerator, variables, semantic: jax.Array) -> jax.Array:
-    return model.apply(variables, semantic)["image"]
+    return resynthesize(model, variables, semantic)
