@@ -4,7 +4,8 @@
     state = train_gan(config, SPADEGenerator(19, nf=8), MultiscaleDiscriminator(19, nf=8), batches)
 
 ``batches``: an iterable of ``{"image": (B, H, W, 3) uint8 RGB or float in [0, 1], "label":
-(B, H, W) int (the semantic map to synthesise from; 255 = unknown)}``, deterministic (a resumed run skips the batches already used).
+(B, H, W) int (the semantic map to synthesise from; 255 = unknown)}``, deterministic (a resumed
+run skips the batches already used).
 Each step (``make_gan_step``) first updates the generator on hinge + 10 feature matching + 10 L1
 (``mmf.gan``) with the critic fixed, then the critic on the hinge loss, with the same batch and
 the fake of the generator before its update (as pix2pixHD; SPADE's trainer draws a new fake
@@ -178,7 +179,7 @@ def train_gan(config: GANConfig, generator, discriminator, batches: Iterable[dic
     if checkpointer.latest_step() is not None:
         state, _ = checkpointer.restore(state)
         pending = []
-        for _ in range(int(state.step) - 1):
+        for _ in range(int(state.step) - 1 if int(state.step) < config.steps else 0):  # a finished run reads none
             next(source)
     inputs = itertools.chain(pending, source)
     log = RunLog(config.run_dir)
