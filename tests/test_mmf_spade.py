@@ -22,7 +22,8 @@ from jaxanom.models.spade_generator import SPADEGenerator
 
 PIPELINE = dataclasses.replace(MMFConfig.quick(), synthesizer="spade", gan_steps=2, gan_nf=4, gan_upsamples=2,
                                gan_hidden=8, gan_layers=2)
-CLASSES, H, W, B = PIPELINE.segmenter.num_classes, PIPELINE.segmenter.height, PIPELINE.segmenter.width, PIPELINE.batch_size
+CLASSES, B = PIPELINE.segmenter.num_classes, PIPELINE.batch_size
+H, W = PIPELINE.segmenter.height, PIPELINE.segmenter.width
 GENERATOR = SPADEGenerator(CLASSES, PIPELINE.gan_nf, PIPELINE.gan_upsamples, PIPELINE.gan_hidden)
 CRITIC = MultiscaleDiscriminator(CLASSES, PIPELINE.gan_nf, PIPELINE.gan_layers)
 
@@ -39,8 +40,8 @@ def test_hinge_losses_match_numpy():
     rng = np.random.default_rng(0)
     shapes = [(3, 5, 7, 1), (3, 2, 3, 1)]  # two scales, odd sizes
     real, fake = [_awkward(rng, s) for s in shapes], [_awkward(rng, s)[::-1].copy() for s in shapes]
-    expect_d = np.mean([np.mean(np.maximum(0, 1 - r.astype(np.float64))) + np.mean(np.maximum(0, 1 + f.astype(np.float64)))
-                        for r, f in zip(real, fake)])
+    expect_d = np.mean([np.mean(np.maximum(0, 1 - r.astype(np.float64)))
+                        + np.mean(np.maximum(0, 1 + f.astype(np.float64))) for r, f in zip(real, fake)])
     expect_g = np.mean([-np.mean(f.astype(np.float64)) for f in fake])
     np.testing.assert_allclose(float(hinge_discriminator_loss(real, fake)), expect_d, rtol=1e-5)
     # -mean D(fake) sums +-1e6 in float32: absolute error ~ float32 epsilon * 1e6 / size
@@ -108,7 +109,8 @@ def test_discriminator_scales_and_features(state):
 @pytest.mark.parametrize("semantic, message", [
     (np.zeros((H, W), np.int32), "semantic must have rank 3"),
     (np.zeros((1, H, W), np.float32), "semantic must hold integer"),
-    (np.full((1, H, W), CLASSES, np.int32), f"semantic: expected classes in \\[0, {CLASSES}\\) or 255, got \\[{CLASSES}\\]"),
+    (np.full((1, H, W), CLASSES, np.int32),
+     f"semantic: expected classes in \\[0, {CLASSES}\\) or 255, got \\[{CLASSES}\\]"),
     (np.full((1, H, W), -1, np.int32), "got \\[-1\\]"),
     (np.full((1, H, W), 254, np.int32), "got \\[254\\]"),
     (np.zeros((1, H + 2, W), np.int32), "semantic: expected H and W divisible by 4"),
@@ -190,3 +192,14 @@ def test_pipeline_trains_and_caches_the_spade_synthesizer(tmp_path):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     r = np.asarray(again.synthesize_batch(np.stack([f["label"] for f in frames]).astype(np.int32)))
     assert r.shape == (4, H, W, 3) and 0.0 <= r.min() and r.max() <= 1.0
+
+
+def test_demo_flag_selects_the_synthesizer(monkeypatch, tmp_path):
+    import jaxanom.mmf.demo as demo
+    from jaxanom.cli import main
+
+    seen = []
+    monkeypatch.setattr(demo, "run_mmf_demo", lambda out, config, progress: seen.append(config))
+    assert main(["demo", "mmf", "--quick", "--synthesizer", "spade", "--out", str(tmp_path / "a"), "--no-progress"]) == 0
+    assert main(["demo", "mmf", "--quick", "--out", str(tmp_path / "b"), "--no-progress"]) == 0
+    assert [config.pipeline.synthesizer for config in seen] == ["spade", "class_mean"]

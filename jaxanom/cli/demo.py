@@ -19,6 +19,8 @@ def add_parser(commands) -> None:
     parser.add_argument("--quick", action="store_true", help="a seconds-long smoke run of the same path")
     parser.add_argument("--steps", type=int, help="training steps (default: 1500; --quick: 3)")
     parser.add_argument("--config", help="offroad: a JSON config file (fields of OffroadDemoConfig)")
+    parser.add_argument("--synthesizer", choices=["class_mean", "spade"],
+                        help="mmf: the resynthesis (default: class_mean)")
     add_common(parser, progress=True)
     parser.set_defaults(handler=run)
 

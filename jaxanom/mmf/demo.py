@@ -119,7 +119,8 @@ def run_mmf_demo(out_dir: str | Path, config: MMFDemoConfig = MMFDemoConfig(), *
 
 
 def run_cli(args) -> None:
-    """``jaxanom demo mmf [--quick] [--steps N] [--out DIR] [--overwrite]`` (N: segmenter steps)."""
+    """``jaxanom demo mmf [--quick] [--steps N] [--synthesizer class_mean|spade] [--out DIR] [--overwrite]``
+    (N: segmenter steps)."""
     from jaxanom.cli.common import out_folder
 
     config = MMFDemoConfig.quick() if args.quick else MMFDemoConfig()
@@ -127,4 +128,7 @@ def run_cli(args) -> None:
         seg = config.pipeline.segmenter
         seg = dataclasses.replace(seg, train=dataclasses.replace(seg.train, steps=args.steps))
         config = dataclasses.replace(config, pipeline=dataclasses.replace(config.pipeline, segmenter=seg))
+    if getattr(args, "synthesizer", None):
+        pipeline = dataclasses.replace(config.pipeline, synthesizer=args.synthesizer)
+        config = dataclasses.replace(config, pipeline=pipeline)
     run_mmf_demo(out_folder(args.out, args.overwrite), config, progress=not args.no_progress)

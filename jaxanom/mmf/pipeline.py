@@ -80,7 +80,7 @@ class MMFConfig:
     batch_size: int = 8
     slic_step: int = 8
     synthesizer: str = "class_mean"
-    gan_steps: int = 1000
+    gan_steps: int = 300
     gan_nf: int = 8
     gan_upsamples: int = 3
     gan_hidden: int = 32
