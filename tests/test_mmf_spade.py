@@ -203,3 +203,12 @@ def test_demo_flag_selects_the_synthesizer(monkeypatch, tmp_path):
     assert main(["demo", "mmf", "--quick", "--synthesizer", "spade", "--out", str(tmp_path / "a"), "--no-progress"]) == 0
     assert main(["demo", "mmf", "--quick", "--out", str(tmp_path / "b"), "--no-progress"]) == 0
     assert [config.pipeline.synthesizer for config in seen] == ["spade", "class_mean"]
+
+
+def test_non_finite_loss_stops_training(tmp_path):
+    from jaxanom.train.loop import NonFiniteLossError
+
+    batch = _batch()
+    batch["image"] = np.where(batch["label"][..., None] == 255, np.nan, batch["image"] / 255.0).astype(np.float32)
+    with pytest.raises(NonFiniteLossError, match="at step 1: training stopped"):
+        _train(tmp_path, 2, iter([batch, batch]))
