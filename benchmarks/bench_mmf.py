@@ -7,6 +7,10 @@
 - ``eq6``: ``mmf.postprocess.superpixel_score_batch`` against the same equation in NumPy
   (bincount statistics, a K x K weight matrix, one image at a time); the maps must agree.
 
+- ``synthesis``: the SPADE generator's forward pass (MMF.md A2.2's tiny nf 8, n 3, SPADE hidden
+  32, random weights) against the class-mean gather on the same batch of semantic maps (Table 4:
+  the two synthesizers' cost; ratio = SPADE / class means, both jaxanom).
+
 Frames: real Road Anomaly frames (``../shared/realdata`` or ``JAXANOM_REALDATA``) resized to the
 evaluation size of MMF.md D16, else a synthetic blocky image. Step S = 8 px. Rows give
 ratio = this row's time / jaxanom's (above 1: jaxanom is faster).
@@ -108,7 +112,28 @@ def run(quick: bool = False) -> list[dict]:
         peer_ms = median_ms(theirs, repeats=repeats, warmup=1)
         rows.append(dict(benchmark="eq6", case=case, impl="numpy", median_ms=peer_ms, ms_per_frame=peer_ms / batch,
                          ratio=peer_ms / jax_ms, note=f"float64, max |diff| {diff:.1e}"))
+        rows.extend(synthesis_rows(batch, height, width, repeats))
     return rows
+
+
+def synthesis_rows(batch: int, height: int, width: int, repeats: int) -> list[dict]:
+    """The class-mean gather and the tiny SPADE generator on one batch of random 19-class maps."""
+    import jax
+
+    from jaxanom.mmf.synthesis import ClassMeanSynthesizer, SPADESynthesizer
+    from jaxanom.models.spade_generator import SPADEGenerator
+
+    semantic = jax.device_put(np.random.default_rng(batch).integers(0, 19, (batch, height, width), dtype=np.int32))
+    means = ClassMeanSynthesizer(np.random.default_rng(0).random((20, 3)).astype(np.float32))
+    generator = SPADEGenerator(19, nf=8, upsamples=3, hidden=32)
+    spade = SPADESynthesizer(generator, jax.jit(generator.init)(jax.random.key(0, impl="rbg"), semantic[:1]))
+    case = f"{batch}x{height}x{width}, C=19"
+    base_ms = median_ms(lambda: means.synthesize_batch(semantic), repeats=repeats, warmup=1)
+    spade_ms = median_ms(lambda: spade.synthesize_batch(semantic), repeats=repeats, warmup=1)
+    return [dict(benchmark="synthesis", case=case, impl="class means", median_ms=base_ms, ms_per_frame=base_ms / batch,
+                 ratio=1.0, note="gather (jit)"),
+            dict(benchmark="synthesis", case=case, impl="SPADE generator", median_ms=spade_ms,
+                 ms_per_frame=spade_ms / batch, ratio=spade_ms / base_ms, note="nf 8, n 3, hidden 32 (jit)")]
 
 
 if __name__ == "__main__":

@@ -20,6 +20,8 @@ def add_parser(commands) -> None:
     parser.add_argument("--steps", type=int, help="training steps (default: 1500; --quick: 3)")
     parser.add_argument("--config", help="offroad: a JSON file of OffroadDemoConfig fields; mmf: a JSON file of "
                         "MMFDemoConfig fields, e.g. the \"config\" of a results.json (every trainable part)")
+    parser.add_argument("--synthesizer", choices=["class_mean", "spade"],
+                        help="mmf: the resynthesis (default: class_mean)")
     add_common(parser, progress=True)
     parser.set_defaults(handler=run)
 

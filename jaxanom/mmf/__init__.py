@@ -1,5 +1,6 @@
 """Multi-Mechanism Fusion (MMF, seed 003): the paper's maps, synthesis and post-processor.
 
 Modules: ``uncertainty`` (Eqs. 1-2 normalised, road probability), ``perceptual`` (Eqs. 3-4),
-``synthesis`` (class-mean resynthesis), ``postprocess`` (Eq. 6 superpixel scores).
+``synthesis`` (class-mean and SPADE resynthesis), ``gan`` / ``gan_train`` (the SPADE
+generator's losses and GAN training), ``postprocess`` (Eq. 6 superpixel scores).
 """

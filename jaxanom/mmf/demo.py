@@ -163,4 +163,7 @@ def run_cli(args) -> None:
         seg = config.pipeline.segmenter
         seg = dataclasses.replace(seg, train=dataclasses.replace(seg.train, steps=args.steps))
         config = dataclasses.replace(config, pipeline=dataclasses.replace(config.pipeline, segmenter=seg))
+    if getattr(args, "synthesizer", None):
+        pipeline = dataclasses.replace(config.pipeline, synthesizer=args.synthesizer)
+        config = dataclasses.replace(config, pipeline=pipeline)
     run_mmf_demo(out_folder(args.out, args.overwrite), config, progress=not args.no_progress)

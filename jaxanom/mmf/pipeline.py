@@ -10,7 +10,9 @@ its checkpoints):
 
 1. segmenter: the library's DeepLabV3+ (``jaxanom.experiment``), without attention;
 2. RGB-D net (``models.rgbd``), on the segmenter's frames with disparity (D11);
-3. class-mean synthesizer (``mmf.synthesis``), fitted on the segmenter's frames;
+3. synthesizer (``mmf.synthesis``), on the segmenter's frames and their ground-truth labels:
+   class means (``synthesizer="class_mean"``, the CPU default) or a SPADE generator trained as a
+   GAN (``"spade"``, ``mmf.gan_train``; Table 4's "lighter" synthesizer);
 4. two dissimilarity nets (``models.dissimilarity``), with and without the assistant maps
    [A, D] and Ŝ_D, trained on frames the segmenter never saw (D14, another seed) with void
    clutter as anomaly (void -> 1, labelled -> 0).
@@ -35,11 +37,14 @@ from jaxanom.data.transforms import normalize
 from jaxanom.experiment import Experiment, build_network, jsonable, load_variables, run_training
 from jaxanom.io import write_bytes_atomic
 from jaxanom.mmf.perceptual import anomaly_map_batch, perceptual_difference_batch
-from jaxanom.mmf.synthesis import ClassMeanSynthesizer
+from jaxanom.mmf.gan_train import GANConfig, train_gan, trained_generator
+from jaxanom.mmf.synthesis import ClassMeanSynthesizer, SPADESynthesizer, resynthesize
 from jaxanom.mmf.uncertainty import uncertainty_maps_batch
 from jaxanom.models.dissimilarity import DissimilarityNet, anomaly_probability
+from jaxanom.models.patch_discriminator import MultiscaleDiscriminator
 from jaxanom.models.resnet import RESNETS, ResNet
 from jaxanom.models.rgbd import RGBDNet, depth_input
+from jaxanom.models.spade_generator import SPADEGenerator
 from jaxanom.superpixels import num_superpixels, rgb_to_lab, slic_batch
 from jaxanom.train.loop import TrainConfig, train
 from jaxanom.train.restore import trained_variables
@@ -58,6 +63,8 @@ class MMFConfig:
     ``segmenter``: the segmenter's experiment (its frames, size and schedule are the pipeline's);
     ``rgbd_*``: RGB-D net backbone, decoder width, steps; ``dissim_*``: dissimilarity nets' width
     multiplier, steps, learning rate (Adam, betas 0.9 / 0.999), frames and void clutter per frame;
+    ``synthesizer``: ``"class_mean"`` or ``"spade"``; ``gan_*`` (SPADE only): steps, base width nf,
+    upsamplings n, SPADE hidden width, critic layers (MMF.md A2.2's tiny nf = 8, n = 3);
     ``slic_step``: SLIC grid step S in pixels (D16); ``batch_size`` for the RGB-D and dissimilarity
     nets.
     """
@@ -73,6 +80,12 @@ class MMFConfig:
     void_objects: int = 4
     batch_size: int = 8
     slic_step: int = 8
+    synthesizer: str = "class_mean"
+    gan_steps: int = 300
+    gan_nf: int = 8
+    gan_upsamples: int = 3
+    gan_hidden: int = 32
+    gan_layers: int = 3
 
     def __post_init__(self):
         s = self.segmenter
@@ -81,6 +94,13 @@ class MMFConfig:
                              f"(height, width), got {s.data}, {s.height} x {s.width}, crop {s.crop}")
         if min(self.rgbd_steps, self.dissim_steps, self.dissim_frames, self.batch_size) < 1:
             raise ValueError("rgbd_steps, dissim_steps, dissim_frames, batch_size: expected >= 1")
+        if self.synthesizer not in SYNTHESIZERS:
+            raise ValueError(f"synthesizer: expected one of {SYNTHESIZERS}, got {self.synthesizer!r}")
+        if min(self.gan_steps, self.gan_nf, self.gan_upsamples, self.gan_hidden, self.gan_layers) < 1:
+            raise ValueError("gan_steps, gan_nf, gan_upsamples, gan_hidden, gan_layers: expected >= 1")
+        if s.height % 2 ** self.gan_upsamples or s.width % 2 ** self.gan_upsamples:
+            raise ValueError(f"gan_upsamples: expected 2^n to divide the segmenter's {s.height} x {s.width}, "
+                             f"got n = {self.gan_upsamples}")
 
     @classmethod
     def quick(cls) -> "MMFConfig":
@@ -105,14 +125,21 @@ class MMFConfig:
 
     def part_key(self, part: str) -> str:
         """The hash naming a trained part's folder (``segmenter``, ``rgbd``, ``synthesizer``,
-        ``dissimilarity``): its settings and those of the parts it depends on."""
-        return self.key(*_PARTS[part])
+        ``spade``, ``dissimilarity``): its settings and those of the parts it depends on (the
+        dissimilarity nets depend on the SPADE settings only when they see its resynthesis)."""
+        spade = ("synthesizer",) + _SPADE_FIELDS if part == "dissimilarity" and self.synthesizer == "spade" else ()
+        return self.key(*_PARTS[part], *spade)
 
 
+SYNTHESIZERS = ("class_mean", "spade")
+_SPADE_FIELDS = ("gan_steps", "gan_nf", "gan_upsamples", "gan_hidden", "gan_layers")
+# the class-mean parts' keys leave out the SPADE settings (caches of class-mean runs stay valid)
 _PARTS = {"segmenter": ("segmenter",),
           "rgbd": ("segmenter", "rgbd_backbone", "rgbd_channels", "rgbd_steps", "batch_size"),
           "synthesizer": ("segmenter",),
-          "dissimilarity": tuple(f.name for f in dataclasses.fields(MMFConfig) if f.name != "slic_step")}
+          "spade": ("segmenter", "batch_size") + _SPADE_FIELDS,
+          "dissimilarity": tuple(f.name for f in dataclasses.fields(MMFConfig)
+                                 if f.name not in ("slic_step", "synthesizer") + _SPADE_FIELDS)}
 
 
 def training_stream(arrays: dict[str, np.ndarray], batch_size: int, seed: int) -> Iterator[dict]:
@@ -160,6 +187,56 @@ def _dissimilarity_train_config(config: MMFConfig, root: Path, name: str, progre
                          config.segmenter.train.seed, progress, adam=True)
 
 
+def _gan_models(config: MMFConfig) -> tuple[SPADEGenerator, MultiscaleDiscriminator]:
+    classes = config.segmenter.num_classes
+    return (SPADEGenerator(classes, config.gan_nf, config.gan_upsamples, config.gan_hidden),
+            MultiscaleDiscriminator(classes, config.gan_nf, config.gan_layers))
+
+
+def _gan_config(config: MMFConfig, root: Path, progress: bool) -> GANConfig:
+    return GANConfig(str(root / f"synthesizer-spade-{config.part_key('spade')}"), steps=config.gan_steps,
+                     seed=config.segmenter.train.seed, save_every=max(1, config.gan_steps // 2), keep=1,
+                     progress=progress)
+
+
+def load_synthesizer(config: MMFConfig, root: Path) -> ClassMeanSynthesizer | SPADESynthesizer:
+    """The synthesizer ``build_synthesizer`` made under ``root``, read-only; ValueError if it is
+    missing or (SPADE) its training stopped early."""
+    if config.synthesizer == "spade":
+        generator, critic = _gan_models(config)
+        seg = config.segmenter
+        example = {"image": np.zeros((1, seg.height, seg.width, 3), np.uint8),
+                   "label": np.zeros((1, seg.height, seg.width), np.int32)}
+        return SPADESynthesizer(generator, trained_generator(_gan_config(config, root, False), generator, critic, example))
+    synth_file = _run_dir(config, root, "synthesizer").with_suffix(".npz")
+    if not synth_file.is_file():
+        raise ValueError(f"{synth_file}: no such file")
+    return ClassMeanSynthesizer(np.load(synth_file)["means"])
+
+
+def build_synthesizer(config: MMFConfig, root: Path, frames: list[dict],
+                      progress: bool = True) -> ClassMeanSynthesizer | SPADESynthesizer:
+    """The synthesizer of ``config.synthesizer`` for ``frames`` (``image``, ground-truth ``label``),
+    loaded from ``root`` when cached: class means in ``synthesizer-<hash>.npz``, or a SPADE
+    generator trained (resumably) in ``synthesizer-spade-<hash>/``."""
+    num_classes, seed = config.segmenter.num_classes, config.segmenter.train.seed
+    if config.synthesizer == "spade":
+        generator, critic = _gan_models(config)
+        gan = _gan_config(config, root, progress)
+        arrays = {"image": np.stack([f["image"] for f in frames]),
+                  "label": np.stack([f["label"] for f in frames]).astype(np.int32)}
+        state = train_gan(gan, generator, critic, training_stream(arrays, config.batch_size, seed + 3))
+        return SPADESynthesizer(generator, jax.device_get(state.generator_variables))
+    synth_file = _run_dir(config, root, "synthesizer").with_suffix(".npz")
+    if synth_file.exists():
+        return ClassMeanSynthesizer(np.load(synth_file)["means"])
+    synthesizer = ClassMeanSynthesizer.fit(frames, num_classes)
+    buffer = io.BytesIO()
+    np.savez(buffer, means=synthesizer.means)
+    write_bytes_atomic(synth_file, buffer.getvalue())
+    return synthesizer
+
+
 @dataclasses.dataclass
 class MMFPipeline:
     """The trained parts and the jitted map computation (``maps``)."""
@@ -167,7 +244,7 @@ class MMFPipeline:
     config: MMFConfig
     segmenter: tuple          # (model, variables)
     rgbd: tuple
-    synthesizer: ClassMeanSynthesizer
+    synthesizer: ClassMeanSynthesizer | SPADESynthesizer
     dissimilarity: dict       # {"mmf": (model, variables), "resynthesis": (model, variables)}
 
     @classmethod
@@ -194,15 +271,8 @@ class MMFPipeline:
                       training_stream(arrays, config.batch_size, seed))
         rgbd = (rgbd_model, jax.device_get(state.variables))
 
-        log("MMF 3/4: class-mean synthesizer")
-        synth_file = _run_dir(config, root, "synthesizer").with_suffix(".npz")
-        if synth_file.exists():
-            synthesizer = ClassMeanSynthesizer(np.load(synth_file)["means"])
-        else:
-            synthesizer = ClassMeanSynthesizer.fit(frames, seg_cfg.num_classes)
-            buffer = io.BytesIO()
-            np.savez(buffer, means=synthesizer.means)
-            write_bytes_atomic(synth_file, buffer.getvalue())
+        log(f"MMF 3/4: synthesizer ({config.synthesizer})")
+        synthesizer = build_synthesizer(config, root, frames, progress)
 
         pipe = cls(config, segmenter, rgbd, synthesizer, {})
         log("MMF 4/4: dissimilarity networks (with and without assistant maps)")
@@ -234,10 +304,7 @@ class MMFPipeline:
             rgbd_vars = trained_variables(_rgbd_train_config(config, _run_dir(config, root, "rgbd"), False), rgbd_model,
                                           {"image": np.zeros((*shape, 3), np.uint8),
                                            "depth": np.zeros((*shape, 1), np.float32)}, complete=True)
-            synth_file = _run_dir(config, root, "synthesizer").with_suffix(".npz")
-            if not synth_file.is_file():
-                raise ValueError(f"{synth_file}: no such file")
-            synthesizer = ClassMeanSynthesizer(np.load(synth_file)["means"])
+            synthesizer = load_synthesizer(config, root)
             dissimilarity = {}
             for name, assisted in (("mmf", True), ("resynthesis", False)):
                 model = _dissimilarity_model(config, assisted)
@@ -255,7 +322,7 @@ class MMFPipeline:
         """Segmenter, RGB-D net, resynthesis and Eqs. 1-4 for frames with ``image`` and ``disparity``."""
         images = np.stack([f["image"] for f in frames])
         disparity = np.stack([f["disparity"] for f in frames])
-        out = _forward(self.segmenter, self.rgbd, self.synthesizer.means, images,
+        out = _forward(self.segmenter, self.rgbd, self.synthesizer, images,
                        depth_input(disparity, images.shape[2])[..., None])
         return {k: np.asarray(v) for k, v in out.items()}
 
@@ -297,22 +364,22 @@ def _dissimilarity_forward(model, variables, images, kw):
     return _JITTED[model](variables, images, kw)
 
 
-def _forward(segmenter, rgbd, means, images, depth) -> dict:
+def _forward(segmenter, rgbd, synthesizer, images, depth) -> dict:
     """Segmenter, RGB-D net, resynthesis and the maps of Eqs. 1-4 for a batch (one jitted call)."""
     (seg_model, seg_vars), (rgbd_model, rgbd_vars) = segmenter, rgbd
-    key = (seg_model, rgbd_model)
+    generator = getattr(synthesizer, "model", None)  # None: class means
+    key = (seg_model, rgbd_model, generator)
     if key not in _JITTED:
-        _JITTED[key] = jax.jit(lambda *args: _maps(seg_model, rgbd_model, *args))
-    return _JITTED[key](seg_vars, rgbd_vars, jnp.asarray(means), images, depth)
+        _JITTED[key] = jax.jit(lambda *args: _maps(seg_model, rgbd_model, generator, *args))
+    return _JITTED[key](seg_vars, rgbd_vars, synthesizer.arrays, images, depth)
 
 
-def _maps(seg_model, rgbd_model, seg_vars, rgbd_vars, means, images, depth) -> dict:
+def _maps(seg_model, rgbd_model, generator, seg_vars, rgbd_vars, synth_arrays, images, depth) -> dict:
     x = normalize(images)
     logits = seg_model.apply(seg_vars, x)["logits"]
     maps = uncertainty_maps_batch(logits)
     prediction = maps["prediction"]
-    classes = means.shape[0] - 1
-    resynthesis = means[jnp.where(prediction < classes, prediction, classes)]
+    resynthesis = resynthesize(generator, synth_arrays, prediction)
     r = normalize(jnp.round(resynthesis * 255).astype(jnp.uint8))
     # perceptual features: the segmenter's own ResNet stages (D10)
     backbone = ResNet(RESNETS[seg_model.backbone], seg_model.output_stride)

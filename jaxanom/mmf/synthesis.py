@@ -1,30 +1,36 @@
-"""Class-mean resynthesis (MMF.md A2.2): the CPU stand-in for MMF's cGAN synthesizer.
+"""Resynthesis from the predicted semantic map (MMF.md A2.2): class means, or a trained SPADE generator.
 
-Each class is painted in its mean training colour, so, like a GAN's output, the resynthesis
-keeps the layout of the semantic map and has no appearance detail. ``fit`` runs on the host
-(NumPy); ``synthesize`` is a pure-JAX gather with a ``jit(vmap)`` batch twin.
+``ClassMeanSynthesizer`` is the CPU stand-in for MMF's cGAN synthesizer: each class is painted in
+its mean training colour, so, like a GAN's output, the resynthesis keeps the layout of the
+semantic map and has no appearance detail. ``fit`` runs on the host (NumPy); ``synthesize`` is a
+pure-JAX gather with a ``jit(vmap)`` batch twin. ``SPADESynthesizer`` holds a ``SPADEGenerator``
+trained by ``mmf.gan_train`` (Table 4's "lighter" synthesizer). Both expose ``arrays`` and
+``synthesize_batch``; ``resynthesize`` is either one inside a caller's own ``jit``.
 """
 from __future__ import annotations
 
 import dataclasses
-from typing import Iterable
+import functools
+from typing import Any, Iterable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxanom._validate import check_integer, check_rank, is_concrete
+from jaxanom.models.spade_generator import SPADEGenerator
 
 UNKNOWN = 255
 
 
-def _synthesize(means: jax.Array, semantic: jax.Array) -> jax.Array:
+def paint_class_means(means: jax.Array, semantic: jax.Array) -> jax.Array:
+    """means (C+1, 3), semantic (...) int -> (..., 3): row c for class c, row C for anything else."""
     classes = means.shape[0] - 1
     return means[jnp.where((semantic >= 0) & (semantic < classes), semantic, classes)]
 
 
-_synthesize_jit = jax.jit(_synthesize)
-_synthesize_batch = jax.jit(jax.vmap(_synthesize, in_axes=(None, 0)))
+_synthesize_jit = jax.jit(paint_class_means)
+_synthesize_batch = jax.jit(jax.vmap(paint_class_means, in_axes=(None, 0)))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -33,6 +39,11 @@ class ClassMeanSynthesizer:
     mean over all pixels (painted where the semantic map says 255, unknown)."""
 
     means: np.ndarray
+
+    @property
+    def arrays(self) -> np.ndarray:
+        """What ``paint_class_means`` reads: the table ``means``."""
+        return self.means
 
     @classmethod
     def fit(cls, frames: Iterable[dict], num_classes: int, semantic_key: str = "semantic") -> "ClassMeanSynthesizer":
@@ -80,3 +91,35 @@ class ClassMeanSynthesizer:
     def synthesize_batch(self, semantic) -> jax.Array:
         """``synthesize`` over a batch: (B, H, W) -> (B, H, W, 3)."""
         return _synthesize_batch(jnp.asarray(self.means), self._checked(semantic, 3, "(B, H, W)"))
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class SPADESynthesizer:
+    """A trained ``SPADEGenerator`` ``model`` with its ``variables`` ({"params", "batch_stats"})."""
+
+    model: SPADEGenerator
+    variables: Any
+
+    @property
+    def arrays(self) -> Any:
+        """What ``model.apply`` reads: the generator's variables."""
+        return self.variables
+
+    def synthesize_batch(self, semantic) -> jax.Array:
+        """semantic (B, H, W) int (classes, 255 unknown) -> r (B, H, W, 3) float32 in [0, 1]
+        (BatchNorm with its running statistics)."""
+        self.model.check(semantic)
+        return _generate(self.model, self.variables, jnp.asarray(semantic, jnp.int32))
+
+
+def resynthesize(generator: SPADEGenerator | None, arrays, semantic: jax.Array) -> jax.Array:
+    """semantic (B, H, W) -> r (B, H, W, 3) in [0, 1] for a synthesizer's ``arrays``: class means
+    when ``generator`` is None, else ``generator`` with its variables. No checks (for jit)."""
+    if generator is None:
+        return paint_class_means(jnp.asarray(arrays), semantic)
+    return generator.apply(arrays, semantic)["image"]
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _generate(model: SPADEGenerator, variables, semantic: jax.Array) -> jax.Array:
+    return resynthesize(model, variables, semantic)

@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxanom.nn.layers import Dtype
-from jaxanom.nn.spade import SPADEBlock
+from jaxanom.nn.spade import SPADEBlock, one_hot_semantic
 
 _VGG16 = ((64, 64), (128, 128), (256, 256, 256), (512, 512, 512))  # the first four stages
 
@@ -102,8 +102,7 @@ class DissimilarityNet(nn.Module):
                 raise ValueError(f"{name}: expected shape {shape}, got {None if value is None else value.shape}")
 
     def _one_hot(self, labels: jax.Array) -> jax.Array:
-        labels = jnp.where((labels >= 0) & (labels < self.num_classes), labels, self.num_classes)
-        return jax.nn.one_hot(labels, self.num_classes + 1, dtype=self.dtype)
+        return one_hot_semantic(labels, self.num_classes, self.dtype)
 
     @nn.compact
     def __call__(self, images: jax.Array, resynthesis: jax.Array, semantic: jax.Array,

@@ -18,6 +18,13 @@ import numpy as np
 from jaxanom.nn.layers import BN_EPSILON, BN_MOMENTUM, Dtype
 
 
+def one_hot_semantic(labels: jax.Array, num_classes: int, dtype: Dtype = jnp.float32) -> jax.Array:
+    """(..., ) int classes -> (..., C + 1) one-hot; channel C holds 255 (unknown) and anything
+    outside [0, C) (the SPADE conditioning of MMF's networks)."""
+    labels = jnp.where((labels >= 0) & (labels < num_classes), labels, num_classes)
+    return jax.nn.one_hot(labels, num_classes + 1, dtype=dtype)
+
+
 def resize_nearest(x: jax.Array, height: int, width: int) -> jax.Array:
     """(B, H, W, K) -> (B, height, width, K); output pixel o takes source floor(o * H / height)."""
     rows = (np.arange(height) * x.shape[1]) // height
