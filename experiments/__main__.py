@@ -165,10 +165,11 @@ def seed_lines(results: list[dict]) -> list[str]:
 
 
 def other_sizes(results: list[dict]) -> list[str]:
-    """A line naming the tables whose frames or training scenes differ from the first table's."""
+    """A line naming the tables whose frames or training scenes differ from the first table's (the
+    off-road experiments, with ``"sizes"`` of their own, describe them in their tables)."""
     size = lambda r: (r["scale"]["height"], r["scale"]["width"], r["scale"]["train_frames"])  # noqa: E731
     others = [f"`{r['name']}` ({h} x {w}, {n} scenes, {r['scale']['steps']} steps)"
-              for r in results for h, w, n in [size(r)] if (h, w, n) != size(results[0])]
+              for r in results if "sizes" not in r for h, w, n in [size(r)] if (h, w, n) != size(results[0])]
     return ["", "**Other sizes.** Trained at another size than stated above: " + ", ".join(others) + "."] if others else []
 
 
