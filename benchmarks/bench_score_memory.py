@@ -3,8 +3,10 @@
 Each case writes float16 NCHW logits of 19 classes at 256 x 512 (about 5 MB an image), labels
 and SML statistics, then runs ``jaxanom score`` with its default methods (msp, max_logit,
 entropy, energy, sml, sml_post) in a fresh process; peak_mb is that process's peak resident
-memory (``ru_maxrss`` from ``wait4``), which includes the Python/JAX runtime and the
-memory-mapped pages of the input it touched. The ``import only`` row is the runtime alone. The
+memory (``VmHWM`` of ``/proc/self/status``, read at exit), which includes the Python/JAX runtime
+and the memory-mapped pages of the input it touched. Not ``ru_maxrss``: on Linux a child's
+``ru_maxrss`` starts from its parent's resident size at the fork, so inside ``python -m
+benchmarks`` (after the other benchmarks grew the parent) it measured the parent. The ``import only`` row is the runtime alone. The
 issue's bound: peak below input size + 900 MB. Run:
 ``PYTHONPATH=. python benchmarks/bench_score_memory.py [--quick]``.
 """
@@ -26,16 +28,29 @@ CLASSES, HEIGHT, WIDTH = 19, 256, 512
 _CLI = "import sys; from jaxanom.cli import main; sys.exit(main())"
 
 
-def _peak_of(command: list[str]) -> tuple[float, float]:
-    """``(peak resident MiB, wall seconds)`` of ``command`` run to completion in a fresh process."""
-    start = time.perf_counter()
-    process = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(process.pid, 0)
-    process.returncode = os.waitstatus_to_exitcode(status)
-    seconds = time.perf_counter() - start
-    if process.returncode != 0:
-        raise RuntimeError(f"{command[3:]} failed: {process.stderr.read().decode()[-500:]}")
-    return usage.ru_maxrss / 1024, seconds  # Linux reports KiB
+# Prepended to a child's code: at exit, write its own peak resident memory (KiB) to a file.
+_REPORT_PEAK = (
+    "import atexit, os\n"
+    "def _report_peak():\n"
+    "    lines = open('/proc/self/status').read().splitlines()\n"
+    "    kib = next(line for line in lines if line.startswith('VmHWM:')).split()[1]\n"
+    "    open(os.environ['JAXANOM_PEAK_FILE'], 'w').write(kib)\n"
+    "atexit.register(_report_peak)\n"
+)
+
+
+def _peak_of(code: str, args: list[str] = ()) -> tuple[float, float]:
+    """``(peak resident MiB, wall seconds)`` of ``python -c code args`` run to completion in a fresh process."""
+    with tempfile.TemporaryDirectory() as folder:
+        peak_file = Path(folder) / "peak"
+        start = time.perf_counter()
+        process = subprocess.run([sys.executable, "-c", _REPORT_PEAK + code, *args], cwd=ROOT,
+                                 env={**os.environ, "JAXANOM_PEAK_FILE": str(peak_file)},
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        seconds = time.perf_counter() - start
+        if process.returncode != 0:
+            raise RuntimeError(f"{list(args)} failed: {process.stderr.decode()[-500:]}")
+        return int(peak_file.read_text()) / 1024, seconds
 
 
 def _inputs(folder: Path, images: int, seed: int = 0) -> Path:
@@ -57,7 +72,7 @@ def run(quick: bool = False) -> list[dict]:
     image_mb = CLASSES * HEIGHT * WIDTH * 2 / 2**20
     sizes_mb = (20,) if quick else (50, 200)
     rows = []
-    peak, seconds = _peak_of([sys.executable, "-c", "import jax, jaxanom.cli, jaxanom.methods; jax.numpy.zeros(1)"])
+    peak, seconds = _peak_of("import jax, jaxanom.cli, jaxanom.methods; jax.numpy.zeros(1)")
     rows.append({"benchmark": "score peak memory", "case": "import only", "impl": "python + jax + jaxanom",
                  "input_mb": 0.0, "peak_mb": peak, "peak_minus_input_mb": peak, "seconds": seconds})
     for size in sizes_mb:
@@ -66,9 +81,8 @@ def run(quick: bool = False) -> list[dict]:
             folder = Path(folder)
             logits = _inputs(folder, images)
             input_mb = logits.stat().st_size / 2**20
-            peak, seconds = _peak_of([sys.executable, "-c", _CLI, "score", "--logits", str(logits),
-                                      "--labels", str(folder / "labels.npy"), "--stats", str(folder / "stats.npz"),
-                                      "--out", str(folder / "out")])
+            peak, seconds = _peak_of(_CLI, ["score", "--logits", str(logits), "--labels", str(folder / "labels.npy"),
+                                            "--stats", str(folder / "stats.npz"), "--out", str(folder / "out")])
         rows.append({"benchmark": "score peak memory", "case": f"{images} images, {input_mb:.0f} MB float16",
                      "impl": "jaxanom score", "input_mb": input_mb, "peak_mb": peak,
                      "peak_minus_input_mb": peak - input_mb, "seconds": seconds})

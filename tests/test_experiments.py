@@ -184,3 +184,13 @@ def test_command_line_sets_the_scale():
     scale = scale_from(parse_args(["--size", "64", "128", "--train-frames", "128", "--steps", "300"]))
     assert (scale.height, scale.width, scale.train_frames, scale.steps) == (64, 128, 128, 300)
     assert scale_from(parse_args([])) == Scale()
+
+
+def test_benchmark_peak_memory_is_the_childs_own_not_its_parents():
+    from benchmarks.bench_score_memory import _peak_of
+
+    ballast = np.ones(300 * 2**20 // 8)  # the parent grows by 300 MB before starting the children
+    small, _ = _peak_of("pass")
+    large, _ = _peak_of("import numpy; x = numpy.ones(400 * 2**20 // 8)")
+    assert small < 150 < 350 + small < large
+    del ballast
