@@ -33,8 +33,9 @@ import optax
 
 from jaxanom.mmf.gan import FEATURE_WEIGHT, L1_WEIGHT, generator_loss, hinge_discriminator_loss
 from jaxanom.models.spade_generator import UNKNOWN
-from jaxanom.train.checkpoint import Checkpointer, restore_checkpoint
+from jaxanom.train.checkpoint import Checkpointer
 from jaxanom.train.loop import NonFiniteLossError, check_batch
+from jaxanom.train.restore import restore_run
 from jaxanom.train.runlog import RunLog
 
 
@@ -216,8 +217,4 @@ def trained_generator(config: GANConfig, generator, discriminator, batch: dict) 
     read-only (``batch``: shapes only). ValueError naming the folder when there is no checkpoint,
     it is damaged, or the run stopped before ``config.steps``."""
     template = jax.eval_shape(lambda: init_gan_state(config, generator, discriminator, batch))
-    state, _ = restore_checkpoint(os.path.join(config.run_dir, "checkpoints"), template)
-    if int(state.step) < config.steps:
-        raise ValueError(f"run_dir {config.run_dir}: trained {int(state.step)} of {config.steps} steps; "
-                         "finish the training first")
-    return jax.device_get(state.generator_variables)
+    return jax.device_get(restore_run(config.run_dir, template, config.steps).generator_variables)

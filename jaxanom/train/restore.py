@@ -27,8 +27,14 @@ def trained_variables(config: TrainConfig, model, example: dict, step: int | Non
     template = jax.eval_shape(
         lambda x, e: TrainState.create(model.init(jax.random.key(0), x, train=False, **e), tx, jax.random.key(0),
                                        sml_classes), images, extras)
-    state, _ = restore_checkpoint(Path(config.run_dir) / "checkpoints", template, step)
-    if complete and int(state.step) < config.steps:
-        raise ValueError(f"run_dir {config.run_dir}: trained {int(state.step)} of {config.steps} steps; "
-                         "finish the training first")
+    state = restore_run(config.run_dir, template, config.steps if complete else None, step)
     return jax.device_get(state.variables)
+
+
+def restore_run(run_dir: str | Path, template, steps: int | None = None, step: int | None = None):
+    """The state shaped like ``template`` from ``run_dir/checkpoints`` (newest, or ``step``),
+    read-only; with ``steps``, ValueError unless the run reached that many steps."""
+    state, _ = restore_checkpoint(Path(run_dir) / "checkpoints", template, step)
+    if steps is not None and int(state.step) < steps:
+        raise ValueError(f"run_dir {run_dir}: trained {int(state.step)} of {steps} steps; finish the training first")
+    return state
