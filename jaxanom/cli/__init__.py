@@ -1,4 +1,4 @@
-"""The ``jaxanom`` command: demo, train, fit-stats, evaluate, score, convert-weights.
+"""The ``jaxanom`` command: demo, train, fit-stats, evaluate, predict, score, convert-weights.
 
 Every command writes into an output folder that must be new or empty (``--overwrite`` allows
 a non-empty one), and ends with a non-zero exit and a one-line reason on bad input.
@@ -9,10 +9,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from jaxanom.cli import convert_weights, demo, evaluate, fit_stats, score, train
+from jaxanom.cli import convert_weights, demo, evaluate, fit_stats, predict, score, train
 from jaxanom.cli.common import CommandError, release_claims
 
-COMMANDS = (demo, train, fit_stats, evaluate, score, convert_weights)
+COMMANDS = (demo, train, fit_stats, evaluate, predict, score, convert_weights)
 
 
 def main(argv: list[str] | None = None) -> int:
