@@ -18,7 +18,8 @@ the image's native size and written in every requested format:
 
 ``<frame>`` is the image's file name without its extension. Every file is written under a
 temporary name beside it and renamed, so a killed run leaves complete files only, and a rerun
-skips the frames whose files all exist. ``settings.json`` in ``out`` records the settings; a
+skips the frames whose files all exist (and removes the temporary files a kill left).
+``settings.json`` in ``out`` records the settings; a
 rerun with other settings is refused (``check_resumable``).
 """
 from __future__ import annotations
@@ -170,13 +171,26 @@ def _frames(paths: Iterable[Path], size) -> Iterator[dict]:
 
 
 def _batches(frames: Iterable[dict], batch_size: int) -> Iterator[list[dict]]:
-    """Consecutive frames of one working size, at most ``batch_size`` at a time."""
+    """Consecutive frames of one working size, at most ``batch_size`` at a time. When a frame
+    cannot be decoded, the frames before it are yielded first, then its ValueError raised."""
     batch: list[dict] = []
-    for frame in frames:
-        if batch and (len(batch) == batch_size or frame["input"].shape != batch[0]["input"].shape):
+    frames = iter(frames)
+    while True:
+        try:
+            frame = next(frames)
+        except StopIteration:
+            break
+        except ValueError:
+            if batch:
+                yield batch
+            raise
+        if batch and frame["input"].shape != batch[0]["input"].shape:
             yield batch
             batch = []
         batch.append(frame)
+        if len(batch) == batch_size:
+            yield batch
+            batch = []
     if batch:
         yield batch
 
@@ -254,11 +268,16 @@ def _write_hdf5(path: str, value: np.ndarray) -> None:
 
 def predict_images(paths: Sequence[Path], out: Path, scorer: Scorer, *, progress: bool = True) -> dict:
     """Score ``paths`` into ``out`` (see the module docstring); frames whose files all exist are
-    skipped. Returns ``{"frames", "written", "skipped"}``. A corrupt image raises ValueError
-    naming it, after the frames before it are written."""
+    skipped, and unfinished temporary files of a killed run (``.<file>.*.tmp``) are removed:
+    the caller must hold ``out`` alone (the CLI claims it). Returns ``{"frames", "written",
+    "skipped"}``. A corrupt image raises ValueError naming it, after the frames before it are
+    written."""
     from tqdm import tqdm
 
     settings = scorer.settings
+    for root in {"npy": out / "npy", "png": out / "png", "smiyc": out / "anomaly_p"}.values():
+        for stale in root.rglob(".*.tmp") if root.is_dir() else ():  # a killed run's unfinished files
+            stale.unlink(missing_ok=True)
     todo = [p for p in paths if not all(f.is_file() for f in output_files(out, p.stem, settings))]
     bar = tqdm(total=len(todo), unit="image", desc="predict", disable=not progress)
     pending = None
