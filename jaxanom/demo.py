@@ -105,12 +105,33 @@ def run_demo(out_dir: str | Path, config: DemoConfig = DemoConfig(), *, progress
 
 
 def results_table(metrics: dict, segmentation: dict | None = None) -> str:
-    """A markdown table of AP / AUROC / FPR@95 per method (percent)."""
-    lines = ["| method | AP | AUROC | FPR@95 |", "|---|---|---|---|"]
+    """A markdown table of AP / AUROC / FPR@95 per method (percent), with SegmentMeIfYouCan's
+    component metrics (mean sIoU, mean PPV, mean F1) where ``metrics`` hold them."""
+    components = all("components" in m for m in metrics.values())
+    extra = " sIoU | PPV | mean F1 |" if components else ""
+    lines = ["| method | AP | AUROC | FPR@95 |" + extra, "|---|---|---|---|" + "---|" * (3 * components)]
+    percent = lambda x: "n/a" if x is None else f"{100 * x:.2f}"  # noqa: E731
     for name, m in metrics.items():
-        lines.append(f"| {name} | {100 * m['ap']:.2f} | {100 * m['auroc']:.2f} | {100 * m['fpr_at_tpr']:.2f} |")
+        row = f"| {name} | {100 * m['ap']:.2f} | {100 * m['auroc']:.2f} | {100 * m['fpr_at_tpr']:.2f} |"
+        if components:
+            c = m["components"]
+            row += f" {percent(c['mean_siou'])} | {percent(c['mean_ppv'])} | {percent(c['f1_mean'])} |"
+        lines.append(row)
     if segmentation is not None:
         lines.append(f"\nsegmentation mIoU on in-distribution frames: {100 * segmentation['miou']:.2f}")
+    return "\n".join(lines)
+
+
+def conventions_table(metrics: dict) -> str:
+    """A markdown table of AP and FPR@95 (percent) per method under every convention the library
+    has (``metrics[name]["ap_conventions"]`` / ``["fpr_conventions"]``), side by side."""
+    from jaxanom.metrics.anomaly import AP_CONVENTIONS, FPR_CONVENTIONS
+
+    header = [f"AP {c}" for c in AP_CONVENTIONS] + [f"FPR@95 {c}" for c in FPR_CONVENTIONS]
+    lines = ["| method | " + " | ".join(header) + " |", "|---|" + "---|" * len(header)]
+    for name, m in metrics.items():
+        values = [m["ap_conventions"][c] for c in AP_CONVENTIONS] + [m["fpr_conventions"][c] for c in FPR_CONVENTIONS]
+        lines.append(f"| {name} | " + " | ".join(f"{100 * v:.2f}" for v in values) + " |")
     return "\n".join(lines)
 
 

@@ -12,6 +12,9 @@ DATASETS = {
     "lost-and-found": "Lost and Found (PATH = root with leftImg8bit/, gtCoarse/, disparity/; for --mmf)",
 }
 MMF_DEFAULT_METHODS = "entropy,resynthesis,resynthesis_post,mmf_raw,mmf"
+# SegmentMeIfYouCan's component rules per dataset (smiyc: RoadAnomaly21 or RoadObstacle21, say which)
+TRACKS = {"synthetic": "anomaly", "road-anomaly": "anomaly", "fishyscapes-laf": "anomaly",
+          "fishyscapes-static": "anomaly", "lost-and-found": "obstacle", "smiyc": None}
 
 
 def add_parser(commands) -> None:
@@ -32,6 +35,14 @@ def add_parser(commands) -> None:
     parser.add_argument("--cudam-sigma", type=float,
                         help="CuDAM ensemble weight (Eq. 10); default: the paper's 2e4 rescaled to the attention "
                         "map's size (equivalent_weight), recorded in metrics.json")
+    parser.add_argument("--track", choices=["anomaly", "obstacle", "none"],
+                        help="SegmentMeIfYouCan component metrics (sIoU, PPV, mean F1; pooled and per frame) with "
+                        "the anomaly track's size rules (RoadAnomaly21, Road Anomaly, Fishyscapes) or the obstacle "
+                        "track's (RoadObstacle21, Lost and Found); none: pixel metrics only. Default: the dataset's "
+                        "track; smiyc needs it")
+    parser.add_argument("--all-conventions", action="store_true",
+                        help="also print AP (step, trapz, envelope) and FPR@95 (first, interp, nearest, strict) side "
+                        "by side (metrics.json always holds them)")
     parser.add_argument("--pictures", type=int, default=0, help="frames to draw (default: %(default)s)")
     add_common(parser, progress=False)
     parser.set_defaults(handler=run)
@@ -58,11 +69,15 @@ def anomaly_source(args, size: dict | None = None):
 
 def run(args) -> None:
     from jaxanom.data.pipeline import evaluation_batches
-    from jaxanom.demo import results_table
+    from jaxanom.demo import conventions_table, results_table
     from jaxanom.evaluate import anomaly_results, predictions, predictor
     from jaxanom.experiment import build_network, load_variables
     from jaxanom.io import write_json_atomic
 
+    track = args.track or TRACKS[args.dataset]
+    if track is None:
+        raise CommandError("--track: the smiyc dataset holds either track; pass --track anomaly (RoadAnomaly21) or "
+                           "--track obstacle (RoadObstacle21)")
     stats = load_stats(args.stats)
     if args.mmf:
         source, batches = mmf_batches(args)
@@ -75,7 +90,8 @@ def run(args) -> None:
         names = (args.methods or DEFAULT_METHODS).split(",")
     out = out_folder(args.out, args.overwrite)
     metrics, _ = anomaly_results(batches, names, stats=stats, cudam_sigma=args.cudam_sigma,
-                                 fpr_convention=args.fpr_convention, ap_convention=args.ap_convention)
+                                 fpr_convention=args.fpr_convention, ap_convention=args.ap_convention,
+                                 track=None if track == "none" else track)
     record = {"dataset": args.dataset, "path": args.path, "frames": len(source), "metrics": metrics}
     if args.mmf:
         record["mmf"] = args.mmf
@@ -90,6 +106,8 @@ def run(args) -> None:
 
         write_pictures(out, predict, source, stats, args.pictures)
     print(results_table(metrics))
+    if args.all_conventions:
+        print("\n" + conventions_table(metrics))
 
 
 def mmf_batches(args):
