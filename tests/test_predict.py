@@ -98,9 +98,12 @@ def test_every_format_on_real_frames(tiny_run, real_frames, tmp_path, capsys):
                                    rtol=2**-11, atol=1e-4)
     settings = json.loads((out / "settings.json").read_text())
     assert settings["methods"] == ["msp", "energy"] and settings["size"] == [48, 96]
-    # a rerun with the same settings skips every frame; other settings are refused
+    # a rerun with the same settings skips every frame (and drops what a killed run left unfinished)
+    stale = out / "npy" / "msp" / f".{real_frames[0].stem}.npy.x1y2z3.tmp"
+    stale.write_bytes(b"half")
     assert main(args) == 0
     assert "0 frames written, 3 already there" in capsys.readouterr().out
+    assert not stale.exists()
     assert main([*args[:-1], "--batch-size", "1"]) == 2
     assert "batch_size" in capsys.readouterr().err
 
