@@ -119,16 +119,16 @@ def list_images(inputs: Sequence[str]) -> list[Path]:
     return unique
 
 
+def output_file(out: Path, frame: str, method: str, fmt: str, dataset: str | None) -> Path:
+    """The file of one frame, method and format (module docstring)."""
+    if fmt == "smiyc":
+        return out / "anomaly_p" / method / dataset / f"{frame}.hdf5"
+    return out / fmt / method / f"{frame}.{fmt}"
+
+
 def output_files(out: Path, frame: str, settings: PredictSettings) -> list[Path]:
     """Every file ``predict_images`` writes for ``frame``."""
-    files = []
-    for method in settings.methods:
-        for fmt in settings.formats:
-            if fmt == "smiyc":
-                files.append(out / "anomaly_p" / method / settings.dataset / f"{frame}.hdf5")
-            else:
-                files.append(out / fmt / method / f"{frame}.{fmt}")
-    return files
+    return [output_file(out, frame, m, f, settings.dataset) for m in settings.methods for f in settings.formats]
 
 
 def settings_record(settings: PredictSettings, **extra) -> dict:
@@ -240,12 +240,12 @@ def write_frame(out: Path, frame: dict, maps: dict, settings: PredictSettings) -
     for method, score in maps.items():
         half = None
         if {"npy", "smiyc"} & set(settings.formats):
-            if not np.all(np.abs(score[np.isfinite(score)]) <= FLOAT16_MAX) or not np.isfinite(score).all():
+            if not (np.isfinite(score).all() and np.abs(score).max(initial=0.0) <= FLOAT16_MAX):
                 raise ValueError(f"method {method}: scores of {frame['name']} are not finite in float16 "
                                  f"(|score| <= {FLOAT16_MAX:g}); the npy and smiyc formats store float16")
             half = score.astype(np.float16)
-        for fmt, path in zip(settings.formats, output_files(out, frame["name"], dataclasses.replace(
-                settings, methods=(method,)))):
+        for fmt in settings.formats:
+            path = output_file(out, frame["name"], method, fmt, settings.dataset)
             if fmt == "npy":
                 buffer = io.BytesIO()
                 np.save(buffer, half)
@@ -337,4 +337,4 @@ def size_check(model, variables) -> Callable[[tuple[int, int], str], None]:
 
 
 __all__ = ["FORMATS", "PredictSettings", "Scorer", "check_resumable", "inside", "list_images", "native_map",
-           "output_files", "predict_images", "settings_record", "size_check", "write_frame"]
+           "output_file", "output_files", "predict_images", "settings_record", "size_check", "write_frame"]
