@@ -313,28 +313,34 @@ def inside(path: Path, folder: Path) -> bool:
     return path == folder or folder in path.parents
 
 
-def size_check(model, variables) -> Callable[[tuple[int, int], str], None]:
-    """``check((h, w), frame)``: ValueError unless ``model`` takes (1, h, w, 3) images and returns
-    logits of that size (shapes only, no compute: ``jax.eval_shape``)."""
+def logits_shape(model, variables, size: tuple[int, int]) -> tuple[int, ...]:
+    """The shape of ``model``'s logits for one (h, w) image (``jax.eval_shape``: no compute;
+    any float input will do for shapes, so the network's own normalisation is not needed)."""
     import jax
     import jax.numpy as jnp
 
-    from jaxanom.train.step import model_input
+    spec = jax.ShapeDtypeStruct((1, *size, 3), jnp.float32)
+    return tuple(jax.eval_shape(lambda v, x: model.apply(v, x, train=False), variables, spec)["logits"].shape)
+
+
+def size_check(model, variables) -> Callable[[tuple[int, int], str], None]:
+    """``check((h, w), frame)``: ValueError unless ``model`` takes (1, h, w, 3) images and returns
+    logits of that size (shapes only)."""
 
     def check(shape: tuple[int, int], frame: str) -> None:
-        spec = jax.ShapeDtypeStruct((1, *shape, 3), jnp.uint8)
         try:
-            out = jax.eval_shape(lambda v, x: model.apply(v, model_input(x), train=False), variables, spec)
+            logits = logits_shape(model, variables, tuple(shape))
         except Exception as error:  # flax / XLA shape errors of many types: one line naming the size
             reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
             raise ValueError(f"size: the network does not run on {shape[0]}x{shape[1]} images ({frame}): "
                              f"{reason}; choose a working size it takes (--size)") from None
-        if tuple(out["logits"].shape[1:3]) != tuple(shape):
-            raise ValueError(f"size: the network's logits are {tuple(out['logits'].shape[1:3])} for "
-                             f"{shape[0]}x{shape[1]} images ({frame}); expected the input's size")
+        if logits[1:3] != tuple(shape):
+            raise ValueError(f"size: the network's logits are {logits[1:3]} for {shape[0]}x{shape[1]} images "
+                             f"({frame}); expected the input's size")
 
     return check
 
 
 __all__ = ["FORMATS", "PredictSettings", "Scorer", "check_resumable", "inside", "list_images", "native_map",
-           "output_file", "output_files", "predict_images", "settings_record", "size_check", "write_frame"]
+           "logits_shape", "output_file", "output_files", "predict_images", "settings_record", "size_check",
+           "write_frame"]

@@ -262,3 +262,36 @@ def test_superpixel_methods_are_eq6_on_the_normalised_uncertainty():
             np.testing.assert_allclose(got[name][index], expected, atol=1e-5)
     with pytest.raises(ValueError, match="images"):
         methods.score_batch("entropy_superpixel", logits)
+
+
+def test_statistics_of_another_network_are_refused(tiny_run, tmp_path, capsys):
+    from jaxanom.sml import save_stats
+
+    image = tmp_path / "x.png"
+    cv2.imwrite(str(image), np.zeros((16, 16, 3), np.uint8))
+    save_stats(tmp_path / "s.npz", np.zeros(3), np.ones(3), np.ones(3, np.int64))
+    code = main(["predict", str(image), "--run", str(tiny_run), "--out", str(tmp_path / "o"), "--methods", "sml",
+                 "--stats", str(tmp_path / "s.npz")])
+    error = capsys.readouterr().err.strip()
+    assert code == 2 and "3 classes" in error and "19" in error and not (tmp_path / "o").exists()
+
+
+def test_size_check_names_sizes_the_network_refuses():
+    import flax.linen as nn
+
+    from jaxanom.predict import size_check
+
+    class Strided(nn.Module):  # logits at half resolution; refuses sizes that are not multiples of 8
+        @nn.compact
+        def __call__(self, x, train=False):
+            if x.shape[1] % 8 or x.shape[2] % 8:
+                raise ValueError(f"expected multiples of 8, got {x.shape[1:3]}")
+            return {"logits": nn.Conv(4, (3, 3), strides=(2, 2))(x)}
+
+    model = Strided()
+    variables = model.init(jax.random.key(0), np.zeros((1, 8, 8, 3), np.float32))
+    check = size_check(model, variables)
+    with pytest.raises(ValueError, match=r"does not run on 20x32 images \(a\.png\): expected multiples of 8"):
+        check((20, 32), "a.png")
+    with pytest.raises(ValueError, match=r"logits are \(8, 16\) for 16x32 images"):
+        check((16, 32), "b.png")

@@ -46,14 +46,12 @@ def _size(text: str | None) -> tuple[int, int] | None:
 def run(args) -> None:
     from pathlib import Path
 
-    import jax
-
     from jaxanom import methods as scoring
     from jaxanom.evaluate import predictor
     from jaxanom.experiment import build_network, load_experiment, load_variables
     from jaxanom.io import write_json_atomic
-    from jaxanom.predict import (PredictSettings, Scorer, check_resumable, inside, list_images, predict_images,
-                                 settings_record, size_check)
+    from jaxanom.predict import (PredictSettings, Scorer, check_resumable, inside, list_images, logits_shape,
+                                 predict_images, settings_record, size_check)
 
     settings = PredictSettings(methods=tuple((args.methods or DEFAULT_METHODS).split(",")),
                                formats=tuple(args.format.split(",")), size=_size(args.size),
@@ -82,11 +80,7 @@ def run(args) -> None:
     if settings.size is not None:
         check(settings.size, "--size")
     if stats is not None:
-        example = jax.ShapeDtypeStruct((1, *experiment.crop, 3), "uint8")
-        from jaxanom.train.step import model_input
-
-        classes = jax.eval_shape(lambda v, x: model.apply(v, model_input(x), train=False), variables,
-                                 example)["logits"].shape[-1]
+        classes = logits_shape(model, variables, tuple(experiment.crop))[-1]
         if len(stats[0]) != classes:
             raise CommandError(f"--stats {args.stats}: has {len(stats[0])} classes, the network's logits {classes}")
     record = settings_record(settings, run=str(run_dir.resolve()),
