@@ -97,6 +97,14 @@ def from_torch(state_dict: Mapping, kind: str, num_classes: int = 19, *, key: ja
     return model, variables
 
 
+def run_preset(kind: str, model) -> str | None:
+    """The ``build_model`` name of a network imported as ``kind`` (what its run folder records),
+    or None for the kinds that have no run (VGG)."""
+    if kind == "espnet-cityscapes":
+        return f"espnet_p{model.p}_q{model.q}"
+    return PRESETS.get(kind)
+
+
 def _with_initial_head(model, key: jax.Array, probe: np.ndarray) -> dict:
     """The backbone's shapes and the head's initial values (exactly ``model.init``'s): only the head
     leaves are computed, so XLA drops the backbone's initialisation and forward pass."""
