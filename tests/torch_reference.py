@@ -5,6 +5,9 @@ pip finds beside torch's CPU wheel is linked against CUDA libraries, so its C ex
 operators only) cannot load and ``import torchvision`` fails while registering them; the model
 definitions are pure Python, so they are then imported without running ``torchvision/__init__``.
 
+``ESPNetTorch`` is our own PyTorch rendering of the ESPNet authors' network (with the light decoder,
+names as in their checkpoints), ``randomize_prelu`` also draws PReLU slopes.
+
 ``SMLDeepV3Plus`` is our own PyTorch rendering of the SML authors' ``DeepR101V3PlusD_OS8``
 (github shjung13/Standardized-max-logits, ``network/deepv3.py`` and ``network/Resnet.py``), with
 their parameter names so that their checkpoints' keys load into it: a deep stem packed as
