@@ -102,3 +102,56 @@ def interval(values: np.ndarray) -> tuple[float, float]:
     """The 95% percentile interval of bootstrap values (NaN replicates, e.g. without an anomaly, left out)."""
     low, high = np.nanpercentile(values, [2.5, 97.5])
     return float(low), float(high)
+
+
+# ----------------------------------------------------------------------------- scoring real frames
+def anomaly_tracks() -> dict[str, Path]:
+    """The SegmentMeIfYouCan validation tracks (RoadObstacle21's labels are void off the road, so
+    its pixels are scored in the road region)."""
+    return {"RoadAnomaly21": require_realdata("RoadAnomaly21"), "RoadObstacle21": require_realdata("RoadObstacle21")}
+
+
+def score_frames(predict, root: Path, score_maps, log=print) -> tuple[dict[str, list[np.ndarray]], list[np.ndarray]]:
+    """Every frame of a SegmentMeIfYouCan track through the network at its own size;
+    ``score_maps(logits (H, W, C)) -> {name: (H, W) scores}``. Returns the non-void pixels only:
+    ``(scores[name][frame] float32 (n,), labels[frame] uint8 (n,) in {0, 1})``."""
+    from jaxanom.data.smiyc import SegmentMeIfYouCan
+
+    frames = SegmentMeIfYouCan(root)
+    scores, labels = {}, []
+    for i in range(len(frames)):
+        frame = frames[i]
+        keep = frame["label"] != 255
+        labels.append(frame["label"][keep])
+        for name, value in score_maps(logits_of(predict, frame["image"])).items():
+            scores.setdefault(name, []).append(np.asarray(value, np.float32)[keep])
+        log(f"  {root.name} {i + 1}/{len(frames)} {frame['name']}")
+    return scores, labels
+
+
+def exact_metrics(scores: list[np.ndarray], labels: list[np.ndarray]) -> dict[str, float]:
+    """Pooled AP (step) and FPR at 95% TPR ("first") over the frames, exactly."""
+    from jaxanom.metrics import anomaly_metrics
+
+    m = anomaly_metrics(np.concatenate(scores), np.concatenate(labels))
+    return {"ap": m["ap"], "fpr_at_tpr": m["fpr_at_tpr"]}
+
+
+def with_intervals(scores: dict[str, list[np.ndarray]], labels: list[np.ndarray], multiplicities: np.ndarray
+                   ) -> tuple[dict[str, dict], dict[str, dict[str, np.ndarray]]]:
+    """Per method: exact pooled metrics, the binned ones (the binning's check) and 95% intervals;
+    and every method's bootstrap replicates (same draws for all: paired)."""
+    table, replicates = {}, {}
+    for name, values in scores.items():
+        edges = bin_edges(values, labels)
+        histograms = frame_histograms(values, labels, edges)
+        replicates[name] = bootstrap(histograms, multiplicities)
+        binned = binned_metrics(histograms.sum(0))
+        table[name] = {**exact_metrics(values, labels), "binned": {k: float(v) for k, v in binned.items()},
+                       "interval": {k: interval(v) for k, v in replicates[name].items()}}
+    return table, replicates
+
+
+def difference(replicates: dict, a: str, b: str, metric: str) -> tuple[float, float]:
+    """95% interval of ``metric(a) - metric(b)`` over paired replicates."""
+    return interval(replicates[a][metric] - replicates[b][metric])
