@@ -67,3 +67,15 @@ def test_fpr_is_taken_where_tpr_first_reaches_95_percent_exactly():
     got = binned_metrics(histograms.sum(0))
     assert got["fpr_at_tpr"] == pytest.approx(sklearn_metrics(scores, labels)[1])
     assert got["fpr_at_tpr"] == pytest.approx(np.mean(scores[20:] >= 11))  # TPR 19/20 at the score 11
+
+
+def test_results_file_ends_with_the_real_data_tables_one_level_down(tmp_path):
+    from experiments.__main__ import write_results
+
+    (tmp_path / "real_b.md").write_text("# B table\n\n| x |\n|---|\n\n## B on a track\n")
+    (tmp_path / "real_a.md").write_text("# A table\n")
+    (tmp_path / "other.md").write_text("# not real data\n")
+    text = write_results(tmp_path).read_text()
+    real = text[text.index("# Real data"):]
+    assert real.index("## A table") < real.index("## B table") < real.index("### B on a track")
+    assert "| x |" in real and "not real data" not in text
