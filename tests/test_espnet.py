@@ -10,7 +10,7 @@ from conftest import REALDATA
 from jaxanom.cli import main
 from jaxanom.evaluate import predictor
 from jaxanom.experiment import Experiment, build_network, load_variables
-from jaxanom.models import build_model
+from jaxanom.models import build_model, count_params
 from jaxanom.models.espnet import ESPNet, normalize_espnet
 from jaxanom.weights import from_torch, read_state_dict
 from torch_reference import ESPNetTorch, nchw, nhwc, randomize_prelu
@@ -126,5 +126,6 @@ def test_authors_checkpoint_loads_into_both_and_gives_the_same_logits(checkpoint
     want = torch_logits(net.eval(), image)
     model, got = jax_logits(read_state_dict(checkpoint), image)
     assert model == ESPNet(num_classes=20, p=2, q=8)
+    assert count_params(model) == sum(p.numel() for p in net.parameters())  # about 0.36M
     assert_close(got, want)
     assert (got.argmax(-1) == want.argmax(-1)).mean() > 0.999
