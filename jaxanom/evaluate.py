@@ -24,13 +24,14 @@ from jaxanom.train.step import model_input
 def predictor(model, variables) -> Callable[[np.ndarray], dict]:
     """A jitted ``images (B, H, W, 3) (uint8 RGB, or float normalised) -> {"logits" (B, H, W, C), "attention_up" (B, H, W)?}``.
 
+    uint8 images are normalised as ``model`` wants them (``jaxanom.train.step.model_input``).
     The attention map (if the model has one) is upsampled bilinearly to the image size (Eqs. 4, 10);
     ``"attention_positions"`` (a scalar) is then the h * w of the map before upsampling.
     """
 
     @jax.jit
     def forward(variables, images):
-        out = model.apply(variables, model_input(images), train=False)
+        out = model.apply(variables, model_input(images, model), train=False)
         result = {"logits": out["logits"].astype(jnp.float32)}
         if "attention" in out:
             result["attention_up"] = upsample_attention(out["attention"], images.shape[1:3])

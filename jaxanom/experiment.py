@@ -27,7 +27,8 @@ DATASETS = ("synthetic", "cityscapes")
 class Experiment:
     """A network and its training data.
 
-    ``model``: a ``jaxanom.models.build_model`` name; ``attention``: None, "cudam" or "msaam";
+    ``model``: a ``jaxanom.models.build_model`` name; ``attention``: None, "cudam" or "msaam"
+    (None for ESPNet, which ignores the other DeepLabV3+ fields);
     ``cudam_position``: "deep", "surface" or "output" (CuDAM Table V; ``DeepLabV3Plus``);
     ``cudam_gate``: "paper" or "scale_free" (Eq. 3 or its size-free deviation);
     ``data``: "synthetic" (generated ``train_frames`` frames of ``height`` x ``width``) or
@@ -58,6 +59,11 @@ the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``:
     init_modules: tuple[str, ...] | None = None
 
     def __post_init__(self):
+        from jaxanom.models import model_family
+
+        if model_family(self.model) == "espnet" and self.attention is not None:
+            raise ValueError(f"attention: ESPNet ({self.model}) has no attention block; expected None, "
+                             f"got {self.attention!r}")
         if self.data not in DATASETS:
             raise ValueError(f"data: expected one of {DATASETS}, got {self.data!r}")
         if self.data != "synthetic" and not self.data_root:
@@ -84,9 +90,11 @@ def _tuples(values: dict) -> dict:
 
 
 def build_network(experiment: Experiment):
-    """The Flax module of ``experiment``."""
-    from jaxanom.models import build_model
+    """The Flax module of ``experiment`` (an ESPNet is configured by its name and class count alone)."""
+    from jaxanom.models import build_model, model_family
 
+    if model_family(experiment.model) == "espnet":
+        return build_model(experiment.model, num_classes=experiment.num_classes)
     return build_model(experiment.model, num_classes=experiment.num_classes, attention=experiment.attention,
                        output_stride=experiment.output_stride, cudam_position=experiment.cudam_position,
                        cudam_gate=experiment.cudam_gate)

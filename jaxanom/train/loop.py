@@ -117,7 +117,7 @@ def check_batch(batch: Any, num_classes: int, ignore: int) -> None:
 
 def init_inputs(model, batch: dict) -> tuple[jax.Array, dict]:
     """The first example of ``batch`` as ``model.init`` wants it: (images, extra keyword inputs)."""
-    return model_input(np.asarray(batch["image"][:1])), {k: np.asarray(v[:1]) for k, v in model_extras(model, batch).items()}
+    return model_input(np.asarray(batch["image"][:1]), model), {k: np.asarray(v[:1]) for k, v in model_extras(model, batch).items()}
 
 
 def output_classes(model, batch: dict) -> int:

@@ -77,7 +77,7 @@ def _cast(tree, dtype):
 def _forward(model, variables, images, cfg: LossConfig, **kwargs):
     dtype = COMPUTE_DTYPES[cfg.compute_dtype]
     variables = dict(variables, params=_cast(variables["params"], dtype))
-    return model.apply(variables, model_input(images).astype(dtype), **kwargs)
+    return model.apply(variables, model_input(images, model).astype(dtype), **kwargs)
 
 
 def model_extras(model, batch: dict) -> dict:
@@ -85,10 +85,14 @@ def model_extras(model, batch: dict) -> dict:
     return {name: batch[name] for name in getattr(model, "extra_inputs", ())}
 
 
-def model_input(images) -> jax.Array:
+def model_input(images, model=None) -> jax.Array:
     """Images as the model wants them: uint8 RGB batches are normalised here, on the device
-    (4x fewer bytes to transfer than float32); float batches are taken as already normalised."""
-    return normalize(images) if images.dtype == jnp.uint8 else images
+    (4x fewer bytes to transfer than float32), with ``model.normalize_input`` where the network
+    has its own (ESPNet's Cityscapes weights), else ImageNet's mean and std (``normalize``);
+    float batches are taken as already normalised."""
+    if images.dtype != jnp.uint8:
+        return images
+    return getattr(model, "normalize_input", normalize)(images)
 
 
 def training_anomaly_score(logits) -> jax.Array:
