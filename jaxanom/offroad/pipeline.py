@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxanom._validate import check_labels
 from jaxanom.metrics.segmentation import confusion_counts
 from jaxanom.mixture import GaussianMixture, fit_gmm, select_components
 from jaxanom.offroad.active import select_hard_frames
@@ -117,6 +118,8 @@ def raw_cluster_distance(z: np.ndarray, mixture: GaussianMixture) -> np.ndarray:
 
 def majority_class(clusters: np.ndarray, reference: np.ndarray, num_clusters: int) -> np.ndarray:
     """(m,) the most frequent reference class per cluster (lowest on ties; -1 for an empty cluster)."""
+    check_labels("clusters", clusters, num_clusters)
+    check_labels("reference", reference, np.iinfo(np.int64).max)
     out = np.full(num_clusters, -1, np.int64)
     for k in range(num_clusters):
         members = reference[clusters == k]
@@ -180,6 +183,7 @@ def segment(model: OffroadModel, images: np.ndarray, config: OffroadConfig, *, c
 def to_classes(labels: np.ndarray, model: OffroadModel, num_classes: int) -> np.ndarray:
     """Cluster labels (unknown = m, void 255) -> reference classes; unknown and classless clusters
     become ``num_classes`` (the always-wrong column of D-B14), void stays 255."""
+    check_labels("labels", labels, model.num_clusters + 1, void=255)
     table = np.append(np.where(model.cluster_class >= 0, model.cluster_class, num_classes), num_classes)
     safe = np.where(labels == 255, 0, labels)
     return np.where(labels == 255, 255, table[np.clip(safe, 0, model.num_clusters)]).astype(np.int32)
@@ -188,6 +192,8 @@ def to_classes(labels: np.ndarray, model: OffroadModel, num_classes: int) -> np.
 def segmentation_scores(predicted: np.ndarray, truth: np.ndarray, num_classes: int) -> dict:
     """Pixel accuracy and mIoU (D-B14): ``predicted`` in [0, num_classes] (num_classes = unknown,
     counted wrong), ``truth`` in [0, num_classes) or 255 (ignored)."""
+    check_labels("predicted", predicted, num_classes + 1, void=255)
+    check_labels("truth", truth, num_classes, void=255)
     matrix = np.asarray(confusion_counts(jnp.asarray(np.where(predicted == 255, num_classes, predicted)),
                                          jnp.asarray(truth), num_classes + 1), np.int64)
     tp = np.diag(matrix)[:num_classes]

@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_finite, check_integer, check_rank, is_concrete
+from jaxanom._validate import check_finite, check_integer, check_labels, check_number, check_rank, is_concrete
 from jaxanom.mixture import GaussianMixture, log_gaussian
 
 VOID = 255  # label of pixels that no window covers
@@ -285,6 +285,7 @@ def _checked_frame_risk(fn, labels, num_clusters):
         raise ValueError(f"labels must hold at least one patch per frame, got shape {np.shape(labels)}")
     if int(num_clusters) < 1:
         raise ValueError(f"num_clusters must be >= 1, got {num_clusters}")
+    check_labels("labels", labels, int(num_clusters) + 1)  # 0..m-1 clusters, m unknown
     return fn(jnp.asarray(labels), int(num_clusters))
 
 
@@ -299,6 +300,7 @@ def _check_flr(flr) -> np.ndarray:
 
 def sequence_risk(flr, epsilon: float = 0.5) -> float:
     """Eqs. 14-15: ``Phi^s``, the fraction of frames whose FLR exceeds ``epsilon``."""
+    check_number("epsilon", epsilon, 0.0, 1.0)
     return float(np.mean(_check_flr(flr) > epsilon))
 
 
