@@ -1,7 +1,16 @@
 """``jaxanom convert-weights``: PyTorch weights -> a run folder (DeepLabV3+) or a VGG folder."""
 from __future__ import annotations
 
-from jaxanom.cli.common import add_common, out_folder
+import contextlib
+import logging
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+from jaxanom.cli.common import CommandError, add_common, out_folder
+from jaxanom.train.checkpoint import _first_line
+from jaxanom.weights.runs import VGG_CONFIG, VGG_FILE
 
 
 def add_parser(commands) -> None:
@@ -29,13 +38,44 @@ def run(args) -> None:
 
     from jaxanom.weights import PRESETS, from_torch, read_state_dict, write_run, write_vgg
 
+    out = out_folder(args.out, args.overwrite)
+    held = [name for name in ("experiment.json", "checkpoints") if (out / name).exists()]
+    if held and args.kind in PRESETS:  # a run's checkpoints would outlive the new experiment.json, or hide step 0
+        raise CommandError(f"OUT {out}: holds a run ({', '.join(held)}); --overwrite does not replace runs: "
+                           "choose an empty folder, or delete that run first")
     state = read_state_dict(args.input)
     model, variables = from_torch(state, args.kind, args.num_classes, key=jax.random.key(args.seed),
                                   output_stride=args.output_stride)
-    out = out_folder(args.out, args.overwrite)
     if args.kind in PRESETS:
-        write_run(out, PRESETS[args.kind], model, variables)
+        with _staged(out) as staging:
+            write_run(staging, PRESETS[args.kind], model, variables)
+            os.replace(staging / "checkpoints", out / "checkpoints")  # a folder without experiment.json is no run
+            os.replace(staging / "experiment.json", out / "experiment.json")
         print(f"{args.kind}: {len(state)} tensors -> run folder {out} (model {PRESETS[args.kind]})")
     else:
-        write_vgg(out, model, variables)
+        with _staged(out) as staging:
+            write_vgg(staging, model, variables)
+            for name in (VGG_FILE, VGG_CONFIG):
+                os.replace(staging / name, out / name)
         print(f"{args.kind}: {len(state)} tensors -> {out}")
+
+
+@contextlib.contextmanager
+def _staged(out: Path):
+    """A hidden temporary folder in ``out`` (``.convert.*.tmp``: a stale claim's clean-up finds it),
+    removed however the block ends; a failure to write there (a full disk) is one line, and the
+    writer's background threads log nothing meanwhile."""
+    staging = Path(tempfile.mkdtemp(dir=out, prefix=".convert.", suffix=".tmp"))
+    loggers = [logging.getLogger(name) for name in ("absl", "asyncio")]
+    levels = [logger.level for logger in loggers]
+    for logger in loggers:
+        logger.setLevel(logging.CRITICAL + 1)
+    try:
+        yield staging
+    except Exception as error:
+        raise CommandError(f"{out}: could not write the converted weights ({type(error).__name__}: "
+                           f"{_first_line(error)}); nothing was left behind") from None
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+        for logger, level in zip(loggers, levels):
+            logger.setLevel(level)

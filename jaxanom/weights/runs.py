@@ -28,7 +28,7 @@ def write_run(folder: str | os.PathLike, preset: str, model, variables: dict):
     attention, output stride, classes, CuDAM position). Returns the ``Experiment``.
     """
     from jaxanom.experiment import Experiment, jsonable
-    from jaxanom.train.checkpoint import Checkpointer
+    from jaxanom.train.checkpoint import Checkpointer, check_space
     from jaxanom.train.optim import make_optimizer
     from jaxanom.train.state import TrainState
 
@@ -38,6 +38,7 @@ def write_run(folder: str | os.PathLike, preset: str, model, variables: dict):
     write_json_atomic(folder / "experiment.json", jsonable(experiment))
     tx, _ = make_optimizer(experiment.train.optim, experiment.train.steps)
     state = TrainState.create(jax.tree.map(np.asarray, variables), tx, jax.random.key(0))
+    check_space(folder, state, "the converted run")  # before orbax starts any background writer
     with Checkpointer(folder / "checkpoints") as checkpointer:
         checkpointer.save(0, state)
         checkpointer.wait()
