@@ -119,3 +119,22 @@ def check_labels(name: str, x, count: int, void: int | None = None) -> None:
         allowed = f"[0, {count - 1}]" + (f" or {void}" if void is not None else "")
         raise ValueError(f"{name} must hold values in {allowed}, got {int(bad.sum())} outside "
                          f"(such as {np.unique(values[bad])[:5].tolist()})")
+
+
+def memory_bytes() -> int:
+    """This machine's physical memory in bytes (0 where the system does not say)."""
+    import os
+
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return 0
+
+
+def check_fits_memory(name: str, count: int, item_bytes: int, what: str) -> None:
+    """``count`` items of ``item_bytes`` each (a batch's inputs, a lower bound of what it takes)
+    must fit in this machine's memory; refused before anything is allocated."""
+    total, memory = int(count) * int(item_bytes), memory_bytes()
+    if memory and total > memory:
+        raise ValueError(f"{name}: {count} {what} take at least {total / 2**30:.1f} GiB, more than this machine's "
+                         f"{memory / 2**30:.1f} GiB of memory")

@@ -32,6 +32,14 @@ def positive_int(text: str) -> int:
     return value
 
 
+def nonnegative_int(text: str) -> int:
+    """argparse type of counts that may be 0."""
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
+    return value
+
+
 def add_common(parser, progress: bool, overwrite: bool = True) -> None:
     """``--overwrite`` and ``--no-progress`` where a command has them."""
     if overwrite:

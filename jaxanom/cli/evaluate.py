@@ -1,7 +1,8 @@
 """``jaxanom evaluate``: pooled anomaly metrics of a trained run on an anomaly dataset."""
 from __future__ import annotations
 
-from jaxanom.cli.common import DEFAULT_METHODS, CommandError, add_common, add_scoring, load_stats, out_folder
+from jaxanom.cli.common import (DEFAULT_METHODS, CommandError, add_common, add_scoring, load_stats, nonnegative_int,
+                                out_folder, positive_int)
 
 DATASETS = {
     "synthetic": "synthetic anomaly split (PATH = split name: anomaly, anomaly_small, anomaly_large)",
@@ -27,12 +28,12 @@ def add_parser(commands) -> None:
     parser.add_argument("--path", required=True, help="dataset folder (see the list above)")
     parser.add_argument("--base", help="base dataset root (Fishyscapes only)")
     parser.add_argument("--depth", help="smiyc with --mmf: folder of <name>_disparity.png files (the tracks have none)")
-    parser.add_argument("--frames", type=int, default=64, help="synthetic frames (default: %(default)s)")
+    parser.add_argument("--frames", type=positive_int, default=64, help="synthetic frames (default: %(default)s)")
     add_scoring(parser)
     parser.add_argument("--cudam-sigma", type=float,
                         help="CuDAM ensemble weight (Eq. 10); default: the paper's 2e4 rescaled to the attention "
                         "map's size (equivalent_weight), recorded in metrics.json")
-    parser.add_argument("--pictures", type=int, default=0, help="frames to draw (default: %(default)s)")
+    parser.add_argument("--pictures", type=nonnegative_int, default=0, help="frames to draw (default: %(default)s)")
     add_common(parser, progress=False)
     parser.set_defaults(handler=run)
 
@@ -103,7 +104,7 @@ def mmf_batches(args):
     if not (folder / "results.json").is_file():
         raise CommandError(f"--mmf {folder}: expected a folder written by `jaxanom demo mmf` (with results.json)")
     config = load_config(folder / "results.json").pipeline
-    if args.dataset.startswith("fishyscapes") or (args.dataset == "smiyc" and not args.depth):
+    if args.dataset not in ("synthetic", "lost-and-found", "smiyc") or (args.dataset == "smiyc" and not args.depth):
         raise CommandError(f"--mmf: the {args.dataset} dataset has no disparity; use synthetic, lost-and-found or "
                            "smiyc with --depth")
     seg = config.segmenter

@@ -5,7 +5,7 @@ import dataclasses
 import runpy
 from pathlib import Path
 
-from jaxanom.cli.common import CLAIM, CommandError, add_common, claim, out_folder
+from jaxanom.cli.common import CLAIM, CommandError, add_common, claim, nonnegative_int, out_folder, positive_int
 
 
 def add_parser(commands) -> None:
@@ -21,9 +21,9 @@ def add_parser(commands) -> None:
     parser.add_argument("--attention", choices=["none", "cudam", "msaam"], help="attention module")
     parser.add_argument("--data", choices=["synthetic", "cityscapes"], help="training data")
     parser.add_argument("--data-root", help="dataset folder (Cityscapes layout)")
-    parser.add_argument("--steps", type=int, help="training steps")
-    parser.add_argument("--batch-size", type=int, help="global batch size")
-    parser.add_argument("--seed", type=int, help="random seed")
+    parser.add_argument("--steps", type=positive_int, help="training steps")
+    parser.add_argument("--batch-size", type=positive_int, help="global batch size")
+    parser.add_argument("--seed", type=nonnegative_int, help="random seed")
     parser.add_argument("--distributed", action="store_true",
                         help="multi-host: one process per host, joined by jax.distributed.initialize (SLURM, Open MPI "
                         "and TPU pods are detected; see the README)")

@@ -32,6 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxanom._validate import check_count, check_fits_memory, check_number
 from jaxanom.data.synthetic import SyntheticScenes
 from jaxanom.data.transforms import normalize
 from jaxanom.experiment import Experiment, build_network, jsonable, load_variables, run_training
@@ -92,12 +93,19 @@ class MMFConfig:
         if s.data != "synthetic" or s.height % 8 or s.width % 8 or tuple(s.crop) != (s.height, s.width):
             raise ValueError(f"segmenter: expected synthetic data, height and width divisible by 8 and crop = "
                              f"(height, width), got {s.data}, {s.height} x {s.width}, crop {s.crop}")
-        if min(self.rgbd_steps, self.dissim_steps, self.dissim_frames, self.batch_size) < 1:
-            raise ValueError("rgbd_steps, dissim_steps, dissim_frames, batch_size: expected >= 1")
+        if self.rgbd_backbone not in RESNETS:
+            raise ValueError(f"rgbd_backbone: expected one of {sorted(RESNETS)}, got {self.rgbd_backbone!r}")
+        for name in ("rgbd_channels", "rgbd_steps", "dissim_steps", "dissim_frames", "batch_size", "gan_steps",
+                     "gan_nf", "gan_upsamples", "gan_hidden", "gan_layers"):
+            check_count(name, getattr(self, name))
+        check_count("void_objects", self.void_objects, minimum=0)
+        check_count("slic_step", self.slic_step, maximum=min(s.height, s.width))
+        check_number("dissim_width", self.dissim_width, 0.0, open_low=True)
+        check_number("dissim_lr", self.dissim_lr, 0.0, open_low=True)
+        # the RGB-D and dissimilarity batches: images, disparity, labels and maps, ~64 bytes a pixel
+        check_fits_memory("batch_size", self.batch_size, s.height * s.width * 64, "frames of the RGB-D net")
         if self.synthesizer not in SYNTHESIZERS:
             raise ValueError(f"synthesizer: expected one of {SYNTHESIZERS}, got {self.synthesizer!r}")
-        if min(self.gan_steps, self.gan_nf, self.gan_upsamples, self.gan_hidden, self.gan_layers) < 1:
-            raise ValueError("gan_steps, gan_nf, gan_upsamples, gan_hidden, gan_layers: expected >= 1")
         if s.height % 2 ** self.gan_upsamples or s.width % 2 ** self.gan_upsamples:
             raise ValueError(f"gan_upsamples: expected 2^n to divide the segmenter's {s.height} x {s.width}, "
                              f"got n = {self.gan_upsamples}")

@@ -21,14 +21,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_labels
+from jaxanom._validate import check_count, check_labels, check_number
 from jaxanom.metrics.segmentation import confusion_counts
 from jaxanom.mixture import GaussianMixture, fit_gmm, select_components
-from jaxanom.offroad.active import select_hard_frames
+from jaxanom.offroad.active import SELECTIONS, select_hard_frames
 from jaxanom.offroad.crf import dense_crf
 from jaxanom.offroad.encoder import AnnotatedFrames, EncoderConfig, concat_frames, embed, init_encoder, train_encoder
 from jaxanom.offroad.patches import neighbour_centers, sliding_centers
-from jaxanom.offroad.risk import classify_batch, frame_risk_batch, risk_bound, training_risks, vote_batch
+from jaxanom.offroad.risk import RISKS, classify_batch, frame_risk_batch, risk_bound, training_risks, vote_batch
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,10 +55,28 @@ class OffroadConfig:
     crf_iters: int = 5
 
     def __post_init__(self):
+        if not isinstance(self.encoder, EncoderConfig):
+            raise ValueError(f"encoder: expected an EncoderConfig, got {type(self.encoder).__name__}")
         if self.fixed_components is None and len(self.components) < 2:
             raise ValueError(f"components: expected at least two counts to scan, got {self.components}")
-        if not 0 < self.finetune_fraction <= 1:
-            raise ValueError(f"finetune_fraction: expected in (0, 1], got {self.finetune_fraction}")
+        for index, count in enumerate(self.components):
+            check_count(f"components[{index}]", count)
+        if self.fixed_components is not None:
+            check_count("fixed_components", self.fixed_components)
+        for name in ("gmm_inits", "stride", "risk_stride", "budget"):
+            check_count(name, getattr(self, name))
+        for name in ("neighbours", "gap", "crf_iters"):
+            check_count(name, getattr(self, name), minimum=0)
+        check_number("delta", self.delta, 0.0, 1.0, open_low=True)
+        check_number("epsilon", self.epsilon, 0.0, 1.0)
+        check_number("trigger", self.trigger, 0.0, 1.0)
+        check_number("finetune_fraction", self.finetune_fraction, 0.0, 1.0, open_low=True)
+        if self.risk not in RISKS:
+            raise ValueError(f"risk: expected one of {RISKS}, got {self.risk!r}")
+        if self.selection not in SELECTIONS:
+            raise ValueError(f"selection: expected one of {SELECTIONS}, got {self.selection!r}")
+        if not isinstance(self.replay, bool):
+            raise ValueError(f"replay: expected true or false, got {self.replay!r}")
 
 
 @dataclasses.dataclass
