@@ -28,7 +28,7 @@ _ATTENTION_POSITIONS = (128 // 4) * (256 // 4)  # CuDAM's map of a 128 x 256 dem
 
 @dataclasses.dataclass(frozen=True)
 class DemoConfig:
-    """Sizes of the demo; ``quick()`` is a seconds-long smoke run of the same path.
+    """Sizes of the demo; ``quick()`` is a smoke run of the same path at tiny sizes.
 
     The demo's frames are far smaller than the paper's, so CuDAM's tau and sigma are scaled to
     the attention map's number of positions (``equivalent_weight``): with the paper's raw

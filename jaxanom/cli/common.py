@@ -219,7 +219,10 @@ def load_stats(path: str | None):
         return None
     from jaxanom.sml import load_stats as load
 
-    mean, std, _ = load(path)
+    try:
+        mean, std, _ = load(path)
+    except ValueError as error:
+        raise CommandError(f"--stats {path}: {error}") from None
     return mean, std
 
 

@@ -25,6 +25,8 @@ import dataclasses
 import hashlib
 import io
 import json
+import zipfile
+import zlib
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -112,7 +114,7 @@ class MMFConfig:
 
     @classmethod
     def quick(cls) -> "MMFConfig":
-        """A seconds-long run of the same path (tests, ``demo mmf --quick``)."""
+        """A smoke run of the same path at tiny sizes (tests, ``demo mmf --quick``; most of its time is compiling)."""
         seg = dataclasses.replace(_SEGMENTER, train_frames=4, height=32, width=64, crop=(32, 64), batch_size=4,
                                   train=dataclasses.replace(_SEGMENTER.train, steps=2, eval_every=2, save_every=2,
                                                             optim=dataclasses.replace(_SEGMENTER.train.optim,
@@ -219,7 +221,21 @@ def load_synthesizer(config: MMFConfig, root: Path) -> ClassMeanSynthesizer | SP
     synth_file = _run_dir(config, root, "synthesizer").with_suffix(".npz")
     if not synth_file.is_file():
         raise ValueError(f"{synth_file}: no such file")
-    return ClassMeanSynthesizer(np.load(synth_file)["means"])
+    return _class_means(synth_file, config.segmenter.num_classes)
+
+
+def _class_means(synth_file: Path, num_classes: int) -> ClassMeanSynthesizer:
+    """The cached class means in ``synth_file``; ValueError naming it when it is not one (no pickles read)."""
+    try:
+        with np.load(synth_file, allow_pickle=False) as data:
+            means = np.asarray(data["means"])
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as error:
+        problem = "it holds Python objects" if "allow_pickle" in str(error) else f"{type(error).__name__}: {error}"
+        raise ValueError(f"{synth_file}: not class means written by jaxanom ({problem}); delete it to refit them") from None
+    if means.shape != (num_classes + 1, 3) or not np.issubdtype(means.dtype, np.floating) or not np.isfinite(means).all():
+        raise ValueError(f"{synth_file}: expected finite float class means of shape ({num_classes + 1}, 3), got "
+                         f"{means.dtype} {means.shape}; delete it to refit them")
+    return ClassMeanSynthesizer(means)
 
 
 def build_synthesizer(config: MMFConfig, root: Path, frames: list[dict],
@@ -237,7 +253,7 @@ def build_synthesizer(config: MMFConfig, root: Path, frames: list[dict],
         return SPADESynthesizer(generator, jax.device_get(state.generator_variables))
     synth_file = _run_dir(config, root, "synthesizer").with_suffix(".npz")
     if synth_file.exists():
-        return ClassMeanSynthesizer(np.load(synth_file)["means"])
+        return _class_means(synth_file, num_classes)
     synthesizer = ClassMeanSynthesizer.fit(frames, num_classes)
     buffer = io.BytesIO()
     np.savez(buffer, means=synthesizer.means)

@@ -70,7 +70,7 @@ class Source:
 
 @dataclasses.dataclass(frozen=True)
 class OffroadDemoConfig:
-    """Sizes of the demo (``quick()``: a seconds-long run of the same path)."""
+    """Sizes of the demo (``quick()``: a smoke run of the same path at tiny sizes)."""
 
     pipeline: OffroadConfig = OffroadConfig(encoder=EncoderConfig.tiny(steps=150), components=tuple(range(2, 11)),
                                             gmm_inits=2, budget=6, gap=3)
