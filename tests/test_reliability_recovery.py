@@ -184,3 +184,21 @@ def test_convert_weights_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path,
     _one_line(capsys, main(["convert-weights", "--from", "torchvision-resnet18", str(weights), str(tmp_path / "b")]),
               "No space left on device", "nothing was left behind")
     assert list((tmp_path / "b").iterdir()) == []
+
+
+
+def test_a_diverging_run_is_one_line_naming_the_last_good_step_and_what_to_change(tmp_path, capsys, monkeypatch):
+    import jaxanom.experiment
+    from jaxanom.train.loop import NonFiniteLossError
+
+    def diverging(experiment, run_dir, **kwargs):  # what the loop raises (tests/test_train_loop.py)
+        jaxanom.experiment.write_json_atomic(Path(run_dir) / "experiment.json", jaxanom.experiment.jsonable(experiment))
+        raise NonFiniteLossError("loss nan, gradient norm nan at step 2: training stopped; last good checkpoint: "
+                                 f"step 1 in {run_dir}/checkpoints")
+
+    monkeypatch.setattr(jaxanom.experiment, "run_training", diverging)
+    run = tmp_path / "run"
+    _one_line(capsys, main(["train", "--out", str(run), "--attention", "none", "--no-progress"]),
+              "the run diverged", "last good checkpoint: step 1", "lower learning rate (optim.lr, now 0.01)")
+    _one_line(capsys, main(["train", "--resume", "--out", str(run), "--no-progress"]),
+              "the run diverged", "--resume repeats the same steps")
