@@ -193,3 +193,14 @@ def test_stats_in_an_npy_file_name_the_flag(tmp_path, capsys):
 def test_fit_stats_out_must_name_an_npz_file(tmp_path, capsys, out, fragment):
     _one_line(capsys, main(["fit-stats", "--run", str(tmp_path), "--out", str(tmp_path / "x") + "/" + out]), fragment)
     assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.parametrize("methods, fragment", [("bogus", "methods: expected names from"),
+                                               ("sml", "need SML class statistics")])
+def test_evaluate_checks_its_methods_before_reading_the_network(tmp_path, capsys, methods, fragment):
+    from jaxanom.experiment import Experiment, jsonable
+
+    (tmp_path / "run").mkdir()  # a run without checkpoints: reading its network would fail
+    (tmp_path / "run" / "experiment.json").write_text(json.dumps(jsonable(Experiment())))
+    _refused_at_once(capsys, ["evaluate", "--run", str(tmp_path / "run"), "--dataset", "synthetic", "--path", "anomaly",
+                              "--methods", methods, "--out", str(tmp_path / "o")], fragment, out=tmp_path / "o")

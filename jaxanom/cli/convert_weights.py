@@ -8,7 +8,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from jaxanom.cli.common import CommandError, add_common, nonnegative_int, out_folder, positive_int
+from jaxanom.cli.common import CommandError, add_common, nonnegative_int, out_folder
 from jaxanom.train.checkpoint import _first_line
 from jaxanom.weights.runs import VGG_CONFIG, VGG_FILE
 
@@ -25,7 +25,7 @@ def add_parser(commands) -> None:
     parser.add_argument("--from", dest="kind", required=True, choices=KINDS, help="what the checkpoint holds")
     parser.add_argument("input", metavar="IN", help="checkpoint file")
     parser.add_argument("out", metavar="OUT", help="output folder (new or empty)")
-    parser.add_argument("--num-classes", type=positive_int, default=19, help="classes of the DeepLabV3+ (default: %(default)s)")
+    parser.add_argument("--num-classes", type=int, default=19, help="classes of the DeepLabV3+ (default: %(default)s)")
     parser.add_argument("--output-stride", type=int, choices=[8, 16], default=8,
                         help="DeepLabV3+ output stride (default: %(default)s)")
     parser.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the head of torchvision-resnet* (default: %(default)s)")

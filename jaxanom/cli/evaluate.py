@@ -64,16 +64,24 @@ def run(args) -> None:
     from jaxanom.experiment import build_network, load_variables
     from jaxanom.io import write_json_atomic
 
+    from jaxanom import methods as scoring
+    from jaxanom._validate import check_number
+    from jaxanom.experiment import load_experiment
+
     stats = load_stats(args.stats)
-    if args.mmf:
+    if args.cudam_sigma is not None:
+        check_number("--cudam-sigma", args.cudam_sigma, 0.0, open_low=True)
+    if args.mmf:  # every check before the first frame is read or scored
+        names = scoring.check_methods((args.methods or MMF_DEFAULT_METHODS).split(","), have_stats=stats is not None,
+                                      have_attention=False, have_mmf=True)
         source, batches = mmf_batches(args)
-        names = (args.methods or MMF_DEFAULT_METHODS).split(",")
     else:
+        names = scoring.check_methods((args.methods or DEFAULT_METHODS).split(","), have_stats=stats is not None,
+                                      have_attention=load_experiment(args.run).attention == "cudam")
         source = anomaly_source(args)
         experiment, variables = load_variables(args.run)
         predict = predictor(build_network(experiment), variables)
         batches = predictions(predict, evaluation_batches(source, batch_size=1))
-        names = (args.methods or DEFAULT_METHODS).split(",")
     out = out_folder(args.out, args.overwrite)
     metrics, _ = anomaly_results(batches, names, stats=stats, cudam_sigma=args.cudam_sigma,
                                  fpr_convention=args.fpr_convention, ap_convention=args.ap_convention)
