@@ -116,7 +116,8 @@ def test_sigterm_unwinds_like_ctrl_c_leaving_nothing(tmp_path):
         error = child.communicate(timeout=60)[1].strip()
     finally:
         child.kill()
-    assert child.returncode == 128 + signal.SIGTERM and error.endswith("terminated (SIGTERM); nothing half-written is left")
+    assert child.returncode == 128 + signal.SIGTERM
+    assert error.endswith("terminated (SIGTERM); nothing half-written is left"), error
     assert not out.exists()  # the claim, the temporary and the empty folders it made are gone
 
 

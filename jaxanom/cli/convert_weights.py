@@ -28,7 +28,8 @@ def add_parser(commands) -> None:
     parser.add_argument("--num-classes", type=int, default=19, help="classes of the DeepLabV3+ (default: %(default)s)")
     parser.add_argument("--output-stride", type=int, choices=[8, 16], default=8,
                         help="DeepLabV3+ output stride (default: %(default)s)")
-    parser.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the head of torchvision-resnet* (default: %(default)s)")
+    parser.add_argument("--seed", type=nonnegative_int, default=0,
+                        help="seed of the head of torchvision-resnet* (default: %(default)s)")
     add_common(parser, progress=False)
     parser.set_defaults(handler=run)
 

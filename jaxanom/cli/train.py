@@ -77,7 +77,8 @@ def run(args) -> None:
         run_training(experiment, out, progress=not args.no_progress)
     except NonFiniteLossError as error:
         raise CommandError(f"the run diverged: {error}. --resume repeats the same steps from there; start a new run "
-                           f"with a lower learning rate (optim.lr, now {experiment.train.optim.lr:g}) or gradient clipping "
+                           f"with a lower learning rate (optim.lr, now {experiment.train.optim.lr:g}) or "
+                           "gradient clipping "
                            "(optim.clip_norm) in --config") from None
     print(f"trained {experiment.train.steps} steps on {jax.device_count()} devices ({jax.process_count()} "
           f"processes); checkpoints in {out / 'checkpoints'}")

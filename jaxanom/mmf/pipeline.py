@@ -231,8 +231,10 @@ def _class_means(synth_file: Path, num_classes: int) -> ClassMeanSynthesizer:
             means = np.asarray(data["means"])
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as error:
         problem = "it holds Python objects" if "allow_pickle" in str(error) else f"{type(error).__name__}: {error}"
-        raise ValueError(f"{synth_file}: not class means written by jaxanom ({problem}); delete it to refit them") from None
-    if means.shape != (num_classes + 1, 3) or not np.issubdtype(means.dtype, np.floating) or not np.isfinite(means).all():
+        raise ValueError(f"{synth_file}: not class means written by jaxanom ({problem}); "
+                         "delete it to refit them") from None
+    floats = np.issubdtype(means.dtype, np.floating)
+    if means.shape != (num_classes + 1, 3) or not floats or not np.isfinite(means).all():
         raise ValueError(f"{synth_file}: expected finite float class means of shape ({num_classes + 1}, 3), got "
                          f"{means.dtype} {means.shape}; delete it to refit them")
     return ClassMeanSynthesizer(means)

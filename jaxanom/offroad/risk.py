@@ -30,7 +30,7 @@ from jaxanom._validate import check_finite, check_integer, check_labels, check_n
 from jaxanom.mixture import GaussianMixture, log_gaussian
 
 VOID = 255  # label of pixels that no window covers
-RISKS = ("calibrated", "literal")  # the risk of ``classify``: Eq. 9 calibrated on the training patches, or Eq. 9 as printed
+RISKS = ("calibrated", "literal")  # classify's risk: calibrated on the training patches, or Eq. 9 as printed
 
 
 class Classification(NamedTuple):

@@ -110,10 +110,12 @@ def _read_torch(file: Path) -> Mapping:
         found = re.search(r"Unsupported \w+: [^\n]*?(?= was not| \.|\n|$)", _plain(error))
         raise ValueError(f"weights file {file}: refused: it holds Python objects besides tensors"
                          f"{f' ({found.group(0)})' if found else ''}, and jaxanom never runs code from a weights file; "
-                         "save the state dict alone (torch.save(model.state_dict(), path)) or as .safetensors") from None
+                         "save the state dict alone (torch.save(model.state_dict(), path)) or as .safetensors"
+                         ) from None
     except Exception as error:  # RuntimeError / EOFError (damaged, truncated)
-        raise ValueError(f"weights file {file}: not a readable PyTorch checkpoint "
-                         f"({type(error).__name__}: {_plain(error).splitlines()[0] if str(error).strip() else ''})") from None
+        first = _plain(error).splitlines()[0] if _plain(error) else ""
+        raise ValueError(f"weights file {file}: not a readable PyTorch checkpoint ({type(error).__name__}: {first})"
+                         ) from None
 
 
 def _plain(error: Exception) -> str:
