@@ -15,7 +15,7 @@ from pathlib import Path
 DEFAULT_METHODS = "msp,max_logit,entropy,energy,sml,sml_post"
 CLAIM = ".jaxanom-claim"  # marker of a command writing into a folder (or beside a file), removed at its end
 _claimed: list[Path] = []
-_outputs: list[tuple[Path, set[Path]]] = []  # (out folder, the folders it held when claimed)
+_outputs: list[tuple[Path, set[str] | None]] = []  # (out folder, its subfolders when claimed, None if new)
 # what NumPy and zipfile raise for empty, truncated or damaged .npy / .npz files
 _UNREADABLE = (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error)
 
@@ -70,7 +70,7 @@ def out_folder(path: str, overwrite: bool, *, hint: str = "pass --overwrite") ->
     folder = Path(path)
     if folder.exists() and not folder.is_dir():
         raise CommandError(f"--out {folder}: exists and is not a folder")
-    existed = {Path(root) for root, _, _ in os.walk(folder)}
+    existed = {p.name for p in folder.iterdir() if p.is_dir()} if folder.is_dir() else None
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as error:
@@ -87,15 +87,20 @@ def out_folder(path: str, overwrite: bool, *, hint: str = "pass --overwrite") ->
 
 def end_outputs(failed: bool) -> None:
     """When a command ends; if it ``failed``, remove the folders its ``out_folder`` calls created that
-    stayed empty (e.g. ``scores/`` of a ``score`` refused at its first image), so a retry finds them as before."""
+    stayed empty (``--out`` itself, or e.g. ``scores/`` of a ``score`` refused at its first image),
+    so a retry finds them as before."""
     while _outputs:
         folder, existed = _outputs.pop()
-        if not failed:
+        if not failed or not folder.is_dir():
             continue
-        for root, _, _ in sorted(os.walk(folder), key=lambda entry: -len(Path(entry[0]).parts)):
-            if Path(root) not in existed:
-                with contextlib.suppress(OSError):
-                    Path(root).rmdir()  # only if empty
+        for child in folder.iterdir():
+            if child.is_dir() and not child.is_symlink() and child.name not in (existed or ()):
+                for root, _, _ in os.walk(child, topdown=False):
+                    with contextlib.suppress(OSError):
+                        os.rmdir(root)  # only if empty
+        if existed is None:
+            with contextlib.suppress(OSError):
+                folder.rmdir()
 
 
 def claim(marker: Path, what: str) -> None:
