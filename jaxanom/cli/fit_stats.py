@@ -60,7 +60,9 @@ def run(args) -> None:
     from jaxanom.sml.policy import check_policy
 
     out = Path(args.out)
-    if out.is_dir() or args.out.endswith(("/", os.sep)):
+    if out.is_dir():
+        raise CommandError(f"--out {out}: is a folder; expected the path of the .npz file to write")
+    if args.out.endswith(("/", os.sep)):
         raise CommandError(f"--out {args.out}: names a folder; expected the path of the .npz file to write")
     if out.suffix != ".npz":
         raise CommandError(f"--out {args.out}: expected a file name ending in .npz (what --stats reads)")
