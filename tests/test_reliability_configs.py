@@ -152,7 +152,11 @@ def test_convert_weights_input_problems_are_one_line_and_never_advise_unsafe_loa
                                     str(tmp_path / "objects.pth"), str(tmp_path / "b")]),
                       "refused", "Custom", "save the state dict alone")
     assert "weights_only=False" not in error and "\x1b" not in error and error.endswith("safetensors")
-    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+    (tmp_path / "damaged.pth").write_bytes(b"\x80\x02not a checkpoint" * 7)
+    error = _one_line(capsys, main(["convert-weights", "--from", "torchvision-resnet18", str(tmp_path / "damaged.pth"),
+                                    str(tmp_path / "c")]), "not a readable PyTorch checkpoint", "Unsupported operand")
+    assert "weights_only" not in error and "\x1b" not in error
+    assert not any((tmp_path / name).exists() for name in "abc")
 
 
 def test_convert_weights_unwraps_a_model_checkpoint_and_names_integer_tensors():

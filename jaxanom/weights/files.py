@@ -106,12 +106,16 @@ def _read_torch(file: Path) -> Mapping:
                          "'jaxanom[torch]'), or save the state dict as .npz or .safetensors elsewhere") from None
     try:
         return torch.load(file, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as error:  # objects that only unpickling (running code) could build
-        found = re.search(r"Unsupported \w+: [^\n]*?(?= was not| \.|\n|$)", _plain(error))
-        raise ValueError(f"weights file {file}: refused: it holds Python objects besides tensors"
-                         f"{f' ({found.group(0)})' if found else ''}, and jaxanom never runs code from a weights file; "
-                         "save the state dict alone (torch.save(model.state_dict(), path)) or as .safetensors"
-                         ) from None
+    except pickle.UnpicklingError as error:  # objects only unpickling (running code) builds, or damage
+        text = _plain(error)
+        found = re.search(r"Unsupported global: \S+ \S+", text)
+        if found:
+            raise ValueError(f"weights file {file}: refused: it holds Python objects besides tensors "
+                             f"({found.group(0)}), and jaxanom never runs code from a weights file; save the state "
+                             "dict alone (torch.save(model.state_dict(), path)) or as .safetensors") from None
+        detail = re.search(r"WeightsUnpickler error:\s*(\S[^\n]*)", text)
+        raise ValueError(f"weights file {file}: not a readable PyTorch checkpoint (damaged, or not a weights file: "
+                         f"{detail.group(1) if detail else 'UnpicklingError'})") from None
     except Exception as error:  # RuntimeError / EOFError (damaged, truncated)
         first = _plain(error).splitlines()[0] if _plain(error) else ""
         raise ValueError(f"weights file {file}: not a readable PyTorch checkpoint ({type(error).__name__}: {first})"
