@@ -14,7 +14,9 @@ import numpy as np
 
 from jaxanom import methods as scoring
 from jaxanom import sml
+from jaxanom._validate import check_count, check_number
 from jaxanom.cudam_score import PAPER_TEST_POSITIONS, PAPER_TRAIN_POSITIONS, equivalent_weight
+from jaxanom.data.synthetic import ANOMALY_SPLITS
 from jaxanom.evaluate import anomaly_results, class_statistics, predictions, predictor, segmentation_results
 from jaxanom.experiment import Experiment, build_network, frames, run_training
 from jaxanom.io import write_json_atomic, write_png_atomic
@@ -28,7 +30,7 @@ _ATTENTION_POSITIONS = (128 // 4) * (256 // 4)  # CuDAM's map of a 128 x 256 dem
 
 @dataclasses.dataclass(frozen=True)
 class DemoConfig:
-    """Sizes of the demo; ``quick()`` is a seconds-long smoke run of the same path.
+    """Sizes of the demo; ``quick()`` is a smoke run of the same path at tiny sizes.
 
     The demo's frames are far smaller than the paper's, so CuDAM's tau and sigma are scaled to
     the attention map's number of positions (``equivalent_weight``): with the paper's raw
@@ -47,6 +49,14 @@ class DemoConfig:
     anomaly_split: str = "anomaly"
     pictures: int = 4
     cudam_sigma: float = equivalent_weight(2e4, _ATTENTION_POSITIONS, PAPER_TEST_POSITIONS)
+
+    def __post_init__(self):
+        for name in ("stats_frames", "val_frames", "anomaly_frames"):
+            check_count(name, getattr(self, name))
+        check_count("pictures", self.pictures, minimum=0)
+        check_number("cudam_sigma", self.cudam_sigma, 0.0, open_low=True)
+        if self.anomaly_split not in ANOMALY_SPLITS:
+            raise ValueError(f"anomaly_split: expected one of {ANOMALY_SPLITS}, got {self.anomaly_split!r}")
 
     @classmethod
     def quick(cls) -> "DemoConfig":

@@ -15,6 +15,7 @@ from typing import Any, Sequence
 import jax
 import numpy as np
 
+from jaxanom._validate import check_count, check_fits_memory, check_number
 from jaxanom.io import write_json_atomic
 from jaxanom.train.loop import TrainConfig
 from jaxanom.train.step import LossConfig
@@ -68,6 +69,18 @@ the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``:
             raise ValueError(f"data: expected one of {DATASETS}, got {self.data!r}")
         if self.data != "synthetic" and not self.data_root:
             raise ValueError(f"data_root: expected the folder of the {self.data} dataset, got {self.data_root!r}")
+        if self.attention not in (None, "cudam", "msaam"):
+            raise ValueError(f"attention: expected None, 'cudam' or 'msaam', got {self.attention!r}")
+        for name in ("num_classes", "train_frames", "height", "width", "batch_size"):
+            check_count(name, getattr(self, name))
+        if len(self.crop) != 2 or len(self.scale_range) != 2:
+            raise ValueError(f"crop, scale_range: expected two values each, got {self.crop}, {self.scale_range}")
+        for index, size in enumerate(self.crop):
+            check_count(f"crop[{index}]", size)
+        low, high = (check_number(f"scale_range[{i}]", v, 0.0, open_low=True) for i, v in enumerate(self.scale_range))
+        if low > high:
+            raise ValueError(f"scale_range: expected (low, high) with low <= high, got {self.scale_range}")
+        check_fits_memory("batch_size", self.batch_size, self.crop[0] * self.crop[1] * 16, "training crops")
         if self.batch_size < 1 or self.train_frames < self.batch_size:
             raise ValueError(f"batch_size, train_frames: expected 1 <= batch_size <= train_frames, "
                              f"got {self.batch_size}, {self.train_frames}")

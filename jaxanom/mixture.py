@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_finite, check_rank
+from jaxanom._validate import check_count, check_finite, check_rank
 
 
 class GaussianMixture(NamedTuple):
@@ -60,6 +60,12 @@ def log_gaussian(z: jax.Array, means: jax.Array, covariances: jax.Array) -> jax.
 
     ``-1/2 (D log 2 pi + log|Sigma_k| + |L_k^-1 (z - mu_k)|^2)`` with ``L_k = chol(Sigma_k)``.
     """
+    check_rank("z", z, 2, "(N, D)")
+    check_rank("means", means, 2, "(m, D)")
+    m, d = np.shape(means)
+    if np.shape(z)[1] != d or np.shape(covariances) != (m, d, d):
+        raise ValueError(f"z, means, covariances must have shapes (N, D), (m, D), (m, D, D) with one m and D, "
+                         f"got {np.shape(z)}, {np.shape(means)}, {np.shape(covariances)}")
     prec = _precision_cholesky(covariances)
     log_det = jnp.sum(jnp.log(jnp.diagonal(prec, axis1=-2, axis2=-1)), axis=-1)  # -1/2 log|Sigma|
     y = jnp.einsum("nd,kde->nke", z, prec) - jnp.einsum("kd,kde->ke", means, prec)[None]
@@ -175,8 +181,7 @@ def _check_fit_options(reg_covar, tol, max_iter) -> None:
         raise ValueError(f"reg_covar must be >= 0, got {reg_covar}")
     if not tol >= 0:
         raise ValueError(f"tol must be >= 0, got {tol}")
-    if int(max_iter) < 1:
-        raise ValueError(f"max_iter must be >= 1, got {max_iter}")
+    check_count("max_iter", max_iter)  # a loop counter in int32
 
 
 def _checked_result(result: EMResult) -> EMResult:
@@ -210,13 +215,10 @@ def fit_gmm(key, z, m: int, *, n_init: int = 3, lloyd_steps: int = 10, reg_covar
     The ``n_init`` initialisations (keys split from ``key``) run vmapped; the one with the
     highest lower bound is kept (the first on ties), as in sklearn. ``z (N, D)`` with N >= m.
     """
-    if int(m) < 1:
-        raise ValueError(f"m must be >= 1 component, got {m}")
+    check_count("m", m)
     x = _check_points(z, min_points=int(m))
-    if int(n_init) < 1:
-        raise ValueError(f"n_init must be >= 1, got {n_init}")
-    if int(lloyd_steps) < 0:
-        raise ValueError(f"lloyd_steps must be >= 0, got {lloyd_steps}")
+    check_count("n_init", n_init)
+    check_count("lloyd_steps", lloyd_steps, minimum=0)
     _check_fit_options(reg_covar, tol, max_iter)
     keys = jax.random.split(key, int(n_init))
     with jax.enable_x64(True):

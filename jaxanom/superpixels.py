@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxanom._batching import over_images
-from jaxanom._validate import check_finite, check_rank, dtype_of, is_concrete
+from jaxanom._validate import check_count, check_finite, check_rank, dtype_of, is_concrete
 
 # sRGB (D65) -> XYZ and the D65 white point, as scikit-image's ``rgb2lab`` uses them.
 _XYZ_FROM_RGB = np.array([[0.412453, 0.357580, 0.180423],
@@ -80,6 +80,7 @@ def grid_shape(shape: tuple[int, int], step: int) -> tuple[int, int]:
 
 def num_superpixels(shape: tuple[int, int], step: int) -> int:
     """K, the number of SLIC clusters (and label values) for an image of ``shape`` (H, W) at grid step S."""
+    check_count("step", step)
     rows, cols = grid_shape(shape, step)
     return rows * cols
 

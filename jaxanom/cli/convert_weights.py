@@ -1,7 +1,16 @@
 """``jaxanom convert-weights``: PyTorch weights -> a run folder (DeepLabV3+, ESPNet) or a VGG folder."""
 from __future__ import annotations
 
-from jaxanom.cli.common import add_common, out_folder
+import contextlib
+import logging
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+from jaxanom.cli.common import CommandError, add_common, nonnegative_int, out_folder
+from jaxanom.train.checkpoint import _first_line
+from jaxanom.weights.runs import VGG_CONFIG, VGG_FILE
 
 
 def add_parser(commands) -> None:
@@ -22,7 +31,8 @@ def add_parser(commands) -> None:
                         "(default: %(default)s; espnet-cityscapes takes the checkpoint's)")
     parser.add_argument("--output-stride", type=int, choices=[8, 16], default=8,
                         help="DeepLabV3+ output stride (default: %(default)s)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the head of torchvision-resnet* (default: %(default)s)")
+    parser.add_argument("--seed", type=nonnegative_int, default=0,
+                        help="seed of the head of torchvision-resnet* (default: %(default)s)")
     add_common(parser, progress=False)
     parser.set_defaults(handler=run)
 
@@ -30,16 +40,47 @@ def add_parser(commands) -> None:
 def run(args) -> None:
     import jax
 
-    from jaxanom.weights import from_torch, read_state_dict, run_preset, write_run, write_vgg
+    from jaxanom.weights import RUN_KINDS, from_torch, read_state_dict, run_preset, write_run, write_vgg
 
+    out = out_folder(args.out, args.overwrite)
+    held = [name for name in ("experiment.json", "checkpoints") if (out / name).exists()]
+    if held and args.kind in RUN_KINDS:  # a run's checkpoints would outlive the new experiment.json, or hide step 0
+        raise CommandError(f"OUT {out}: holds a run ({', '.join(held)}); --overwrite does not replace runs: "
+                           "choose an empty folder, or delete that run first")
     state = read_state_dict(args.input)
     model, variables = from_torch(state, args.kind, args.num_classes, key=jax.random.key(args.seed),
                                   output_stride=args.output_stride)
-    out = out_folder(args.out, args.overwrite)
     preset = run_preset(args.kind, model)
     if preset is not None:
-        write_run(out, preset, model, variables)
+        with _staged(out) as staging:
+            write_run(staging, preset, model, variables)
+            os.replace(staging / "checkpoints", out / "checkpoints")  # a folder without experiment.json is no run
+            os.replace(staging / "experiment.json", out / "experiment.json")
         print(f"{args.kind}: {len(state)} tensors -> run folder {out} (model {preset})")
     else:
-        write_vgg(out, model, variables)
+        with _staged(out) as staging:
+            write_vgg(staging, model, variables)
+            for name in (VGG_FILE, VGG_CONFIG):
+                os.replace(staging / name, out / name)
         print(f"{args.kind}: {len(state)} tensors -> {out}")
+
+
+@contextlib.contextmanager
+def _staged(out: Path):
+    """A hidden temporary folder in ``out`` (``.convert.*.tmp``: a stale claim's clean-up finds it),
+    removed however the block ends; a failure to write there (a full disk) is one line, and the
+    writer's background threads log nothing meanwhile."""
+    staging = Path(tempfile.mkdtemp(dir=out, prefix=".convert.", suffix=".tmp"))
+    loggers = [logging.getLogger(name) for name in ("absl", "asyncio")]
+    levels = [logger.level for logger in loggers]
+    for logger in loggers:
+        logger.setLevel(logging.CRITICAL + 1)
+    try:
+        yield staging
+    except Exception as error:
+        raise CommandError(f"{out}: could not write the converted weights ({type(error).__name__}: "
+                           f"{_first_line(error)}); nothing was left behind") from None
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+        for logger, level in zip(loggers, levels):
+            logger.setLevel(level)

@@ -25,6 +25,8 @@ import dataclasses
 import hashlib
 import io
 import json
+import zipfile
+import zlib
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -32,6 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxanom._validate import check_count, check_fits_memory, check_number
 from jaxanom.data.synthetic import SyntheticScenes
 from jaxanom.data.transforms import normalize
 from jaxanom.experiment import Experiment, build_network, jsonable, load_variables, run_training
@@ -92,19 +95,26 @@ class MMFConfig:
         if s.data != "synthetic" or s.height % 8 or s.width % 8 or tuple(s.crop) != (s.height, s.width):
             raise ValueError(f"segmenter: expected synthetic data, height and width divisible by 8 and crop = "
                              f"(height, width), got {s.data}, {s.height} x {s.width}, crop {s.crop}")
-        if min(self.rgbd_steps, self.dissim_steps, self.dissim_frames, self.batch_size) < 1:
-            raise ValueError("rgbd_steps, dissim_steps, dissim_frames, batch_size: expected >= 1")
+        if self.rgbd_backbone not in RESNETS:
+            raise ValueError(f"rgbd_backbone: expected one of {sorted(RESNETS)}, got {self.rgbd_backbone!r}")
+        for name in ("rgbd_channels", "rgbd_steps", "dissim_steps", "dissim_frames", "batch_size", "gan_steps",
+                     "gan_nf", "gan_upsamples", "gan_hidden", "gan_layers"):
+            check_count(name, getattr(self, name))
+        check_count("void_objects", self.void_objects, minimum=0)
+        check_count("slic_step", self.slic_step, maximum=min(s.height, s.width))
+        check_number("dissim_width", self.dissim_width, 0.0, open_low=True)
+        check_number("dissim_lr", self.dissim_lr, 0.0, open_low=True)
+        # the RGB-D and dissimilarity batches: images, disparity, labels and maps, ~64 bytes a pixel
+        check_fits_memory("batch_size", self.batch_size, s.height * s.width * 64, "frames of the RGB-D net")
         if self.synthesizer not in SYNTHESIZERS:
             raise ValueError(f"synthesizer: expected one of {SYNTHESIZERS}, got {self.synthesizer!r}")
-        if min(self.gan_steps, self.gan_nf, self.gan_upsamples, self.gan_hidden, self.gan_layers) < 1:
-            raise ValueError("gan_steps, gan_nf, gan_upsamples, gan_hidden, gan_layers: expected >= 1")
         if s.height % 2 ** self.gan_upsamples or s.width % 2 ** self.gan_upsamples:
             raise ValueError(f"gan_upsamples: expected 2^n to divide the segmenter's {s.height} x {s.width}, "
                              f"got n = {self.gan_upsamples}")
 
     @classmethod
     def quick(cls) -> "MMFConfig":
-        """A seconds-long run of the same path (tests, ``demo mmf --quick``)."""
+        """A smoke run of the same path at tiny sizes (tests, ``demo mmf --quick``; most of its time is compiling)."""
         seg = dataclasses.replace(_SEGMENTER, train_frames=4, height=32, width=64, crop=(32, 64), batch_size=4,
                                   train=dataclasses.replace(_SEGMENTER.train, steps=2, eval_every=2, save_every=2,
                                                             optim=dataclasses.replace(_SEGMENTER.train.optim,
@@ -211,7 +221,23 @@ def load_synthesizer(config: MMFConfig, root: Path) -> ClassMeanSynthesizer | SP
     synth_file = _run_dir(config, root, "synthesizer").with_suffix(".npz")
     if not synth_file.is_file():
         raise ValueError(f"{synth_file}: no such file")
-    return ClassMeanSynthesizer(np.load(synth_file)["means"])
+    return _class_means(synth_file, config.segmenter.num_classes)
+
+
+def _class_means(synth_file: Path, num_classes: int) -> ClassMeanSynthesizer:
+    """The cached class means in ``synth_file``; ValueError naming it when it is not one (no pickles read)."""
+    try:
+        with np.load(synth_file, allow_pickle=False) as data:
+            means = np.asarray(data["means"])
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as error:
+        problem = "it holds Python objects" if "allow_pickle" in str(error) else f"{type(error).__name__}: {error}"
+        raise ValueError(f"{synth_file}: not class means written by jaxanom ({problem}); "
+                         "delete it to refit them") from None
+    floats = np.issubdtype(means.dtype, np.floating)
+    if means.shape != (num_classes + 1, 3) or not floats or not np.isfinite(means).all():
+        raise ValueError(f"{synth_file}: expected finite float class means of shape ({num_classes + 1}, 3), got "
+                         f"{means.dtype} {means.shape}; delete it to refit them")
+    return ClassMeanSynthesizer(means)
 
 
 def build_synthesizer(config: MMFConfig, root: Path, frames: list[dict],
@@ -229,7 +255,7 @@ def build_synthesizer(config: MMFConfig, root: Path, frames: list[dict],
         return SPADESynthesizer(generator, jax.device_get(state.generator_variables))
     synth_file = _run_dir(config, root, "synthesizer").with_suffix(".npz")
     if synth_file.exists():
-        return ClassMeanSynthesizer(np.load(synth_file)["means"])
+        return _class_means(synth_file, num_classes)
     synthesizer = ClassMeanSynthesizer.fit(frames, num_classes)
     buffer = io.BytesIO()
     np.savez(buffer, means=synthesizer.means)

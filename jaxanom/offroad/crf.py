@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_finite, check_rank
+from jaxanom._validate import check_finite, check_range, check_rank
 
 _BLOCK = 512  # rows of the exact kernel computed at once
 
@@ -240,6 +240,7 @@ def _run(fn, probs, image, batched, sxy_b, srgb, w_b, sxy_g, w_g, iters, normali
         raise ValueError(f"probs must hold at least one pixel and one label, got shape {np.shape(probs)}")
     check_finite("probs", probs)
     check_finite("image", image)
+    check_range("image", image, 0.0, 1.0, " (divide 8-bit images by 255)")
     for name, value in (("sxy_b", sxy_b), ("srgb", srgb), ("sxy_g", sxy_g)):
         if not value > 0:
             raise ValueError(f"{name} must be > 0, got {value}")

@@ -21,13 +21,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxanom._validate import check_count, check_labels, check_number
 from jaxanom.metrics.segmentation import confusion_counts
 from jaxanom.mixture import GaussianMixture, fit_gmm, select_components
-from jaxanom.offroad.active import select_hard_frames
+from jaxanom.offroad.active import SELECTIONS, select_hard_frames
 from jaxanom.offroad.crf import dense_crf
 from jaxanom.offroad.encoder import AnnotatedFrames, EncoderConfig, concat_frames, embed, init_encoder, train_encoder
 from jaxanom.offroad.patches import neighbour_centers, sliding_centers
-from jaxanom.offroad.risk import classify_batch, frame_risk_batch, risk_bound, training_risks, vote_batch
+from jaxanom.offroad.risk import RISKS, classify_batch, frame_risk_batch, risk_bound, training_risks, vote_batch
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,10 +55,28 @@ class OffroadConfig:
     crf_iters: int = 5
 
     def __post_init__(self):
+        if not isinstance(self.encoder, EncoderConfig):
+            raise ValueError(f"encoder: expected an EncoderConfig, got {type(self.encoder).__name__}")
         if self.fixed_components is None and len(self.components) < 2:
             raise ValueError(f"components: expected at least two counts to scan, got {self.components}")
-        if not 0 < self.finetune_fraction <= 1:
-            raise ValueError(f"finetune_fraction: expected in (0, 1], got {self.finetune_fraction}")
+        for index, count in enumerate(self.components):
+            check_count(f"components[{index}]", count)
+        if self.fixed_components is not None:
+            check_count("fixed_components", self.fixed_components)
+        for name in ("gmm_inits", "stride", "risk_stride", "budget"):
+            check_count(name, getattr(self, name))
+        for name in ("neighbours", "gap", "crf_iters"):
+            check_count(name, getattr(self, name), minimum=0)
+        check_number("delta", self.delta, 0.0, 1.0, open_low=True)
+        check_number("epsilon", self.epsilon, 0.0, 1.0)
+        check_number("trigger", self.trigger, 0.0, 1.0)
+        check_number("finetune_fraction", self.finetune_fraction, 0.0, 1.0, open_low=True)
+        if self.risk not in RISKS:
+            raise ValueError(f"risk: expected one of {RISKS}, got {self.risk!r}")
+        if self.selection not in SELECTIONS:
+            raise ValueError(f"selection: expected one of {SELECTIONS}, got {self.selection!r}")
+        if not isinstance(self.replay, bool):
+            raise ValueError(f"replay: expected true or false, got {self.replay!r}")
 
 
 @dataclasses.dataclass
@@ -117,6 +136,8 @@ def raw_cluster_distance(z: np.ndarray, mixture: GaussianMixture) -> np.ndarray:
 
 def majority_class(clusters: np.ndarray, reference: np.ndarray, num_clusters: int) -> np.ndarray:
     """(m,) the most frequent reference class per cluster (lowest on ties; -1 for an empty cluster)."""
+    check_labels("clusters", clusters, num_clusters)
+    check_labels("reference", reference, np.iinfo(np.int64).max)
     out = np.full(num_clusters, -1, np.int64)
     for k in range(num_clusters):
         members = reference[clusters == k]
@@ -180,6 +201,7 @@ def segment(model: OffroadModel, images: np.ndarray, config: OffroadConfig, *, c
 def to_classes(labels: np.ndarray, model: OffroadModel, num_classes: int) -> np.ndarray:
     """Cluster labels (unknown = m, void 255) -> reference classes; unknown and classless clusters
     become ``num_classes`` (the always-wrong column of D-B14), void stays 255."""
+    check_labels("labels", labels, model.num_clusters + 1, void=255)
     table = np.append(np.where(model.cluster_class >= 0, model.cluster_class, num_classes), num_classes)
     safe = np.where(labels == 255, 0, labels)
     return np.where(labels == 255, 255, table[np.clip(safe, 0, model.num_clusters)]).astype(np.int32)
@@ -188,6 +210,8 @@ def to_classes(labels: np.ndarray, model: OffroadModel, num_classes: int) -> np.
 def segmentation_scores(predicted: np.ndarray, truth: np.ndarray, num_classes: int) -> dict:
     """Pixel accuracy and mIoU (D-B14): ``predicted`` in [0, num_classes] (num_classes = unknown,
     counted wrong), ``truth`` in [0, num_classes) or 255 (ignored)."""
+    check_labels("predicted", predicted, num_classes + 1, void=255)
+    check_labels("truth", truth, num_classes, void=255)
     matrix = np.asarray(confusion_counts(jnp.asarray(np.where(predicted == 255, num_classes, predicted)),
                                          jnp.asarray(truth), num_classes + 1), np.int64)
     tp = np.diag(matrix)[:num_classes]

@@ -26,10 +26,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_finite, check_integer, check_rank, is_concrete
+from jaxanom._validate import check_finite, check_integer, check_labels, check_number, check_rank, is_concrete
 from jaxanom.mixture import GaussianMixture, log_gaussian
 
 VOID = 255  # label of pixels that no window covers
+RISKS = ("calibrated", "literal")  # classify's risk: calibrated on the training patches, or Eq. 9 as printed
 
 
 class Classification(NamedTuple):
@@ -138,7 +139,7 @@ def _check_embeddings(z, batched: bool, dim: int | None = None) -> None:
 
 
 def _check_classify_args(z, mixture, r_sigma, train_raw, risk, batched):
-    if risk not in ("calibrated", "literal"):
+    if risk not in RISKS:
         raise ValueError(f"risk must be 'calibrated' or 'literal', got {risk!r}")
     check_rank("mixture.means", mixture.means, 2, "(m, D)")
     _check_embeddings(z, batched, np.shape(mixture.means)[1])
@@ -182,7 +183,7 @@ def classify_batch(z, mixture: GaussianMixture, r_sigma, train_raw=None, *, risk
 def training_risks(z_train, mixture: GaussianMixture, *, risk: str = "calibrated") -> tuple[np.ndarray, np.ndarray]:
     """``(raw, r)`` float64 on the training patches P^train: the raw risks (pass as ``train_raw``)
     and the risks of kind ``risk`` (pass to ``risk_bound``). Host-side."""
-    if risk not in ("calibrated", "literal"):
+    if risk not in RISKS:
         raise ValueError(f"risk must be 'calibrated' or 'literal', got {risk!r}")
     _check_classify_args(z_train, mixture, 0.0, None, "literal", batched=False)
     with jax.enable_x64(True):
@@ -285,6 +286,7 @@ def _checked_frame_risk(fn, labels, num_clusters):
         raise ValueError(f"labels must hold at least one patch per frame, got shape {np.shape(labels)}")
     if int(num_clusters) < 1:
         raise ValueError(f"num_clusters must be >= 1, got {num_clusters}")
+    check_labels("labels", labels, int(num_clusters) + 1)  # 0..m-1 clusters, m unknown
     return fn(jnp.asarray(labels), int(num_clusters))
 
 
@@ -299,6 +301,7 @@ def _check_flr(flr) -> np.ndarray:
 
 def sequence_risk(flr, epsilon: float = 0.5) -> float:
     """Eqs. 14-15: ``Phi^s``, the fraction of frames whose FLR exceeds ``epsilon``."""
+    check_number("epsilon", epsilon, 0.0, 1.0)
     return float(np.mean(_check_flr(flr) > epsilon))
 
 

@@ -196,11 +196,16 @@ def load_stats(path) -> tuple[jax.Array, jax.Array, np.ndarray]:
     if not os.path.isfile(path):
         raise ValueError(f"path must be an existing .npz statistics file, got {str(path)!r}")
     try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {name: data[name] for name in data.files}
-    except (OSError, ValueError, EOFError, AttributeError, TypeError, zipfile.BadZipFile) as error:
-        # a .npy file loads as an ndarray, which is no context manager (AttributeError / TypeError)
+        loaded = np.load(path, allow_pickle=False)
+        arrays = None
+        if isinstance(loaded, np.lib.npyio.NpzFile):
+            with loaded as data:
+                arrays = {name: data[name] for name in data.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
         raise ValueError(f"path {str(path)!r} is not a readable .npz file: {type(error).__name__}: {error}") from None
+    if arrays is None:
+        raise ValueError(f"path {str(path)!r} holds a single array (an .npy file); expected an .npz file with arrays "
+                         "mean, std, counts (from save_stats / jaxanom fit-stats)")
     absent = {"mean", "std", "counts"} - set(arrays)
     if absent:
         raise ValueError(f"{str(path)!r} must hold arrays mean, std, counts; missing {sorted(absent)}")

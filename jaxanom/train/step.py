@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import optax
 
 from jaxanom import losses
+from jaxanom._validate import check_count, check_number
 from jaxanom.cudam_score import upsample_attention
 from jaxanom.data.transforms import normalize
 from jaxanom.metrics.segmentation import confusion_counts
@@ -64,6 +65,13 @@ class LossConfig:
             raise ValueError(f"compute_dtype: expected one of {tuple(COMPUTE_DTYPES)}, got {self.compute_dtype!r}")
         if self.attention_k not in ATTENTION_KS:
             raise ValueError(f"attention_k: expected one of {ATTENTION_KS}, got {self.attention_k!r}")
+        for name in ("tau", "beta", "msaam_lambda"):
+            check_number(name, getattr(self, name), 0.0)
+        for name in ("reward_prob", "sml_decay"):
+            check_number(name, getattr(self, name), 0.0, 1.0)
+        check_count("ignore", self.ignore, minimum=0)
+        for index, weight in enumerate(self.class_weights or ()):
+            check_number(f"class_weights[{index}]", weight, 0.0)
         if not 0.0 < self.sml_decay <= 1.0:
             raise ValueError(f"sml_decay: expected a decay in (0, 1], got {self.sml_decay}")
         if not 0.0 <= self.reward_prob <= 1.0:

@@ -40,6 +40,7 @@ SML_PRESET = "deeplabv3plus_r101_sml"
 # The jaxanom.models preset that each DeepLabV3+ kind builds.
 PRESETS = {"torchvision-resnet18": "deeplabv3plus_r18", "torchvision-resnet50": "deeplabv3plus_r50",
            "torchvision-resnet101": "deeplabv3plus_r101", "sml-deeplabv3plus": SML_PRESET}
+RUN_KINDS = (*PRESETS, "espnet-cityscapes")  # the kinds that convert to a run folder (the VGGs do not)
 _SML_HEAD = {("aspp", "conv1x1"): "aspp.features.0", ("aspp", "atrous0"): "aspp.features.1",
              ("aspp", "atrous1"): "aspp.features.2", ("aspp", "atrous2"): "aspp.features.3",
              ("aspp", "image_pool"): "aspp.img_conv", ("aspp", "project"): "bot_aspp",
@@ -100,9 +101,11 @@ def from_torch(state_dict: Mapping, kind: str, num_classes: int = 19, *, key: ja
 def run_preset(kind: str, model) -> str | None:
     """The ``build_model`` name of a network imported as ``kind`` (what its run folder records),
     or None for the kinds that have no run (VGG)."""
+    if kind not in RUN_KINDS:
+        return None
     if kind == "espnet-cityscapes":
         return f"espnet_p{model.p}_q{model.q}"
-    return PRESETS.get(kind)
+    return PRESETS[kind]
 
 
 def _with_initial_head(model, key: jax.Array, probe: np.ndarray) -> dict:

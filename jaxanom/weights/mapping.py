@@ -67,8 +67,11 @@ def fill_variables(state: Mapping[str, np.ndarray], template: Mapping, naming: C
         if array.shape != torch_shape:
             misshaped.append(f"{key}: checkpoint {array.shape}, expected {torch_shape}")
             continue
-        if not np.issubdtype(array.dtype, np.floating) or not np.isfinite(array).all():
-            bad.append(key)
+        if not np.issubdtype(array.dtype, np.floating):
+            bad.append(f"{key} ({array.dtype}, expected floats)")
+            continue
+        if not np.isfinite(array).all():
+            bad.append(f"{key} ({array.size - np.count_nonzero(np.isfinite(array))} NaN/Inf)")
             continue
         if path[-1] == "kernel":
             array = array.transpose(*range(2, array.ndim), 1, 0)
@@ -93,7 +96,7 @@ def _report(what, expected, missing, unexpected, misshaped, bad) -> str:
     """One line (the command line prints errors as one line)."""
     parts = []
     for title, keys in (("missing", missing), ("unexpected", unexpected), ("mis-shaped", misshaped),
-                        ("not finite floats", bad)):
+                        ("not finite floating-point tensors", bad)):
         if keys:
             shown = "; ".join(keys[:_SHOWN]) + (f"; ... and {len(keys) - _SHOWN} more" if len(keys) > _SHOWN else "")
             parts.append(f"{title} ({len(keys)}): {shown}")

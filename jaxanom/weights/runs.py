@@ -29,7 +29,7 @@ def write_run(folder: str | os.PathLike, preset: str, model, variables: dict):
     """
     from jaxanom.experiment import Experiment, jsonable
     from jaxanom.models import DeepLabV3Plus
-    from jaxanom.train.checkpoint import Checkpointer
+    from jaxanom.train.checkpoint import Checkpointer, check_space
     from jaxanom.train.optim import make_optimizer
     from jaxanom.train.state import TrainState
 
@@ -42,6 +42,7 @@ def write_run(folder: str | os.PathLike, preset: str, model, variables: dict):
     write_json_atomic(folder / "experiment.json", jsonable(experiment))
     tx, _ = make_optimizer(experiment.train.optim, experiment.train.steps)
     state = TrainState.create(jax.tree.map(np.asarray, variables), tx, jax.random.key(0))
+    check_space(folder, state, "the converted run")  # before orbax starts any background writer
     with Checkpointer(folder / "checkpoints") as checkpointer:
         checkpointer.save(0, state)
         checkpointer.wait()
