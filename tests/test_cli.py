@@ -61,7 +61,7 @@ def test_evaluate_reads_real_road_anomaly_frames(demo_dir, tmp_path, road_anomal
 
 
 def test_evaluate_missing_dataset_folder_is_one_line(demo_dir, tmp_path, capsys):
-    code = main(["evaluate", "--run", str(demo_dir / "run"), "--dataset", "road-anomaly",
+    code = main(["evaluate", "--run", str(demo_dir / "run"), "--dataset", "road-anomaly", "--methods", "msp",
                  "--path", str(tmp_path / "nowhere"), "--out", str(tmp_path / "o")])
     error = capsys.readouterr().err.strip()
     assert code == 2 and "nowhere" in error and len(error.splitlines()) == 1
