@@ -24,7 +24,7 @@ import numpy as np
 from jaxanom.metrics.segmentation import confusion_counts
 from jaxanom.mixture import GaussianMixture, fit_gmm, select_components
 from jaxanom.offroad.active import select_hard_frames
-from jaxanom.offroad.crf import dense_crf
+from jaxanom.offroad.crf import dense_crf_batch
 from jaxanom.offroad.encoder import AnnotatedFrames, EncoderConfig, concat_frames, embed, init_encoder, train_encoder
 from jaxanom.offroad.patches import neighbour_centers, sliding_centers
 from jaxanom.offroad.risk import classify_batch, frame_risk_batch, risk_bound, training_risks, vote_batch
@@ -168,12 +168,10 @@ def segment(model: OffroadModel, images: np.ndarray, config: OffroadConfig, *, c
     result = {"centers": centers, "window_labels": np.asarray(out.labels), "labels": np.asarray(voted.labels),
               "votes": np.asarray(voted.votes), "risk": np.asarray(voted.risk)}
     if crf:
-        labels = []
-        for votes, image in zip(result["votes"][..., :m], images):  # known clusters only (decision)
-            probs = np.maximum(votes / np.maximum(votes.sum(-1, keepdims=True), 1e-12), 1e-4)
-            q = dense_crf(probs / probs.sum(-1, keepdims=True), image, iters=config.crf_iters, reference_width=512)
-            labels.append(np.asarray(q).argmax(-1))
-        result["crf_labels"] = np.stack(labels).astype(np.int32)
+        votes = result["votes"][..., :m]  # known clusters only (decision)
+        probs = np.maximum(votes / np.maximum(votes.sum(-1, keepdims=True), 1e-12), 1e-4)
+        q = dense_crf_batch(probs / probs.sum(-1, keepdims=True), images, iters=config.crf_iters, reference_width=512)
+        result["crf_labels"] = np.asarray(q).argmax(-1).astype(np.int32)
     return result
 
 
