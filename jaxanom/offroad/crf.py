@@ -185,19 +185,23 @@ def _self_weights(vertex, weight, rank, neighbours):
     n, dp1 = weight.shape
     d = dp1 - 1
     size = neighbours.shape[-1]
-    a, b = (x.reshape(-1) for x in jnp.meshgrid(jnp.arange(dp1), jnp.arange(dp1), indexing="ij"))  # (P,)
-    lo, hi = jnp.minimum(a, b), jnp.maximum(a, b)
-    inside = (rank[:, None, :] > d - hi[None, :, None]) & (rank[:, None, :] <= d - lo[None, :, None])  # (N, P, d+1)
-    pattern = jnp.where(a < b, 1, -1)[None, :, None] * inside.astype(jnp.int32)
-    moves = pattern[:, :, None, :] + jnp.arange(-1, 2, dtype=jnp.int32)[None, None, :, None]  # (N, P, 3, d+1)
-    valid = jnp.all(jnp.abs(moves) <= 1, axis=-1)
-    table = jnp.concatenate([neighbours, jnp.full((dp1, 2, 1), size, jnp.int32)], axis=-1)  # `size` stays missing
-    at = jnp.broadcast_to(vertex[:, b][:, :, None], valid.shape)
+    walks = [(a, b, c) for a in range(dp1) for b in range(dp1) for c in (-1, 0, 1)
+             if a == b or c == (-1 if a < b else 1) or c == 0]  # the walks whose moves stay in {-1, 0, 1}
+    a, b, c = (np.array(x) for x in zip(*walks))
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    sign = np.where(a < b, 1, -1)
+    gain = 0.5 ** np.where(c == 0, hi - lo, np.where(a == b, dp1, dp1 - (hi - lo)))  # 1/2 per move
+    inside = (rank[:, None, :] > d - hi[None, :, None]) & (rank[:, None, :] <= d - lo[None, :, None])  # (N, W, d+1)
+    moves = (sign[None, :, None] * inside + c[None, :, None]).astype(jnp.int32)
+    # one gather per direction: rows (j, +1), (j, -1), (j, stay) of a table whose slot `size` is "missing"
+    stay = jnp.broadcast_to(jnp.arange(size + 1, dtype=jnp.int32), (dp1, 1, size + 1))
+    table = jnp.concatenate([jnp.concatenate([neighbours, jnp.full((dp1, 2, 1), size, jnp.int32)], -1), stay], 1)
+    table = table.at[:, 2, size].set(size).reshape(-1)
+    at = vertex[:, b]
     for j in range(dp1):
-        s = moves[..., j]
-        at = jnp.where(s == 1, table[j, 0][at], jnp.where(s == -1, table[j, 1][at], at))
-    walk = jnp.where(valid & (at < size), 0.5 ** jnp.sum(moves != 0, axis=-1), 0.0)  # (N, P, 3)
-    pair = weight[:, a] * weight[:, b] * jnp.sum(walk, axis=-1).astype(weight.dtype)
+        row = jnp.where(moves[..., j] == 1, 0, jnp.where(moves[..., j] == -1, 1, 2))
+        at = table[(3 * j + row) * (size + 1) + at]
+    pair = weight[:, a] * weight[:, b] * jnp.where(at < size, jnp.asarray(gain, weight.dtype), 0.0)
     return _alpha(dp1) * jnp.sum(pair, axis=-1)
 
 
