@@ -33,11 +33,13 @@ from jaxanom.offroad.risk import classify_batch, frame_risk_batch, risk_bound, t
 @dataclasses.dataclass(frozen=True)
 class OffroadConfig:
     """Settings of the three stages (D-B1 values; ``stride`` s_p/4 segments, ``risk_stride``
-    s_p/2 sweeps). ``components``: the BIC scan range, or a fixed m with ``fixed_components``."""
+    s_p/2 sweeps). ``components``: the BIC scan range, extended one count at a time up to
+    ``max_components`` while its minimum sits at the top; or a fixed m with ``fixed_components``."""
 
     encoder: EncoderConfig = EncoderConfig.tiny()
     neighbours: int = 8
     components: tuple[int, ...] = tuple(range(2, 13))
+    max_components: int = 24
     fixed_components: int | None = None
     gmm_inits: int = 3
     delta: float = 0.95
@@ -88,17 +90,29 @@ def training_patches(key, data: AnnotatedFrames, config: OffroadConfig) -> tuple
 
 
 def fit_category_model(key, params, data: AnnotatedFrames, config: OffroadConfig) -> OffroadModel:
-    """GMM on P^train (m by the decisive BIC minimum, or ``fixed_components``), r_sigma, cluster -> class."""
+    """Embeds P^train and fits the category model on it (``category_model``)."""
     k_near, k_gmm = jax.random.split(key)
     centers, valid = training_patches(k_near, data, config)
     z = embed(params, data.images, centers, config.encoder)[valid]
     reference = np.repeat(data.reference.reshape(-1), 1 + config.neighbours)[valid.reshape(-1)]
-    z64 = z.astype(np.float64)
+    anchor = (np.arange(valid.size) % (1 + config.neighbours) == 0)[valid.reshape(-1)]
+    return category_model(k_gmm, params, z, anchor, reference, config)
+
+
+def category_model(key, params, z: np.ndarray, anchor: np.ndarray, reference: np.ndarray,
+                   config: OffroadConfig) -> OffroadModel:
+    """GMM and BIC on the anchors (m by the decisive BIC minimum, or ``fixed_components``; D-B8:
+    the neighbour samples are near-duplicates of their anchor and would count each anchor 1 +
+    ``neighbours`` times in BIC's N), then r_sigma and cluster -> class on all of P^train.
+    ``z (N, D)`` P^train's embeddings, ``anchor (N,)`` which are anchors, ``reference (N,)``."""
+    z64 = np.asarray(z, np.float64)
+    anchors = z64[np.asarray(anchor, bool)]
     if config.fixed_components is not None:
-        fit = fit_gmm(k_gmm, z64, config.fixed_components, n_init=config.gmm_inits)
+        fit = fit_gmm(key, anchors, config.fixed_components, n_init=config.gmm_inits)
         bics = {}
     else:
-        m, fits, bics = select_components(k_gmm, z64, config.components, n_init=config.gmm_inits)
+        m, fits, bics = select_components(key, anchors, config.components, n_init=config.gmm_inits,
+                                          max_count=config.max_components)
         fit = fits[m]
     mixture = GaussianMixture(*(np.asarray(x) for x in fit.mixture))
     raw, risks = training_risks(z64, mixture, risk=config.risk)
