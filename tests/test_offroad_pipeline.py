@@ -109,3 +109,23 @@ def test_bic_scan_extends_until_the_minimum_is_interior():
     assert m == 4 and max(bics) >= 5  # the scan 2..3 fell at its top; it went on past 4
     m, _, bics = select_components(jax.random.key(1), z[anchor], (2, 3), n_init=2)
     assert m == 3 and sorted(bics) == [2, 3]  # no extension without max_count
+
+
+def test_segmentation_scores_precision_recall_fpr_against_sklearn():
+    from sklearn.metrics import confusion_matrix, precision_score, recall_score
+
+    rng = np.random.default_rng(3)
+    truth = rng.integers(0, 4, (13, 7))
+    truth[2, :4] = 255
+    truth[truth == 2] = 1  # class 2 never occurs: its recall is undefined
+    predicted = rng.integers(0, 5, (13, 7))  # 4 = unknown (wrong, never a class)
+    predicted[predicted == 3] = 0  # class 3 never predicted: its precision is undefined
+    out = segmentation_scores(predicted, truth, 4)
+    kept = truth != 255
+    y, p = truth[kept], predicted[kept]
+    occurs, predicted_classes = np.unique(y), np.intersect1d(np.unique(p), np.arange(4))
+    assert out["recall"] == pytest.approx(recall_score(y, p, labels=occurs, average="macro", zero_division=0))
+    assert out["precision"] == pytest.approx(precision_score(y, p, labels=predicted_classes, average="macro"))
+    m = confusion_matrix(y, p, labels=np.arange(5))
+    fpr = [(m[:, c].sum() - m[c, c]) / (m.sum() - m[c].sum()) for c in range(4)]
+    assert out["fpr"] == pytest.approx(np.mean(fpr))

@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom.metrics.segmentation import confusion_counts
+from jaxanom.metrics.segmentation import confusion_counts, false_positive_rate, precision, recall
 from jaxanom.mixture import GaussianMixture, fit_gmm, select_components
 from jaxanom.offroad.active import select_hard_frames
 from jaxanom.offroad.crf import dense_crf_batch
@@ -167,7 +167,8 @@ def sequence_risk_sweep(model: OffroadModel, images: np.ndarray, config: Offroad
 
 def segment(model: OffroadModel, images: np.ndarray, config: OffroadConfig, *, crf: bool = True) -> dict:
     """S2 on frames (B, H, W, 3) float [0, 1]: window labels, votes -> dense labels (m = unknown),
-    risk map, and with ``crf`` the CRF labels; all host arrays.
+    ``known_labels`` (argmax over the known clusters' votes: never unknown), risk map, and with
+    ``crf`` the CRF labels; all host arrays.
 
     The CRF's probabilities are the normalised votes of the m known clusters (floored at 1e-4):
     it relabels unknown regions from their surroundings and never outputs the unknown label.
@@ -181,6 +182,8 @@ def segment(model: OffroadModel, images: np.ndarray, config: OffroadConfig, *, c
                        height=height, width=width, num_labels=m + 1)
     result = {"centers": centers, "window_labels": np.asarray(out.labels), "labels": np.asarray(voted.labels),
               "votes": np.asarray(voted.votes), "risk": np.asarray(voted.risk)}
+    # the CRF's input without the CRF (argmax over the known clusters' votes; control for "unknown filled")
+    result["known_labels"] = np.where(result["labels"] == 255, 255, result["votes"][..., :m].argmax(-1)).astype(np.int32)
     if crf:
         votes = result["votes"][..., :m]  # known clusters only (decision)
         probs = np.maximum(votes / np.maximum(votes.sum(-1, keepdims=True), 1e-12), 1e-4)
@@ -198,7 +201,8 @@ def to_classes(labels: np.ndarray, model: OffroadModel, num_classes: int) -> np.
 
 
 def segmentation_scores(predicted: np.ndarray, truth: np.ndarray, num_classes: int) -> dict:
-    """Pixel accuracy and mIoU (D-B14): ``predicted`` in [0, num_classes] (num_classes = unknown,
+    """Pixel accuracy, mIoU and the means of per-class precision, recall and FPR over the classes
+    where each is defined (D-B14): ``predicted`` in [0, num_classes] (num_classes = unknown,
     counted wrong), ``truth`` in [0, num_classes) or 255 (ignored)."""
     matrix = np.asarray(confusion_counts(jnp.asarray(np.where(predicted == 255, num_classes, predicted)),
                                          jnp.asarray(truth), num_classes + 1), np.int64)
@@ -207,7 +211,14 @@ def segmentation_scores(predicted: np.ndarray, truth: np.ndarray, num_classes: i
     present = union > 0
     return {"pixel_accuracy": float(np.trace(matrix) / max(matrix.sum(), 1)),
             "miou": float(np.mean(tp[present] / union[present])) if present.any() else float("nan"),
+            **{name: _mean_defined(fn(matrix)[:num_classes])
+               for name, fn in (("precision", precision), ("recall", recall), ("fpr", false_positive_rate))},
             "confusion": matrix.tolist()}
+
+
+def _mean_defined(values: np.ndarray) -> float:
+    defined = values[np.isfinite(values)]
+    return float(defined.mean()) if defined.size else float("nan")
 
 
 def active_round(key, model: OffroadModel, base: AnnotatedFrames, images: np.ndarray,
