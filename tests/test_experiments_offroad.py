@@ -23,9 +23,12 @@ def test_smoke_run_writes_tables_that_the_summary_includes(tmp_path):
     assert list(exp2) == ["LV1", "LV2", "LV3"] and [exp2[k]["classes"] for k in exp2] == [4, 6, 10]
     assert all(row["clusters"] in (2, 3) and 1 <= row["recovered"] <= row["clusters"] for row in exp2.values())
     sizes = offroad_sizes(Scale.smoke())
-    assert list(table2) == ["M_A", "Rand B2", "Unif B2", "Ours B1", "Ours B2"]
+    assert list(table2) == ["M_A", "Rand B2", "Unif B2", "Ours B1", "Ours B2", "Ours B2 + triggered round"]
     for label, row in table2.items():
-        assert all(0 <= row[k] <= 100 for k in ("mflr_b", "mflr_c", "sc_b", "sc_c"))
+        assert all(0 <= row[k] <= 100 for k in ("mflr_b", "mflr_c", "sc_b", "sc_c", "pa_b", "pa_c", "miou_b", "miou_c"))
+        if "+" in label:  # the second round's frames join the first's (it ran only if the trigger fired)
+            assert row["rounds"] in (1, 2) and 2 <= len(row["frames"]) <= 2 * row["rounds"]
+            continue
         assert len(row["frames"]) == (0 if label == "M_A" else int(label[-1]))
         assert all(b - a > sizes.gap for a, b in zip(row["frames"], row["frames"][1:])) or label.startswith("Unif")
     assert list(table3)[:3] == ["5-class M_A", "5-class M_A known argmax", "5-class M_A + CRF"] and len(table3) == 18
