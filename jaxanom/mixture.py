@@ -264,15 +264,26 @@ def decisive_minimum(counts: Sequence[int], bics: Sequence[float], threshold: fl
 
 
 def select_components(key, z, counts: Sequence[int] = tuple(range(2, 13)), *, threshold: float = 10.0,
-                      **fit_options) -> tuple[int, dict[int, EMResult], dict[int, float]]:
+                      max_count: int | None = None, **fit_options) -> tuple[int, dict[int, EMResult], dict[int, float]]:
     """Fit every count in ``counts`` (default 2..12, D-B1) and pick one by ``decisive_minimum``.
 
-    Returns ``(m, {m: EMResult}, {m: BIC})``; ``fit_options`` go to ``fit_gmm``. Host-side.
+    While the pick is the last count scanned (the curve still falls at the top), the scan goes on
+    one count at a time up to ``max_count`` (default: no extension) and while m <= N, so a
+    minimum found is interior. Returns ``(m, {m: EMResult}, {m: BIC})``; ``fit_options`` go to
+    ``fit_gmm``. Host-side.
     """
     counts = [int(c) for c in counts]
     if len(counts) < 2 or min(counts) < 1:
         raise ValueError(f"counts must hold at least two component counts >= 1, got {counts}")
     x = _check_points(z, min_points=max(counts))
-    fits = {m: fit_gmm(jax.random.fold_in(key, m), x, m, **fit_options) for m in counts}
-    bics = {m: bic(x, fits[m].mixture) for m in counts}
-    return decisive_minimum(counts, [bics[m] for m in counts], threshold), fits, bics
+    top = max(counts) if max_count is None else max(int(max_count), max(counts))
+    fits, bics = {}, {}
+    while True:
+        for m in counts:
+            if m not in fits:
+                fits[m] = fit_gmm(jax.random.fold_in(key, m), x, m, **fit_options)
+                bics[m] = bic(x, fits[m].mixture)
+        chosen = decisive_minimum(counts, [bics[m] for m in counts], threshold)
+        if chosen < counts[-1] or counts[-1] >= min(top, x.shape[0]):
+            return chosen, fits, bics
+        counts.append(counts[-1] + 1)

@@ -104,7 +104,8 @@ class OffroadDemoConfig:
     @classmethod
     def quick(cls) -> "OffroadDemoConfig":
         encoder = EncoderConfig(size=16, widths=(4, 8, 8, 8, 8), hidden=8, dim=3, negatives=4, frames_per_step=2, steps=3)
-        pipeline = OffroadConfig(encoder=encoder, neighbours=2, components=(2, 3), gmm_inits=1, budget=2, gap=1, crf_iters=1)
+        pipeline = OffroadConfig(encoder=encoder, neighbours=2, components=(2, 3), max_components=3, gmm_inits=1, budget=2,
+                                 gap=1, crf_iters=1)
         return cls(pipeline=pipeline, train=(Source("A", 0, 2, 0, 4),), active=Source("B", 0, 4), test=Source("C", 0, 3),
                    segmented=1, pictures=1, anchors=6, height=48, width=64)
 

@@ -6,7 +6,8 @@ Per patch embedding z (off-road paper, Section III-C):
 - Eq. 7: the risk. ``risk="literal"`` gives ``1 - gamma(z; c_k*)``; the default
   ``"calibrated"`` (D-B2) gives ``F_train(-log gamma(z; c_k*))``, the fraction of training
   patches whose raw risk ``-log gamma`` is at most this one, in [0, 1]. Both are increasing in
-  ``-gamma``, so with the bound taken on the same training set they give the same labels;
+  ``-gamma``; the calibrated label compares the raw risk with the raw order statistic behind
+  ``r_sigma`` (``r_sigma N``-th smallest training raw risk), so the two give the same labels;
 - Eq. 10: ``y = k*`` if ``r <= r_sigma`` else the unknown label ``phi = m``;
 - Eq. 11: ``r_sigma`` = the smallest bound leaving at most ``1 - delta`` of the training risks
   above it (``risk_bound``);
@@ -59,8 +60,16 @@ def calibrate(raw: jax.Array, train_raw: jax.Array) -> jax.Array:
 
 def _classify(z, means, covariances, r_sigma, train_raw, literal: bool) -> Classification:
     cluster, raw = raw_risk(z, means, covariances)
-    risk = -jnp.expm1(-raw) if literal else calibrate(raw, train_raw)  # 1 - gamma, or F_train
-    labels = jnp.where(risk <= r_sigma, cluster, means.shape[0])
+    if literal:
+        risk = -jnp.expm1(-raw)  # 1 - gamma
+        known = risk <= r_sigma
+    else:
+        risk = calibrate(raw, train_raw)  # F_train, reported
+        # Eq. 10 on the raw risks: raw <= r_(j) with j = r_sigma N (r_sigma = j / N from risk_bound), i.e. fewer
+        # than j training risks lie strictly below; F_train <= r_sigma would also admit (r_(j), r_(j+1))
+        below = jnp.searchsorted(jnp.sort(train_raw), raw, side="left")
+        known = below < jnp.floor(r_sigma * train_raw.shape[0] + 1e-6)
+    labels = jnp.where(known, cluster, means.shape[0])
     return Classification(labels.astype(jnp.int32), risk.astype(jnp.float32), cluster)
 
 
