@@ -65,7 +65,7 @@ class OffroadConfig:
             check_count(f"components[{index}]", count)
         if self.fixed_components is not None:
             check_count("fixed_components", self.fixed_components)
-        if max(self.components) > self.max_components:
+        if self.components and max(self.components) > self.max_components:
             raise ValueError(f"max_components: expected >= the scan's top count {max(self.components)}, "
                              f"got {self.max_components}")
         for name in ("max_components", "gmm_inits", "stride", "risk_stride", "budget"):
