@@ -80,6 +80,7 @@ the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``:
         low, high = (check_number(f"scale_range[{i}]", v, 0.0, open_low=True) for i, v in enumerate(self.scale_range))
         if low > high:
             raise ValueError(f"scale_range: expected (low, high) with low <= high, got {self.scale_range}")
+        # a lower bound of a batch: float32 RGB and an int32 label per pixel
         check_fits_memory("batch_size", self.batch_size, self.crop[0] * self.crop[1] * 16, "training crops")
         if self.batch_size < 1 or self.train_frames < self.batch_size:
             raise ValueError(f"batch_size, train_frames: expected 1 <= batch_size <= train_frames, "

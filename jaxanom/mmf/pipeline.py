@@ -104,8 +104,8 @@ class MMFConfig:
         check_count("slic_step", self.slic_step, maximum=min(s.height, s.width))
         check_number("dissim_width", self.dissim_width, 0.0, open_low=True)
         check_number("dissim_lr", self.dissim_lr, 0.0, open_low=True)
-        # the RGB-D and dissimilarity batches: images, disparity, labels and maps, ~64 bytes a pixel
-        check_fits_memory("batch_size", self.batch_size, s.height * s.width * 64, "frames of the RGB-D net")
+        # a lower bound of an RGB-D or dissimilarity batch: float32 RGB and an int32 label per pixel
+        check_fits_memory("batch_size", self.batch_size, s.height * s.width * 16, "frames of the RGB-D net")
         if self.synthesizer not in SYNTHESIZERS:
             raise ValueError(f"synthesizer: expected one of {SYNTHESIZERS}, got {self.synthesizer!r}")
         if s.height % 2 ** self.gan_upsamples or s.width % 2 ** self.gan_upsamples:
