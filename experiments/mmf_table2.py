@@ -24,6 +24,7 @@ from jaxanom.evaluate import anomaly_results, class_statistics, predictions, pre
 from jaxanom.experiment import frames
 from jaxanom.mmf.demo import MMFDemoConfig, evaluation_frames, scored_batches
 from jaxanom.mmf.pipeline import MMFConfig, MMFPipeline
+from jaxanom.superpixels import scaled_step
 
 NAME = "mmf_table2"
 TITLE = "MMF Tables 1-2: assistant maps and post-processor, in the road ROI"
@@ -131,7 +132,8 @@ def run(scale: Scale, seeds: int, out_dir: Path = HERE, runs: Path = RUNS, log: 
         f"{description} Sizes: {seg.height} x {seg.width} frames; segmenter {seg.train.steps} steps (the count "
         f"stated below the table) on {seg.train_frames} scenes; RGB-D net ({p.rgbd_backbone}) {p.rgbd_steps} steps; "
         f"two dissimilarity nets (width x {p.dissim_width:g}) {p.dissim_steps} steps each on {p.dissim_frames} "
-        f"other scenes with up to {p.void_objects} void clutter objects; SLIC step {p.slic_step} px; "
+        f"other scenes with up to {p.void_objects} void clutter objects; SLIC step {p.slic_step or scaled_step((seg.height, seg.width))} px on "
+        f"the {p.slic_input}{' with connectivity enforcement' if p.slic_connectivity else ''}; "
         f"{config.anomaly_frames} `{config.anomaly_split}` frames scored in the road ROI. Pipeline seed = "
         f"{SEED_STRIDE} x table seed (no two seeds share a frame set). Minutes per seed in the invocation that "
         f"wrote this table (parts already in the runs folder are restored, not retrained): {minutes}.")

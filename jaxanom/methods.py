@@ -73,7 +73,8 @@ def _mmf_score(name: str, logits, maps: dict) -> jax.Array:
     if not post:
         return anomaly
     road = jax.nn.softmax(jnp.asarray(logits, jnp.float32), axis=-1)[..., maps.get("road_class", 0)]
-    return superpixel_score_batch(anomaly, road, maps["superpixels"], int(maps["num_segments"]))
+    labels = maps.get(f"superpixels_{source}", maps["superpixels"])  # a segmentation of this map, if given
+    return superpixel_score_batch(anomaly, road, labels, int(maps["num_segments"]))
 
 
 def score_batch(name: str, logits, *, stats=None, attention_up=None, cudam_sigma: float = 2e4,
@@ -83,7 +84,8 @@ def score_batch(name: str, logits, *, stats=None, attention_up=None, cudam_sigma
     ``stats``: ``(mean, std)`` each ``(C,)`` for the SML methods; ``attention_up``:
     ``(B, H, W)`` attention already upsampled to the logits' size, and ``cudam_sigma`` (Eq. 10),
     for ``cudam``. ``mmf_maps``: ``{"mmf", "resynthesis"}`` dissimilarity maps (B, H, W),
-    ``"superpixels"`` (B, H, W) int labels in [0, ``"num_segments"``) for the MMF rows.
+    ``"superpixels"`` (B, H, W) int labels in [0, ``"num_segments"``) for the MMF rows
+    (``"superpixels_resynthesis"``, if present, for the resynthesis rows).
     """
     check_methods([name], have_stats=stats is not None, have_attention=attention_up is not None,
                   have_mmf=mmf_maps is not None)

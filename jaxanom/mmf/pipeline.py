@@ -45,7 +45,7 @@ from jaxanom.models.patch_discriminator import MultiscaleDiscriminator
 from jaxanom.models.resnet import RESNETS, ResNet
 from jaxanom.models.rgbd import RGBDNet, depth_input
 from jaxanom.models.spade_generator import SPADEGenerator
-from jaxanom.superpixels import num_superpixels, rgb_to_lab, slic_batch
+from jaxanom.superpixels import num_superpixels, rgb_to_lab, scaled_step, slic_batch
 from jaxanom.train.loop import TrainConfig, train
 from jaxanom.train.restore import trained_variables
 from jaxanom.train.optim import OptimConfig
@@ -65,8 +65,12 @@ class MMFConfig:
     multiplier, steps, learning rate (Adam, betas 0.9 / 0.999), frames and void clutter per frame;
     ``synthesizer``: ``"class_mean"`` or ``"spade"``; ``gan_*`` (SPADE only): steps, base width nf,
     upsamplings n, SPADE hidden width, critic layers (MMF.md A2.2's tiny nf = 8, n = 3);
-    ``slic_step``: SLIC grid step S in pixels (D16); ``batch_size`` for the RGB-D and dissimilarity
-    nets.
+    ``slic_step``: SLIC grid step S in pixels, None: ``superpixels.scaled_step`` of the frame
+    (8 px at 256x512, K ~ 2048 at any size; D16 revisited); ``slic_input``: what SLIC segments,
+    ``"image"`` (its Lab, D3) or ``"anomaly"`` (the map Eq. 6 scores, scaled to [0, 100]: the
+    paper's Sec. III-B / Fig. 4, one segmentation per dissimilarity net); ``slic_connectivity``:
+    superpixels made connected (``superpixels.slic``); ``batch_size`` for the RGB-D and
+    dissimilarity nets.
     """
 
     segmenter: Experiment = _SEGMENTER
@@ -79,7 +83,9 @@ class MMFConfig:
     dissim_frames: int = 96
     void_objects: int = 4
     batch_size: int = 8
-    slic_step: int = 8
+    slic_step: int | None = None
+    slic_input: str = "image"
+    slic_connectivity: bool = False
     synthesizer: str = "class_mean"
     gan_steps: int = 300
     gan_nf: int = 8
@@ -94,6 +100,10 @@ class MMFConfig:
                              f"(height, width), got {s.data}, {s.height} x {s.width}, crop {s.crop}")
         if min(self.rgbd_steps, self.dissim_steps, self.dissim_frames, self.batch_size) < 1:
             raise ValueError("rgbd_steps, dissim_steps, dissim_frames, batch_size: expected >= 1")
+        if self.slic_step is not None and (not isinstance(self.slic_step, int) or self.slic_step < 1):
+            raise ValueError(f"slic_step: expected None or an integer >= 1, got {self.slic_step!r}")
+        if self.slic_input not in SLIC_INPUTS:
+            raise ValueError(f"slic_input: expected one of {SLIC_INPUTS}, got {self.slic_input!r}")
         if self.synthesizer not in SYNTHESIZERS:
             raise ValueError(f"synthesizer: expected one of {SYNTHESIZERS}, got {self.synthesizer!r}")
         if min(self.gan_steps, self.gan_nf, self.gan_upsamples, self.gan_hidden, self.gan_layers) < 1:
@@ -128,10 +138,16 @@ class MMFConfig:
         ``spade``, ``dissimilarity``): its settings and those of the parts it depends on (the
         dissimilarity nets depend on the SPADE settings only when they see its resynthesis)."""
         spade = ("synthesizer",) + _SPADE_FIELDS if part == "dissimilarity" and self.synthesizer == "spade" else ()
-        return self.key(*_PARTS[part], *spade)
+        key = self.key(*_PARTS[part], *spade)
+        if part in _REVISIONS:  # a changed network or training: older folders are not reused
+            key = hashlib.sha256(f"{key} {_REVISIONS[part]}".encode()).hexdigest()[:12]
+        return key
 
 
 SYNTHESIZERS = ("class_mean", "spade")
+SLIC_INPUTS = ("image", "anomaly")
+_REVISIONS = {"dissimilarity": "correlation concatenated after the prior product (issue 20)"}
+_SLIC_FIELDS = ("slic_step", "slic_input", "slic_connectivity")  # scoring only: in no part's key
 _SPADE_FIELDS = ("gan_steps", "gan_nf", "gan_upsamples", "gan_hidden", "gan_layers")
 # the class-mean parts' keys leave out the SPADE settings (caches of class-mean runs stay valid)
 _PARTS = {"segmenter": ("segmenter",),
@@ -139,7 +155,7 @@ _PARTS = {"segmenter": ("segmenter",),
           "synthesizer": ("segmenter",),
           "spade": ("segmenter", "batch_size") + _SPADE_FIELDS,
           "dissimilarity": tuple(f.name for f in dataclasses.fields(MMFConfig)
-                                 if f.name not in ("slic_step", "synthesizer") + _SPADE_FIELDS)}
+                                 if f.name not in ("synthesizer",) + _SLIC_FIELDS + _SPADE_FIELDS)}
 
 
 def training_stream(arrays: dict[str, np.ndarray], batch_size: int, seed: int) -> Iterator[dict]:
@@ -341,18 +357,31 @@ class MMFPipeline:
         """Every map of MMF for a list of equally sized frames (``image``, ``disparity``):
         ``logits``, ``entropy`` (U), ``distance`` (D), ``perceptual`` (L), ``anomaly`` (A),
         ``resynthesis`` (r, [0, 1]), ``mmf`` / ``resynthesis_score`` (a of the two nets),
-        ``superpixels`` and ``num_segments`` (SLIC on the image)."""
+        ``superpixels`` and ``num_segments`` (SLIC of ``config.slic_input``; with ``"anomaly"``,
+        ``superpixels`` segments ``mmf`` and ``superpixels_resynthesis`` segments ``resynthesis_score``)."""
         out = self._network_maps(frames)
         inputs = self._dissimilarity_inputs(frames, out)
         for name, (model, variables) in self.dissimilarity.items():
             kw = {k: inputs[k] for k in model.extra_inputs}
             logits = _dissimilarity_forward(model, variables, inputs["image"], kw)
             out["mmf" if name == "mmf" else "resynthesis_score"] = np.asarray(anomaly_probability(logits))
-        images = np.stack([f["image"] for f in frames])
-        lab = rgb_to_lab(images.astype(np.float32) / 255.0)
-        out["superpixels"] = np.asarray(slic_batch(lab, self.config.slic_step))
-        out["num_segments"] = num_superpixels(images.shape[1:3], self.config.slic_step)
+        out.update(segment(self.config, np.stack([f["image"] for f in frames]),
+                           {"superpixels": out["mmf"], "superpixels_resynthesis": out["resynthesis_score"]}))
         return out
+
+
+def segment(config: MMFConfig, images: np.ndarray, anomaly: dict[str, np.ndarray]) -> dict:
+    """SLIC labels for the post-processor: ``{"superpixels", "num_segments"}`` of the images
+    (B, H, W, 3) uint8, or with ``slic_input="anomaly"`` one entry per name of ``anomaly`` (maps in
+    [0, 1], each segmented as one channel scaled to [0, 100], like Lab's L)."""
+    step = config.slic_step or scaled_step(images.shape[1:3])
+    run = lambda x: np.asarray(slic_batch(x, step, connectivity=config.slic_connectivity))  # noqa: E731
+    out = {"num_segments": num_superpixels(images.shape[1:3], step)}
+    if config.slic_input == "image":
+        out["superpixels"] = run(rgb_to_lab(images.astype(np.float32) / 255.0))
+    else:
+        out.update({name: run(100.0 * np.asarray(a, np.float32)[..., None]) for name, a in anomaly.items()})
+    return out
 
 
 _JITTED: dict = {}  # one jitted function per (frozen, hashable) Flax module or pair of modules
