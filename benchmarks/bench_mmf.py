@@ -9,10 +9,10 @@
 
 - ``eq6 memory``: Eq. 6 at 1080x1920 (quick: 540x960), each implementation in a fresh process
   (``bench_score_memory._peak_of``: peak resident MiB, its ``VmHWM``, runtime included) on SLIC
-  labels of a frame at the scaled step (``superpixels.scaled_step``, K ~ 2048) and on the 8-px
-  grid (K = 32 400): jaxanom blockwise (default blocks), the same with one K x K block (the dense
-  formulation Eq. 6 had before; K ~ 2048 only) and the NumPy float64 peer with its K x K matrix
-  (K ~ 2048 only: at K = 32 400 a dense float64 K x K array alone is 8.4 GB). Times are the median
+  labels of a frame at the scaled step (``superpixels.scaled_step``, K ~ 2048) and on the 16- and
+  8-px grids (K = 8 040, 32 400): jaxanom blockwise (default blocks), the same with one K x K
+  block (the dense formulation Eq. 6 had before; not at K = 32 400, where it needs ~16 GB) and the
+  NumPy float64 peer with its K x K matrix (K ~ 2048 only). Times are the median
   of 3 calls after a warm-up inside the child; the maps must agree with NumPy's.
 
 - ``synthesis``: the SPADE generator's forward pass (MMF.md A2.2's tiny nf 8, n 3, SPADE hidden
@@ -161,6 +161,8 @@ def eq6_memory_rows(quick: bool) -> list[dict]:
     step = scaled_step((height, width))
     cases = [(f"SLIC S={step}", np.asarray(slic(rgb_to_lab(image[0]), step)), num_superpixels((height, width), step),
               ("jaxanom blockwise", "jaxanom one K x K block", "numpy")),
+             ("16-px grid", np.asarray(_grid_cells(height, width, 2 * STEP)),
+              num_superpixels((height, width), 2 * STEP), ("jaxanom blockwise", "jaxanom one K x K block")),
              ("8-px grid", np.asarray(_grid_cells(height, width, STEP)), num_superpixels((height, width), STEP),
               ("jaxanom blockwise",))]
     rows = []

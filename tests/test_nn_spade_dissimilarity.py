@@ -112,7 +112,7 @@ def tiny_dissimilarity():
     """A tiny DissimilarityNet at initialisation, its inputs and a jitted forward."""
     inputs = _inputs(np.random.default_rng(7))
     model = DissimilarityNet(3, width=1 / 16)
-    variables = model.init(jax.random.key(3), **inputs)
+    variables = jax.jit(model.init)(jax.random.key(3, impl="rbg"), **inputs)  # rbg: 3x faster to compile here
     forward = jax.jit(lambda v, kw: model.apply(v, **kw)["logits"])
     return variables, inputs, forward
 
