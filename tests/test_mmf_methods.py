@@ -108,3 +108,16 @@ def test_training_stream_is_deterministic_and_flips_every_entry_together():
         for i in range(3):  # each example is a frame of the source, maybe mirrored
             assert any(np.array_equal(x["image"][i], f) or np.array_equal(x["image"][i], f[:, ::-1])
                        for f in arrays["image"])
+
+
+def test_dissimilarity_training_is_class_weighted(tmp_path):
+    from jaxanom.mmf.pipeline import MMFConfig, _dissimilarity_train_config
+
+    labels = np.zeros((2, 10, 10), np.int32)
+    labels[0, :2, :2] = 1  # 4 of 200 pixels
+    labels[1, -1] = 255
+    weighted = _dissimilarity_train_config(MMFConfig(), tmp_path, "mmf", False, labels)
+    np.testing.assert_allclose(weighted.loss.class_weights, [190 / (2 * 186), 190 / (2 * 4)])
+    assert _dissimilarity_train_config(MMFConfig(dissim_balance=False), tmp_path, "mmf", False,
+                                       labels).loss.class_weights is None
+    assert MMFConfig().part_key("dissimilarity") != MMFConfig(dissim_balance=False).part_key("dissimilarity")

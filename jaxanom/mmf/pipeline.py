@@ -36,6 +36,7 @@ from jaxanom.data.synthetic import SyntheticScenes
 from jaxanom.data.transforms import normalize
 from jaxanom.experiment import Experiment, build_network, jsonable, load_variables, run_training
 from jaxanom.io import write_bytes_atomic
+from jaxanom.losses import balanced_class_weights
 from jaxanom.mmf.perceptual import anomaly_map_batch, perceptual_difference_batch
 from jaxanom.mmf.gan_train import GANConfig, train_gan, trained_generator
 from jaxanom.mmf.synthesis import ClassMeanSynthesizer, SPADESynthesizer, resynthesize
@@ -49,6 +50,7 @@ from jaxanom.superpixels import num_superpixels, rgb_to_lab, scaled_step, slic_b
 from jaxanom.train.loop import TrainConfig, train
 from jaxanom.train.restore import trained_variables
 from jaxanom.train.optim import OptimConfig
+from jaxanom.train.step import LossConfig
 
 _SEGMENTER = Experiment(
     attention=None, train_frames=128, height=64, width=128, crop=(64, 128), scale_range=(0.75, 1.25), batch_size=8,
@@ -62,7 +64,8 @@ class MMFConfig:
 
     ``segmenter``: the segmenter's experiment (its frames, size and schedule are the pipeline's);
     ``rgbd_*``: RGB-D net backbone, decoder width, steps; ``dissim_*``: dissimilarity nets' width
-    multiplier, steps, learning rate (Adam, betas 0.9 / 0.999), frames and void clutter per frame;
+    multiplier, steps, learning rate (Adam, betas 0.9 / 0.999), frames and void clutter per frame,
+    ``dissim_balance``: class-weighted cross-entropy (``losses.balanced_class_weights``);
     ``synthesizer``: ``"class_mean"`` or ``"spade"``; ``gan_*`` (SPADE only): steps, base width nf,
     upsamplings n, SPADE hidden width, critic layers (MMF.md A2.2's tiny nf = 8, n = 3);
     ``slic_step``: SLIC grid step S in pixels, None: ``superpixels.scaled_step`` of the frame
@@ -81,6 +84,7 @@ class MMFConfig:
     dissim_steps: int = 300
     dissim_lr: float = 1e-3
     dissim_frames: int = 96
+    dissim_balance: bool = True
     void_objects: int = 4
     batch_size: int = 8
     slic_step: int | None = None
@@ -173,10 +177,12 @@ def training_stream(arrays: dict[str, np.ndarray], batch_size: int, seed: int) -
         yield batch
 
 
-def _train_config(run_dir: Path, steps: int, lr: float, seed: int, progress: bool, adam: bool = False) -> TrainConfig:
+def _train_config(run_dir: Path, steps: int, lr: float, seed: int, progress: bool, adam: bool = False,
+                  class_weights: tuple[float, ...] | None = None) -> TrainConfig:
     optim = OptimConfig(name="adamw", lr=lr, weight_decay=0.0 if adam else 1e-4, poly_power=0.0 if adam else 0.9)
     return TrainConfig(run_dir=str(run_dir), steps=steps, seed=seed, optim=optim, eval_every=steps,
-                       save_every=max(1, steps // 2), keep=1, progress=progress)
+                       save_every=max(1, steps // 2), keep=1, progress=progress,
+                       loss=LossConfig(class_weights=class_weights))
 
 
 def _run_dir(config: MMFConfig, root: Path, part: str, name: str = "") -> Path:
@@ -198,9 +204,14 @@ def _dissimilarity_model(config: MMFConfig, assisted: bool) -> DissimilarityNet:
                             use_depth=assisted, width=config.dissim_width)
 
 
-def _dissimilarity_train_config(config: MMFConfig, root: Path, name: str, progress: bool) -> TrainConfig:
+def _dissimilarity_train_config(config: MMFConfig, root: Path, name: str, progress: bool,
+                                labels: np.ndarray | None = None) -> TrainConfig:
+    """The nets' training run; with ``dissim_balance`` and the training ``labels``, cross-entropy
+    weighted by ``losses.balanced_class_weights`` (void clutter is rare: D12 revisited)."""
+    weights = (tuple(float(w) for w in balanced_class_weights(labels, 2))
+               if config.dissim_balance and labels is not None else None)
     return _train_config(_run_dir(config, root, "dissimilarity", name), config.dissim_steps, config.dissim_lr,
-                         config.segmenter.train.seed, progress, adam=True)
+                         config.segmenter.train.seed, progress, adam=True, class_weights=weights)
 
 
 def _gan_models(config: MMFConfig) -> tuple[SPADEGenerator, MultiscaleDiscriminator]:
@@ -302,7 +313,7 @@ class MMFPipeline:
         for name, assisted in (("mmf", True), ("resynthesis", False)):
             model = _dissimilarity_model(config, assisted)
             data = {k: arrays[k] for k in ("image", "label", *model.extra_inputs)}
-            state = train(_dissimilarity_train_config(config, root, name, progress),
+            state = train(_dissimilarity_train_config(config, root, name, progress, arrays["label"]),
                           model, training_stream(data, config.batch_size, seed + 2))
             pipe.dissimilarity[name] = (model, jax.device_get(state.variables))
         return pipe
