@@ -61,15 +61,14 @@ def test_dissimilarity_inputs_are_the_anomaly_map_and_the_distance():
 
 @pytest.mark.parametrize("slic_input,connectivity", [("image", False), ("anomaly", True)])
 def test_segment_follows_the_config(slic_input, connectivity):
-    from jaxanom.mmf.pipeline import MMFConfig, segment
+    from jaxanom.mmf.training_free import segment
     from jaxanom.superpixels import rgb_to_lab, slic
 
     rng = np.random.default_rng(3)
     images = rng.integers(0, 256, (2, 16, 32, 3), dtype=np.uint8)
     anomaly = {"superpixels": rng.random((2, 16, 32)).astype(np.float32),
                "superpixels_resynthesis": rng.random((2, 16, 32)).astype(np.float32)}
-    config = MMFConfig(slic_input=slic_input, slic_connectivity=connectivity, slic_step=4 if connectivity else None)
-    out = segment(config, images, anomaly)
+    out = segment(images, anomaly, step=4 if connectivity else None, slic_input=slic_input, connectivity=connectivity)
     if slic_input == "image":  # scaled step: S = round(8 sqrt(16 * 32 / (256 * 512))) = 1, one pixel each
         assert set(out) == {"superpixels", "num_segments"} and out["num_segments"] == 512
         np.testing.assert_array_equal(out["superpixels"][1], slic(rgb_to_lab(images[1]), 1))
@@ -121,3 +120,26 @@ def test_dissimilarity_training_is_class_weighted(tmp_path):
     assert _dissimilarity_train_config(MMFConfig(dissim_balance=False), tmp_path, "mmf", False,
                                        labels).loss.class_weights is None
     assert MMFConfig().part_key("dissimilarity") != MMFConfig(dissim_balance=False).part_key("dissimilarity")
+
+
+def test_training_free_maps_on_a_real_frame_with_any_network(road_anomaly_sample):
+    # no trained MMF part and no synthetic data: any network's logits (here random) on a real frame
+    import cv2
+
+    from jaxanom.mmf.training_free import training_free_maps
+    from jaxanom.superpixels import rgb_to_lab, slic
+
+    path = sorted((road_anomaly_sample / "frames").glob("*.jpg"))[0]
+    image = cv2.resize(cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB), (64, 32), interpolation=cv2.INTER_AREA)
+    logits = np.random.default_rng(4).normal(size=(1, 32, 64, 5)).astype(np.float32) * 2
+    out = training_free_maps(logits, image[None], step=4)
+    p = np.exp(logits[0].astype(np.float64))
+    p /= p.sum(-1, keepdims=True)
+    entropy = -np.sum(p * np.log2(p), -1) / np.log2(5)  # Eq. 1, normalised by log2 C
+    np.testing.assert_allclose(out["entropy"][0], entropy, atol=1e-5)
+    np.testing.assert_allclose(out["road"][0], p[..., 0], atol=1e-6)
+    labels = np.asarray(slic(rgb_to_lab(image), 4))
+    np.testing.assert_array_equal(out["superpixels"][0], labels)
+    np.testing.assert_allclose(out["entropy_post"][0], dense_eq6(entropy, p[..., 0], labels, 128)[labels], atol=1e-4)
+    with pytest.raises(ValueError, match="images: expected"):
+        training_free_maps(logits, image[None, :16])

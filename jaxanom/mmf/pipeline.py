@@ -40,13 +40,13 @@ from jaxanom.losses import balanced_class_weights
 from jaxanom.mmf.perceptual import anomaly_map_batch, perceptual_difference_batch
 from jaxanom.mmf.gan_train import GANConfig, train_gan, trained_generator
 from jaxanom.mmf.synthesis import ClassMeanSynthesizer, SPADESynthesizer, resynthesize
+from jaxanom.mmf.training_free import SLIC_INPUTS, segment
 from jaxanom.mmf.uncertainty import uncertainty_maps_batch
 from jaxanom.models.dissimilarity import DissimilarityNet, anomaly_probability
 from jaxanom.models.patch_discriminator import MultiscaleDiscriminator
 from jaxanom.models.resnet import RESNETS, ResNet
 from jaxanom.models.rgbd import RGBDNet, depth_input
 from jaxanom.models.spade_generator import SPADEGenerator
-from jaxanom.superpixels import num_superpixels, rgb_to_lab, scaled_step, slic_batch
 from jaxanom.train.loop import TrainConfig, train
 from jaxanom.train.restore import trained_variables
 from jaxanom.train.optim import OptimConfig
@@ -149,7 +149,6 @@ class MMFConfig:
 
 
 SYNTHESIZERS = ("class_mean", "spade")
-SLIC_INPUTS = ("image", "anomaly")
 _REVISIONS = {"dissimilarity": "correlation concatenated after the prior product (issue 20)"}
 _SLIC_FIELDS = ("slic_step", "slic_input", "slic_connectivity")  # scoring only: in no part's key
 _SPADE_FIELDS = ("gan_steps", "gan_nf", "gan_upsamples", "gan_hidden", "gan_layers")
@@ -376,23 +375,11 @@ class MMFPipeline:
             kw = {k: inputs[k] for k in model.extra_inputs}
             logits = _dissimilarity_forward(model, variables, inputs["image"], kw)
             out["mmf" if name == "mmf" else "resynthesis_score"] = np.asarray(anomaly_probability(logits))
-        out.update(segment(self.config, np.stack([f["image"] for f in frames]),
-                           {"superpixels": out["mmf"], "superpixels_resynthesis": out["resynthesis_score"]}))
+        c = self.config
+        out.update(segment(np.stack([f["image"] for f in frames]),
+                           {"superpixels": out["mmf"], "superpixels_resynthesis": out["resynthesis_score"]},
+                           step=c.slic_step, slic_input=c.slic_input, connectivity=c.slic_connectivity))
         return out
-
-
-def segment(config: MMFConfig, images: np.ndarray, anomaly: dict[str, np.ndarray]) -> dict:
-    """SLIC labels for the post-processor: ``{"superpixels", "num_segments"}`` of the images
-    (B, H, W, 3) uint8, or with ``slic_input="anomaly"`` one entry per name of ``anomaly`` (maps in
-    [0, 1], each segmented as one channel scaled to [0, 100], like Lab's L)."""
-    step = config.slic_step or scaled_step(images.shape[1:3])
-    run = lambda x: np.asarray(slic_batch(x, step, connectivity=config.slic_connectivity))  # noqa: E731
-    out = {"num_segments": num_superpixels(images.shape[1:3], step)}
-    if config.slic_input == "image":
-        out["superpixels"] = run(rgb_to_lab(images.astype(np.float32) / 255.0))
-    else:
-        out.update({name: run(100.0 * np.asarray(a, np.float32)[..., None]) for name, a in anomaly.items()})
-    return out
 
 
 _JITTED: dict = {}  # one jitted function per (frozen, hashable) Flax module or pair of modules
