@@ -138,8 +138,10 @@ def run(scale: Scale, seeds: int, out_dir: Path = HERE, runs: Path = RUNS, log: 
         f"{SEED_STRIDE} x table seed (no two seeds share a frame set). Minutes per seed in the invocation that "
         f"wrote this table (parts already in the runs folder are restored, not retrained): {minutes}.")
     networks = {k: {"part": part, "mmf_config": i["config"]} for i in infos for part, k in i["keys"].items()}
+    steps = (f"training steps: segmenter {seg.train.steps}, RGB-D net {p.rgbd_steps}, dissimilarity nets "
+             f"{p.dissim_steps} each")
     return write_table(NAME, TITLE, values, curves, findings, used, networks, out_dir,
-                       description.strip())
+                       description.strip(), steps_text=steps)
 
 
 if __name__ == "__main__":
