@@ -135,6 +135,12 @@ def test_bad_input_raises(args, message):
         superpixel_score(*args)
 
 
+@pytest.mark.parametrize("block_rows", [0, 2.0, -3])
+def test_bad_block_rows_raise(block_rows):
+    with pytest.raises(ValueError, match="block_rows must be None or an integer >= 1"):
+        superpixel_scores(np.zeros((4, 5)), np.zeros((4, 5)), np.zeros((4, 5), int), 3, block_rows=block_rows)
+
+
 def test_batch_needs_rank_three():
     with pytest.raises(ValueError, match="anomaly must have rank 3"):
         superpixel_score_batch(np.zeros((4, 5)), np.zeros((4, 5)), np.zeros((4, 5), int), 3)

@@ -85,8 +85,8 @@ def test_table_over_two_seeds_is_written_and_summarised(tmp_path, untrained_part
     saved = json.loads((out / f"{exp.NAME}.json").read_text())
     assert saved["num_seeds"] == 2 and saved["scale"]["height"] == 32 and saved["scale"]["width"] == 64
     rows = {row["label"]: row for row in saved["table"]}
-    assert list(rows) == [row[0] for row in exp.ROWS]
-    for label, method, _, _ in exp.ROWS:
+    assert list(rows) == [row[0] for row in exp.ROWS] + [label for label, _ in exp.SLIC_VARIANTS]
+    for label, method in [row[:2] for row in exp.ROWS] + [(label, "mmf") for label, _ in exp.SLIC_VARIANTS]:
         row = rows[label]
         assert row["score"] == method and len(row["ap_seeds"]) == 2
         for metric in ("ap", "fpr95", "auroc", "miou"):
