@@ -212,3 +212,19 @@ def test_memory_grows_with_k_not_k_squared():
     args = (jax.numpy.zeros(shape), jax.numpy.zeros(shape), jax.numpy.zeros(shape, jax.numpy.int32))
     compiled = _superpixel_scores_jit.lower(*args, num_segments=k, block_rows=16).compile()
     assert compiled.memory_analysis().temp_size_in_bytes < 16 * 2**20
+
+
+@pytest.mark.parametrize("centres,rows", [
+    ([[1.0, 2.0]] * 5 + [[4.0, 6.0]], 2),  # 10 of 15 pairs coincide: omega = 0
+    ([[1.0, 2.0]] * 3 + [[4.0, 6.0]], None),  # 3 of 6 pairs at 0, 3 at 5: omega = (0 + 5) / 2
+    ([[0.0, 0.0]] * 4, 3),  # every centroid equal: omega = 0
+])
+def test_median_distance_with_coincident_centroids(centres, rows):
+    from jaxanom.mmf.postprocess import _block_rows, _median_distance
+
+    centres = np.array(centres, np.float32)
+    i, j = np.triu_indices(len(centres), 1)
+    expected = np.median(np.linalg.norm(centres[i] - centres[j], axis=1))
+    got = _median_distance(jax.numpy.asarray(centres), jax.numpy.ones(len(centres), bool),
+                           _block_rows(len(centres), rows))
+    assert float(got) == expected
