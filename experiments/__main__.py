@@ -122,7 +122,10 @@ def summary(results: list[dict], failures: dict[str, str] | None = None) -> str:
     lines = [
         "# Experiments: the papers' tables on a small budget",
         "",
-        f"Written by `python -m experiments` on {datetime.date.today().isoformat()}. Every network is the tiny "
+        f"Written by `python -m experiments` on {datetime.date.today().isoformat()}. Defaults of the SML, CuDAM "
+        "and MSAAM tables (the MMF and off-road tables state their own networks, frames, region and AP "
+        "convention in their descriptions, e.g. MMF: four networks, frames scored inside the road ROI, "
+        "envelope AP): every network is the tiny "
         f"DeepLabV3+ (`deeplabv3plus_tiny`, output stride 16) trained for the steps its table states, batch "
         f"{scale.batch_size}, on {data}, with AdamW (lr 2e-3) instead of the papers' SGD schedule. SML "
         f"statistics come from {scale.stats_frames} training frames; anomaly metrics pool all non-void pixels "

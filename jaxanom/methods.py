@@ -52,7 +52,6 @@ _MMF = {"mmf_raw": ("mmf", False), "mmf": ("mmf", True),
 # MMF's post-processor (Eq. 6) over the segmenter's uncertainty map (``mmf.uncertainty`` key).
 _SUPERPIXEL = {"entropy_superpixel": "entropy", "softmax_distance_superpixel": "distance"}
 ROAD_CLASS = 0  # Cityscapes trainId of the road: p_j of Eq. 6
-SUPERPIXELS_PER_IMAGE = 2048  # the default SLIC step gives about this many (MMF.md D16: S = 8 at 256 x 512)
 
 METHODS: tuple[str, ...] = (*_PLAIN, *_SML_OPTIONS, *_POSTPROCESSED, "cudam", *_MMF, *_SUPERPIXEL)
 NEEDS_STATS = frozenset({*_SML_OPTIONS, "cudam"})
@@ -79,12 +78,6 @@ def check_methods(names, *, have_stats: bool, have_attention: bool, have_mmf: bo
     return names
 
 
-def superpixel_step(height: int, width: int) -> int:
-    """The default SLIC grid step S for Eq. 6 on ``height`` x ``width`` maps: about
-    ``SUPERPIXELS_PER_IMAGE`` superpixels (S = 8 at 256 x 512, as MMF.md D16), at least 1."""
-    return max(1, min(height, width, round((height * width / SUPERPIXELS_PER_IMAGE) ** 0.5)))
-
-
 def _superpixel_score(name: str, logits, images, step: int | None) -> jax.Array:
     from jaxanom import superpixels
     from jaxanom.mmf.postprocess import superpixel_score_batch
@@ -93,7 +86,7 @@ def _superpixel_score(name: str, logits, images, step: int | None) -> jax.Array:
     if np.shape(images)[:3] != np.shape(logits)[:3] or np.shape(images)[3:] != (3,):
         raise ValueError(f"images: expected (B, H, W, 3) matching logits {np.shape(logits)[:3]}, got {np.shape(images)}")
     height, width = np.shape(logits)[1:3]
-    step = superpixel_step(height, width) if step is None else int(step)
+    step = superpixels.scaled_step((height, width)) if step is None else int(step)
     maps = uncertainty_maps_batch(logits, road=ROAD_CLASS)
     labels = superpixels.slic_batch(superpixels.rgb_to_lab(images), step)
     return superpixel_score_batch(maps[_SUPERPIXEL[name]], maps["road"], labels,
@@ -108,7 +101,8 @@ def _mmf_score(name: str, logits, maps: dict) -> jax.Array:
     if not post:
         return anomaly
     road = jax.nn.softmax(jnp.asarray(logits, jnp.float32), axis=-1)[..., maps.get("road_class", 0)]
-    return superpixel_score_batch(anomaly, road, maps["superpixels"], int(maps["num_segments"]))
+    labels = maps.get(f"superpixels_{source}", maps["superpixels"])  # a segmentation of this map, if given
+    return superpixel_score_batch(anomaly, road, labels, int(maps["num_segments"]))
 
 
 def score_batch(name: str, logits, *, stats=None, attention_up=None, cudam_sigma: float = 2e4,
@@ -118,8 +112,9 @@ def score_batch(name: str, logits, *, stats=None, attention_up=None, cudam_sigma
     ``stats``: ``(mean, std)`` each ``(C,)`` for the SML methods; ``attention_up``:
     ``(B, H, W)`` attention already upsampled to the logits' size, and ``cudam_sigma`` (Eq. 10),
     for ``cudam``. ``mmf_maps``: ``{"mmf", "resynthesis"}`` dissimilarity maps (B, H, W),
-    ``"superpixels"`` (B, H, W) int labels in [0, ``"num_segments"``) for the MMF rows.
-    ``images`` (B, H, W, 3) uint8 RGB and ``slic_step`` (default ``superpixel_step``) for the
+    ``"superpixels"`` (B, H, W) int labels in [0, ``"num_segments"``) for the MMF rows
+    (``"superpixels_resynthesis"``, if present, for the resynthesis rows).
+    ``images`` (B, H, W, 3) uint8 RGB and ``slic_step`` (default ``superpixels.scaled_step``) for the
     ``*_superpixel`` rows.
     """
     check_methods([name], have_stats=stats is not None, have_attention=attention_up is not None,

@@ -47,7 +47,7 @@ class PredictSettings:
     ``formats``: from ``FORMATS``; ``size``: the working (H, W) the network sees, or None for
     each image's own size; ``batch_size``: images per device batch; ``dataset``: the SMIYC
     dataset name (format ``smiyc``); ``slic_step``: SLIC grid step of the ``*_superpixel``
-    methods (None: ``methods.superpixel_step`` of the working size); ``cudam_sigma``: Eq. 10's
+    methods (None: ``superpixels.scaled_step`` of the working size); ``cudam_sigma``: Eq. 10's
     weight (None: the paper-equivalent one).
     """
 

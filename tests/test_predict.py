@@ -245,8 +245,8 @@ def test_superpixel_methods_are_eq6_on_the_normalised_uncertainty():
     rng = np.random.default_rng(0)
     logits = rng.normal(size=(2, 24, 40, 5)).astype(np.float32) * 3
     images = rng.integers(0, 256, (2, 24, 40, 3), dtype=np.uint8)
-    step = methods.superpixel_step(24, 40)
-    assert step == 1 and methods.superpixel_step(256, 512) == 8 and methods.superpixel_step(1080, 1920) == 32
+    step = superpixels.scaled_step((24, 40))
+    assert step == 1 and superpixels.scaled_step((256, 512)) == 8 and superpixels.scaled_step((1080, 1920)) == 32
     got = {name: np.asarray(methods.score_batch(name, logits, images=images, slic_step=4))
            for name in ("entropy_superpixel", "softmax_distance_superpixel")}
     p = np.exp(logits - logits.max(-1, keepdims=True))

@@ -80,7 +80,8 @@ def scored_batches(pipe: MMFPipeline, source, batch_size: int, keep: int = 0, ke
                 kept.append((frame, {k: v[i] for k, v in maps.items() if k != "num_segments"}))
         batch = {"logits": maps["logits"], "label": np.stack([f["label"] for f in frames]),
                  "mmf_maps": {"mmf": maps["mmf"], "resynthesis": maps["resynthesis_score"],
-                              "superpixels": maps["superpixels"], "num_segments": maps["num_segments"]}}
+                              "num_segments": maps["num_segments"],
+                              **{k: v for k, v in maps.items() if k.startswith("superpixels")}}}
         if "roi" in frames[0]:  # the road region of interest, where the dataset has one
             batch["roi"] = np.stack([f["roi"] for f in frames])
         yield batch
