@@ -243,7 +243,7 @@ def evaluate(net: Network, variables: dict, scale: Scale, log: Callable = print)
     batch = e.batch_size if scale.anomaly is None else 1
     train_frames = _batches(frames(e, "train", scale.stats_frames), e.batch_size)
     stats = class_statistics(predict, train_frames)
-    mean_std = sml.stats_finalize(stats, missing="pooled")
+    mean_std = sml.stats_finalize(stats, missing="pooled", policy="none")
     val_frames = _batches(frames(e, "val", scale.val_frames), e.batch_size)
     segmentation = segmentation_results(predictions(predict, val_frames), e.num_classes)
     accumulators, kept = {}, {}

@@ -87,7 +87,7 @@ def seed_values(scale: Scale, runs: Path, log: Callable) -> tuple[dict, dict, di
     miou = segmentation_results(predictions(predict, _batches(frames(seg, "val", scale.val_frames), seg.batch_size)),
                                 seg.num_classes)["miou"]
     metrics, curves = anomaly_results(scored_batches(pipe, evaluation_frames(config), pipe_config.batch_size),
-                                      [row[1] for row in ROWS], stats=sml.stats_finalize(stats, missing="pooled"),
+                                      [row[1] for row in ROWS], stats=sml.stats_finalize(stats, missing="pooled", policy="none"),
                                       ap_convention="envelope", keep_curves=True)
     keys = {"segmenter": f"segmenter-{pipe_config.part_key('segmenter')}",
             "resynthesis": f"dissimilarity-resynthesis-{pipe_config.part_key('dissimilarity')}",

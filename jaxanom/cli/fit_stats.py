@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 from jaxanom.cli.common import CLAIM, CommandError, add_common, claim, positive_int
-
+from jaxanom.sml.policy import DEFAULT_POLICY, DEFAULT_STRENGTH, POLICIES
 
 _LIBRARY_ADVICE = 'pass missing="pooled" or a policy ("min_count", "shrink")'  # sml.policy.finalize's
 _FLAG_ADVICE = "pass --missing pooled, or --policy min_count or shrink"
@@ -31,14 +31,14 @@ def add_parser(commands) -> None:
 
 def add_policy(parser) -> None:
     """``--policy``, ``--min-count``, ``--strength`` (``jaxanom.sml.stats_finalize``)."""
-    parser.add_argument("--policy", choices=["none", "min_count", "shrink"], default="none",
+    parser.add_argument("--policy", choices=POLICIES, default=DEFAULT_POLICY,
                         help="scarce classes: the original's estimate (none), the pooled statistics below "
                         "--min-count pixels (min_count), or shrinkage toward the pooled statistics with a prior "
                         "of --strength pixels (shrink) (default: %(default)s)")
     parser.add_argument("--min-count", type=float, default=10_000,
                         help="pixels below which a class is scarce: pooled by min_count, warned about always "
                         "(default: %(default)g)")
-    parser.add_argument("--strength", type=float, default=10_000,
+    parser.add_argument("--strength", type=float, default=DEFAULT_STRENGTH,
                         help="shrink: the pooled prior's weight in pixels (default: %(default)g)")
 
 

@@ -140,11 +140,12 @@ def fit_stats(batches: Iterable, num_classes: int | None = None) -> ClassStats:
     return stats
 
 
-def stats_finalize(stats: ClassStats, *, missing: str = "error", policy: str = "none",
-                   min_count: float = 10_000, strength: float = 10_000) -> tuple[jax.Array, jax.Array]:
+def stats_finalize(stats: ClassStats, *, missing: str = "error", policy: str = DEFAULT_POLICY,
+                   min_count: float = 10_000, strength: float = DEFAULT_STRENGTH) -> tuple[jax.Array, jax.Array]:
     """Per-class ``(mean, std)``, float32 ``(C,)``, std from the unbiased variance (as the original code).
 
-    ``policy`` (``jaxanom.sml.policy``): ``"none"`` the original's estimate; ``"min_count"`` pools
+    ``policy`` (``jaxanom.sml.policy``; default ``"shrink"`` with ``strength`` 1e6, chosen on real
+    frames, see ``DEFAULT_POLICY``): ``"none"`` the original's estimate; ``"min_count"`` pools
     classes with fewer than ``min_count`` pixels; ``"shrink"`` shrinks every class toward the
     pooled statistics with a prior worth ``strength`` pixels. A class with fewer than 2 counted
     pixels or zero variance is *degenerate*: under ``"none"``, ``missing="error"`` raises
@@ -156,8 +157,8 @@ def stats_finalize(stats: ClassStats, *, missing: str = "error", policy: str = "
                                  strength=strength)[:2]
 
 
-def stats_finalize_report(stats: ClassStats, *, missing: str = "error", policy: str = "none",
-                          min_count: float = 10_000, strength: float = 10_000) -> FinalizedStats:
+def stats_finalize_report(stats: ClassStats, *, missing: str = "error", policy: str = DEFAULT_POLICY,
+                          min_count: float = 10_000, strength: float = DEFAULT_STRENGTH) -> FinalizedStats:
     """``stats_finalize`` with, per class, its pixel count and whether it was fitted, pooled or shrunk."""
     if missing not in ("error", "pooled"):
         raise ValueError(f'missing must be "error" or "pooled", got {missing!r}')
