@@ -210,7 +210,7 @@ def test_fit_stats_refuses_non_finite_statistics_and_names_its_flags(demo_dir, t
     error = capsys.readouterr().err.strip()
     assert code == 2 and len(error.splitlines()) == 1 and "smaller --strength" in error, error
     assert not stats.exists() and not list(tmp_path.iterdir())
-    code = main(["fit-stats", "--run", str(demo_dir / "run"), "--frames", "1", "--out", str(stats)])
+    code = main(["fit-stats", "--run", str(demo_dir / "run"), "--frames", "1", "--policy", "none", "--out", str(stats)])
     error = capsys.readouterr().err.strip()
     assert code == 2 and "pass --missing pooled, or --policy min_count or shrink" in error, error
     assert 'missing="pooled"' not in error and not stats.exists()

@@ -117,7 +117,7 @@ def test_policy_none_is_the_original_and_stats_finalize_returns_mean_std():
     rng = np.random.default_rng(5)
     logits = scarce_logits(rng, [0, 3, 50], 3)
     stats = sml.stats_update(sml.stats_init(3), logits)
-    got = sml.stats_finalize_report(stats)
+    got = sml.stats_finalize_report(stats, policy="none")
     values = max_logits_per_class(logits, 3)
     np.testing.assert_allclose(np.asarray(got.std), [v.std(ddof=1) for v in values], rtol=1e-5)
     assert got.status == ("fitted",) * 3 and not got.prior_weight.any()
@@ -127,11 +127,29 @@ def test_policy_none_is_the_original_and_stats_finalize_returns_mean_std():
     np.testing.assert_array_equal(np.asarray(std), np.asarray(report.std))
 
 
+def test_the_default_is_shrinkage_with_a_million_pixel_prior():
+    """Chosen on real frames (experiments/real_sml.md); the reference is the shrinkage formula in NumPy."""
+    rng = np.random.default_rng(9)
+    logits = scarce_logits(rng, [0, 3, 50], 3)
+    stats = sml.stats_update(sml.stats_init(3), logits)
+    got = sml.stats_finalize_report(stats)
+    values = max_logits_per_class(logits, 3)
+    pooled = np.concatenate(values).astype(np.float64)
+    m0, v0, k = pooled.mean(), pooled.var(ddof=1), 1e6
+    for c, v in enumerate(values):
+        n, m = len(v), (v.mean() if len(v) else 0.0)
+        m2 = ((v - m) ** 2).sum() if len(v) else 0.0
+        want_mean = (n * m + k * m0) / (n + k)
+        want_var = (m2 + k * v0 + n * k / (n + k) * (m - m0) ** 2) / (max(n - 1, 0) + k)
+        np.testing.assert_allclose([got.mean[c], got.std[c]], [want_mean, np.sqrt(want_var)], rtol=1e-5)
+    assert got.status == ("shrunk",) * 3
+
+
 def test_degenerate_class_under_none_is_reported_pooled():
     logits = np.zeros((4, 5, 3), np.float32)
     logits[..., 0] = np.arange(20).reshape(4, 5)
     stats = sml.stats_update(sml.stats_init(3), logits)
-    got = sml.stats_finalize_report(stats, missing="pooled")
+    got = sml.stats_finalize_report(stats, missing="pooled", policy="none")
     assert got.status == ("fitted", "pooled", "pooled")
     np.testing.assert_array_equal(got.count, [20, 0, 0])
 

@@ -43,7 +43,7 @@ def test_streamed_batches_match_float64_numpy():
     images = [img for b in batches for img in b]
     masks = [m for it, b in zip(items, batches) for m in (it[1] if isinstance(it, tuple) else np.ones(b.shape[:-1], bool))]
     count, mean, var = ref.class_stats(images, masks)
-    got_mean, got_std = sml.stats_finalize(stats)
+    got_mean, got_std = sml.stats_finalize(stats, policy="none")
     np.testing.assert_array_equal(np.asarray(stats.count), count)
     np.testing.assert_allclose(np.asarray(got_mean), mean, rtol=2e-6)
     np.testing.assert_allclose(np.asarray(got_std), np.sqrt(var), rtol=2e-5)
@@ -97,8 +97,8 @@ def test_never_predicted_class_is_an_error_or_pooled():
     logits[0, 0] = [0, 1, 0]  # class 1 once: still too few for a variance
     stats = sml.stats_update(sml.stats_init(3), logits)
     with pytest.raises(ValueError, match=r"classes \[1, 2\] with counts \[1, 0\]"):
-        sml.stats_finalize(stats)
-    mean, std = sml.stats_finalize(stats, missing="pooled")
+        sml.stats_finalize(stats, policy="none")
+    mean, std = sml.stats_finalize(stats, missing="pooled", policy="none")
     values = np.max(logits, -1).ravel().astype(np.float64)
     np.testing.assert_allclose(np.asarray(mean)[1:], values.mean(), rtol=1e-6)
     np.testing.assert_allclose(np.asarray(std)[1:], values.std(ddof=1), rtol=1e-6)
@@ -110,7 +110,7 @@ def test_constant_class_has_no_spread_and_is_degenerate():
     logits = np.zeros((3, 3, 2), np.float32)
     logits[..., 0] = 2.0
     with pytest.raises(ValueError, match=r"classes \[0, 1\]"):
-        sml.stats_finalize(sml.stats_update(sml.stats_init(2), logits))
+        sml.stats_finalize(sml.stats_update(sml.stats_init(2), logits), policy="none")
 
 
 def test_save_load_round_trip(tmp_path):
