@@ -6,6 +6,7 @@ benchmarks do (METHODS.md §6). ``segmentation_results`` sums confusion matrices
 """
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
@@ -19,6 +20,7 @@ from jaxanom.metrics import AnomalyMetricAccumulator, anomaly_metrics, confusion
 from jaxanom.metrics import pixel_accuracy, pr_curve, restrict_to_roi, roc_curve
 from jaxanom.metrics.components import component_summary, frame_components
 from jaxanom.train.step import model_input
+from jaxanom.xla_options import conv_compiler_options
 
 
 def predictor(model, variables) -> Callable[[np.ndarray], dict]:
@@ -28,7 +30,7 @@ def predictor(model, variables) -> Callable[[np.ndarray], dict]:
     ``"attention_positions"`` (a scalar) is then the h * w of the map before upsampling.
     """
 
-    @jax.jit
+    @functools.partial(jax.jit, compiler_options=conv_compiler_options())
     def forward(variables, images):
         out = model.apply(variables, model_input(images), train=False)
         result = {"logits": out["logits"].astype(jnp.float32)}
