@@ -11,8 +11,8 @@ autocast bfloat16, channels-last) when a GPU is present; on a CPU small inputs i
 bfloat16 is emulated in both libraries, so its timings say nothing). ``quick`` runs the tiny
 preset without the peer: a smoke test of the code paths, not a measurement of ResNet-101.
 Parameters are filled on the host from ``jax.eval_shape`` shapes: ``init`` is not timed.
-Both jaxanom steps are jitted with ``conv_compiler_options()``, as the library's trainer and
-``evaluate.predictor`` are (on a CPU: XLA's own convolutions, not YNNPACK's; docs/decisions/cpu-speed.md).
+Both jaxanom steps are jitted with ``conv_compiler_options()``, as the library's trainer's steps
+are (on a CPU: XLA's own convolutions, not YNNPACK's; docs/decisions/cpu-speed.md).
 
     PYTHONPATH=. python benchmarks/bench_models.py [--quick]
 """

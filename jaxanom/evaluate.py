@@ -6,7 +6,6 @@ benchmarks do (METHODS.md §6). ``segmentation_results`` sums confusion matrices
 """
 from __future__ import annotations
 
-import functools
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
@@ -20,7 +19,6 @@ from jaxanom.metrics import AnomalyMetricAccumulator, anomaly_metrics, confusion
 from jaxanom.metrics import pixel_accuracy, pr_curve, restrict_to_roi, roc_curve
 from jaxanom.metrics.components import component_summary, frame_components
 from jaxanom.train.step import model_input
-from jaxanom.xla_options import conv_compiler_options
 
 
 def predictor(model, variables) -> Callable[[np.ndarray], dict]:
@@ -30,7 +28,7 @@ def predictor(model, variables) -> Callable[[np.ndarray], dict]:
     ``"attention_positions"`` (a scalar) is then the h * w of the map before upsampling.
     """
 
-    @functools.partial(jax.jit, compiler_options=conv_compiler_options())
+    @jax.jit
     def forward(variables, images):
         out = model.apply(variables, model_input(images), train=False)
         result = {"logits": out["logits"].astype(jnp.float32)}
