@@ -11,6 +11,8 @@ autocast bfloat16, channels-last) when a GPU is present; on a CPU small inputs i
 bfloat16 is emulated in both libraries, so its timings say nothing). ``quick`` runs the tiny
 preset without the peer: a smoke test of the code paths, not a measurement of ResNet-101.
 Parameters are filled on the host from ``jax.eval_shape`` shapes: ``init`` is not timed.
+Both jaxanom steps are jitted with ``conv_compiler_options()``, as the library's trainer's steps
+are (on a CPU: XLA's own convolutions, not YNNPACK's; docs/decisions/cpu-speed.md).
 
     PYTHONPATH=. python benchmarks/bench_models.py [--quick]
 """
@@ -26,6 +28,7 @@ import optax
 
 from benchmarks.timing import environment, flop_rate, markdown_table, median_ms
 from jaxanom.models import build_model
+from jaxanom.xla_options import conv_compiler_options
 
 NUM_CLASSES = 19
 
@@ -69,7 +72,8 @@ def _jax_forward_ms(name, attention, shape, dtype, repeats):
     model = build_model(name, NUM_CLASSES, attention=attention, dtype=jnp.dtype(dtype))
     variables = _host_variables(model, shape)
     images = jnp.asarray(np.random.default_rng(1).normal(size=(*shape, 3)).astype(np.float32))
-    forward = jax.jit(lambda v, x: model.apply(v, x, train=False)["logits"])
+    forward = jax.jit(lambda v, x: model.apply(v, x, train=False)["logits"],
+                      compiler_options=conv_compiler_options())
     ms = median_ms(lambda: forward(variables, images), repeats=repeats, warmup=2)
     return ms, flop_rate(forward, variables, images, ms=ms)
 
@@ -93,7 +97,7 @@ def _jax_train_ms(name, shape, dtype, repeats):
         updates, opt_state = tx.update(grads, opt_state, params)
         return optax.apply_updates(params, updates), batch_stats, opt_state, loss
 
-    step = jax.jit(step, donate_argnums=(0, 1, 2))
+    step = jax.jit(step, donate_argnums=(0, 1, 2), compiler_options=conv_compiler_options())
     state = [variables["params"], variables["batch_stats"], tx.init(variables["params"])]
 
     def run():
