@@ -7,6 +7,14 @@
 - ``eq6``: ``mmf.postprocess.superpixel_score_batch`` against the same equation in NumPy
   (bincount statistics, a K x K weight matrix, one image at a time); the maps must agree.
 
+- ``eq6 memory``: Eq. 6 at 1080x1920 (quick: 540x960), each implementation in a fresh process
+  (``bench_score_memory._peak_of``: peak resident MiB, its ``VmHWM``, runtime included) on SLIC
+  labels of a frame at the scaled step (``superpixels.scaled_step``, K ~ 2048) and on the 16- and
+  8-px grids (K = 8 040, 32 400): jaxanom blockwise (default blocks), the same with one K x K
+  block (the dense formulation Eq. 6 had before; not at K = 32 400, where it needs ~16 GB) and the
+  NumPy float64 peer with its K x K matrix (K ~ 2048 only). Times are the median
+  of 3 calls after a warm-up inside the child; the maps must agree with NumPy's.
+
 - ``synthesis``: the SPADE generator's forward pass (MMF.md A2.2's tiny nf 8, n 3, SPADE hidden
   32, random weights) against the class-mean gather on the same batch of semantic maps (Table 4:
   the two synthesizers' cost; ratio = SPADE / class means, both jaxanom).
@@ -113,6 +121,70 @@ def run(quick: bool = False) -> list[dict]:
         rows.append(dict(benchmark="eq6", case=case, impl="numpy", median_ms=peer_ms, ms_per_frame=peer_ms / batch,
                          ratio=peer_ms / jax_ms, note=f"float64, max |diff| {diff:.1e}"))
         rows.extend(synthesis_rows(batch, height, width, repeats))
+    return rows + eq6_memory_rows(quick)
+
+
+_EQ6_CHILD = """
+import sys, time
+import numpy as np
+data = np.load(sys.argv[1])
+anomaly, road, labels, k = data["anomaly"], data["road"], data["labels"], int(data["k"])
+if sys.argv[2] == "numpy":
+    from benchmarks.bench_mmf import numpy_superpixel_score
+    call = lambda: numpy_superpixel_score(anomaly, road, labels, k)
+else:
+    from jaxanom.mmf.postprocess import superpixel_score
+    rows = None if sys.argv[2] == "jaxanom blockwise" else k
+    call = lambda: np.asarray(superpixel_score(anomaly, road, labels, k, block_rows=rows))
+result = call()
+times = []
+for _ in range(3):
+    start = time.perf_counter()
+    call()
+    times.append(time.perf_counter() - start)
+np.save(sys.argv[3], result.astype(np.float32))
+open(sys.argv[3] + ".ms", "w").write(str(1e3 * float(np.median(times))))
+"""
+
+
+def eq6_memory_rows(quick: bool) -> list[dict]:
+    """Eq. 6's peak memory and time at a real resolution, one fresh process per implementation."""
+    import tempfile
+
+    from benchmarks.bench_score_memory import _peak_of
+    from jaxanom.superpixels import _grid_cells, num_superpixels, rgb_to_lab, scaled_step, slic
+
+    height, width = (540, 960) if quick else (1080, 1920)
+    image, source = frames(1, height, width)
+    rng = np.random.default_rng(0)
+    anomaly, road = rng.random((2, height, width)).astype(np.float32)
+    step = scaled_step((height, width))
+    cases = [(f"SLIC S={step}", np.asarray(slic(rgb_to_lab(image[0]), step)), num_superpixels((height, width), step),
+              ("jaxanom blockwise", "jaxanom one K x K block", "numpy")),
+             ("16-px grid", np.asarray(_grid_cells(height, width, 2 * STEP)),
+              num_superpixels((height, width), 2 * STEP), ("jaxanom blockwise", "jaxanom one K x K block")),
+             ("8-px grid", np.asarray(_grid_cells(height, width, STEP)), num_superpixels((height, width), STEP),
+              ("jaxanom blockwise",))]
+    rows = []
+    with tempfile.TemporaryDirectory() as folder:
+        for name, labels, k, impls in cases:
+            inputs = Path(folder) / f"{k}.npz"
+            np.savez(inputs, anomaly=anomaly, road=road, labels=labels, k=k)
+            maps = {}
+            for impl in impls:
+                out = str(Path(folder) / f"{k}-{impl.replace(' ', '_')}.npy")
+                peak, _ = _peak_of(_EQ6_CHILD, [str(inputs), impl, out])
+                ms = float(Path(out + ".ms").read_text())
+                base_ms = base_ms if maps else ms  # the first implementation is jaxanom blockwise
+                rows.append(dict(benchmark="eq6 memory", case=f"1x{height}x{width}, {name}, K={k}", impl=impl,
+                                 median_ms=ms, ms_per_frame=ms, ratio=ms / base_ms, peak_mb=peak))
+                maps[impl] = np.load(out)
+            peer = "numpy" if "numpy" in maps else impls[0]
+            diff = max(float(np.max(np.abs(maps[i] - maps[peer]))) for i in maps)
+            if diff > 1e-4:
+                raise AssertionError(f"Eq. 6 implementations disagree by {diff} at K={k}")
+            for row in rows[-len(impls):]:
+                row["note"] = f"{source}; max |diff| vs {peer} {diff:.1e}"
     return rows
 
 

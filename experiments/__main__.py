@@ -90,11 +90,22 @@ def describe(module) -> str:
 
 
 def write_results(out_dir: Path, failures: dict[str, str] | None = None) -> Path:
-    """Rewrite ``RESULTS.md`` in ``out_dir`` from the experiment JSON files there (and this run's failures)."""
+    """Rewrite ``RESULTS.md`` in ``out_dir`` from the experiment JSON files there (and this run's failures),
+    followed by the real-data tables (``real_*.md``, written by ``python -m experiments.real_<name>``)."""
     failures = failures or {}
     results = [json.loads((out_dir / f"{name}.json").read_text()) for name in EXPERIMENTS
                if name not in failures and (out_dir / f"{name}.json").exists()]
-    return write_bytes_atomic(out_dir / "RESULTS.md", (summary(results, failures) + "\n").encode())
+    real = [path.read_text() for path in sorted(out_dir.glob("real_*.md"))]
+    return write_bytes_atomic(out_dir / "RESULTS.md", (summary(results, failures) + real_section(real) + "\n").encode())
+
+
+def real_section(tables: list[str]) -> str:
+    """The real-data tables under one heading, each table's headings one level down ("" without any)."""
+    if not tables:
+        return ""
+    demoted = ["\n".join("#" + line if line.startswith("#") else line for line in text.strip().splitlines())
+               for text in tables]
+    return "\n\n# Real data: the networks and claims on real frames (experiments/real_*.py)\n\n" + "\n\n".join(demoted)
 
 
 def summary(results: list[dict], failures: dict[str, str] | None = None) -> str:
@@ -111,7 +122,10 @@ def summary(results: list[dict], failures: dict[str, str] | None = None) -> str:
     lines = [
         "# Experiments: the papers' tables on a small budget",
         "",
-        f"Written by `python -m experiments` on {datetime.date.today().isoformat()}. Every network is the tiny "
+        f"Written by `python -m experiments` on {datetime.date.today().isoformat()}. Defaults of the SML, CuDAM "
+        "and MSAAM tables (the MMF and off-road tables state their own networks, frames, region and AP "
+        "convention in their descriptions, e.g. MMF: four networks, frames scored inside the road ROI, "
+        "envelope AP): every network is the tiny "
         f"DeepLabV3+ (`deeplabv3plus_tiny`, output stride 16) trained for the steps its table states, batch "
         f"{scale.batch_size}, on {data}, with AdamW (lr 2e-3) instead of the papers' SGD schedule. SML "
         f"statistics come from {scale.stats_frames} training frames; anomaly metrics pool all non-void pixels "

@@ -243,7 +243,7 @@ def evaluate(net: Network, variables: dict, scale: Scale, log: Callable = print)
     batch = e.batch_size if scale.anomaly is None else 1
     train_frames = _batches(frames(e, "train", scale.stats_frames), e.batch_size)
     stats = class_statistics(predict, train_frames)
-    mean_std = sml.stats_finalize(stats, missing="pooled")
+    mean_std = sml.stats_finalize(stats, missing="pooled", policy="none")
     val_frames = _batches(frames(e, "val", scale.val_frames), e.batch_size)
     segmentation = segmentation_results(predictions(predict, val_frames), e.num_classes)
     accumulators, kept = {}, {}
@@ -378,15 +378,17 @@ def run_table(name: str, title: str, rows, findings: Callable[[dict], list[Findi
 
 
 def write_table(name: str, title: str, values: dict, curves: dict, findings: Callable[[dict], list[Finding]],
-                scales: Sequence[Scale], networks: dict, out_dir: Path, description: str = "") -> dict:
-    """Check the findings on ``values`` (from ``aggregate``) and write the result files; returns the result."""
+                scales: Sequence[Scale], networks: dict, out_dir: Path, description: str = "",
+                steps_text: str = "") -> dict:
+    """Check the findings on ``values`` (from ``aggregate``) and write the result files; returns the result.
+    ``steps_text`` replaces "<steps> training steps per network" where networks train for different steps."""
     from jaxanom.viz import plot_curves
 
     checked = findings(values)
     result = {"name": name, "title": title, "description": description,
               "table": [{"label": k, **v} for k, v in values.items()], "scale": dataclasses.asdict(scales[0]),
               "findings": [dataclasses.asdict(f) for f in checked], "networks": networks,
-              "seeds": seeds_text(scales), "num_seeds": len(scales)}
+              "seeds": seeds_text(scales), "num_seeds": len(scales), **({"steps_text": steps_text} if steps_text else {})}
     out_dir = Path(out_dir)
     write_json_atomic(out_dir / f"{name}.json", result)
     write_bytes_atomic(out_dir / f"{name}.md", (report(result) + "\n").encode())
@@ -397,9 +399,10 @@ def write_table(name: str, title: str, values: dict, curves: dict, findings: Cal
 
 def report(result: dict) -> str:
     """A result as markdown: title, table, findings."""
+    steps = result.get("steps_text") or f"{result['scale']['steps']} training steps per network"
     lines = [f"## {result['title']}", "", *([result["description"], ""] if result.get("description") else []),
              markdown(result["table"]), "",
-             f"`{result['name']}`; {result['scale']['steps']} training steps per network; {result['seeds']}.",
+             f"`{result['name']}`; {steps}; {result['seeds']}.",
              "", "| paper's finding | holds here? | evidence |", "|---|---|---|"]
     lines += [f"| {f['claim']} | {'yes' if f['holds'] else '**no**'} | {f['evidence']} |" for f in result["findings"]]
     return "\n".join(lines)

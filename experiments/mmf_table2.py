@@ -24,6 +24,7 @@ from jaxanom.evaluate import anomaly_results, class_statistics, predictions, pre
 from jaxanom.experiment import frames
 from jaxanom.mmf.demo import MMFDemoConfig, evaluation_frames, scored_batches
 from jaxanom.mmf.pipeline import MMFConfig, MMFPipeline
+from jaxanom.superpixels import scaled_step
 
 NAME = "mmf_table2"
 TITLE = "MMF Tables 1-2: assistant maps and post-processor, in the road ROI"
@@ -47,6 +48,9 @@ ROWS = (("entropy", "entropy", "-", "-"),
         ("MSP", "msp", "-", "-"),
         ("max logit", "max_logit", "-", "-"),
         ("SML", "sml", "-", "-"))
+# MMF's post-processor with other superpixels (issue 20): (label, MMFConfig settings); scored as `mmf`
+SLIC_VARIANTS = (("MMF, connected superpixels", {"slic_connectivity": True}),
+                 ("MMF, SLIC on the anomaly map a", {"slic_input": "anomaly"}))
 BASE, POST, ASSISTED, FULL = (row[0] for row in ROWS[1:5])
 TABLE2 = (BASE, POST, ASSISTED, FULL)
 
@@ -83,7 +87,7 @@ def seed_values(scale: Scale, runs: Path, log: Callable) -> tuple[dict, dict, di
     miou = segmentation_results(predictions(predict, _batches(frames(seg, "val", scale.val_frames), seg.batch_size)),
                                 seg.num_classes)["miou"]
     metrics, curves = anomaly_results(scored_batches(pipe, evaluation_frames(config), pipe_config.batch_size),
-                                      [row[1] for row in ROWS], stats=sml.stats_finalize(stats, missing="pooled"),
+                                      [row[1] for row in ROWS], stats=sml.stats_finalize(stats, missing="pooled", policy="none"),
                                       ap_convention="envelope", keep_curves=True)
     keys = {"segmenter": f"segmenter-{pipe_config.part_key('segmenter')}",
             "resynthesis": f"dissimilarity-resynthesis-{pipe_config.part_key('dissimilarity')}",
@@ -95,6 +99,14 @@ def seed_values(scale: Scale, runs: Path, log: Callable) -> tuple[dict, dict, di
         values[label] = {"ap": 100 * m["ap"], "auroc": 100 * m["auroc"], "fpr95": 100 * m["fpr_at_tpr"],
                          "miou": 100 * miou, "network": keys[part.get(method, "segmenter")], "score": method}
         thin[label] = {"roc": _thin(*curves[method]["roc"]), "pr": _thin(*curves[method]["pr"])}
+    for label, settings in SLIC_VARIANTS:  # the same networks, the post-processor on other superpixels
+        variant = dataclasses.replace(pipe, config=dataclasses.replace(pipe_config, **settings))
+        m, c = anomaly_results(scored_batches(variant, evaluation_frames(config), pipe_config.batch_size), ["mmf"],
+                               ap_convention="envelope", keep_curves=True)
+        values[label] = {"ap": 100 * m["mmf"]["ap"], "auroc": 100 * m["mmf"]["auroc"],
+                         "fpr95": 100 * m["mmf"]["fpr_at_tpr"], "miou": 100 * miou, "network": keys["mmf"],
+                         "score": "mmf"}
+        thin[label] = {"roc": _thin(*c["mmf"]["roc"]), "pr": _thin(*c["mmf"]["pr"])}
     seconds = {"build": built, "total": time.perf_counter() - start}
     log(f"  {NAME} seed {scale.seed}: pipeline built in {built:.0f} s, scored in {seconds['total'] - built:.0f} s")
     return values, thin, {"keys": keys, "seconds": seconds, "config": pipe_config.to_dict()}
@@ -131,13 +143,16 @@ def run(scale: Scale, seeds: int, out_dir: Path = HERE, runs: Path = RUNS, log: 
         f"{description} Sizes: {seg.height} x {seg.width} frames; segmenter {seg.train.steps} steps (the count "
         f"stated below the table) on {seg.train_frames} scenes; RGB-D net ({p.rgbd_backbone}) {p.rgbd_steps} steps; "
         f"two dissimilarity nets (width x {p.dissim_width:g}) {p.dissim_steps} steps each on {p.dissim_frames} "
-        f"other scenes with up to {p.void_objects} void clutter objects; SLIC step {p.slic_step} px; "
+        f"other scenes with up to {p.void_objects} void clutter objects; SLIC step {p.slic_step or scaled_step((seg.height, seg.width))} px on "
+        f"the {p.slic_input}{' with connectivity enforcement' if p.slic_connectivity else ''}; "
         f"{config.anomaly_frames} `{config.anomaly_split}` frames scored in the road ROI. Pipeline seed = "
         f"{SEED_STRIDE} x table seed (no two seeds share a frame set). Minutes per seed in the invocation that "
         f"wrote this table (parts already in the runs folder are restored, not retrained): {minutes}.")
     networks = {k: {"part": part, "mmf_config": i["config"]} for i in infos for part, k in i["keys"].items()}
+    steps = (f"training steps: segmenter {seg.train.steps}, RGB-D net {p.rgbd_steps}, dissimilarity nets "
+             f"{p.dissim_steps} each")
     return write_table(NAME, TITLE, values, curves, findings, used, networks, out_dir,
-                       description.strip())
+                       description.strip(), steps_text=steps)
 
 
 if __name__ == "__main__":

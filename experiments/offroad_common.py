@@ -42,7 +42,8 @@ class OffroadSizes:
     sequences B / C. ``budgets``: the hard-frame budgets of Table 2 (``compared_budget`` is the one
     where Rand / Unif / active are compared); ``gap``: Eq. 16's Delta. ``deepscene_frames``: frames
     of D; ``deepscene_budgets``: the budgets standing for the paper's D20 and D40;
-    ``deepscene_test``: segmented frames of E, ``deepscene_test_step`` apart.
+    ``deepscene_test``: segmented frames of E, ``deepscene_test_step`` apart. ``segmented``: frames
+    of B and of C (evenly spaced) scored by PA / mIoU in Table 2.
     """
 
     demo: OffroadDemoConfig
@@ -55,6 +56,7 @@ class OffroadSizes:
     deepscene_budgets: tuple[int, int] = (4, 8)
     deepscene_test: int = 4
     deepscene_test_step: int = 8
+    segmented: int = 4
 
     @property
     def smoke(self) -> bool:
@@ -72,7 +74,7 @@ def offroad_sizes(scale: Scale) -> OffroadSizes:
         quick = OffroadDemoConfig.quick()
         demo = dataclasses.replace(quick, seed=scale.seed, pipeline=dataclasses.replace(quick.pipeline, gap=1))
         return OffroadSizes(demo, active_frames=5, test_frames=3, budgets=(1, 2), compared_budget=2, gap=1,
-                            deepscene_frames=4, deepscene_budgets=(1, 2), deepscene_test=1, deepscene_test_step=1)
+                            deepscene_frames=4, deepscene_budgets=(1, 2), deepscene_test=1, deepscene_test_step=1, segmented=1)
     base = OffroadDemoConfig()
     pipeline = dataclasses.replace(base.pipeline, components=tuple(range(2, 13)), gap=OffroadSizes.gap)
     return OffroadSizes(dataclasses.replace(base, pipeline=pipeline, seed=scale.seed))

@@ -6,26 +6,34 @@ them (1/4 of the initial steps, D-B12) and refits the GMM and r_sigma. mFLR and 
 (Eqs. 13-15, epsilon = 0.5) on B and on a held-out 32-frame sequence of C, in percent. The paper's
 budgets B10..B30 (of 1639 frames) become 2, 4 and 8 frames here, compared at 4 (the paper's B20);
 every row of a seed fine-tunes M_A with the same key, so rows differ only in the frames chosen.
+PA and mIoU (votes, unknown counted wrong) of each row's model on ``segmented`` frames of B and C.
+"Ours B4 + triggered round": after Ours B4, a second round (4 more hard frames of B) runs only if
+Phi^s on B exceeds the trigger (``rounds`` says how many ran).
 
     python -m experiments --only offroad_table2
 """
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Callable
 
 import jax
+import numpy as np
 
 from experiments.common import HERE, RUNS, Finding, Scale
 from experiments.offroad_common import OffroadSizes, beats, chain, model_on_a, run_seeds
 from jaxanom.offroad.active import random_frames, select_hard_frames, uniform_frames
-from jaxanom.offroad.demo import Source, annotated, as_float, source_frames
-from jaxanom.offroad.pipeline import sequence_risk_sweep, update_model
+from jaxanom.offroad.demo import Source, annotated, as_float, num_classes, source_frames
+from jaxanom.offroad.encoder import concat_frames
+from jaxanom.offroad.pipeline import (active_round, segment, segmentation_scores, sequence_risk_sweep, to_classes,
+                                      update_model)
 from jaxanom.offroad.risk import mean_frame_risk, scene_coverage
 
 NAME = "offroad_table2"
 TITLE = "Off-road Table II: Rand / Unif / active hard-frame selection (mFLR and Sc on B and C)"
-COLUMNS = {"mflr_b": "mFLR B ↓", "mflr_c": "mFLR C ↓", "sc_b": "Sc B ↑", "sc_c": "Sc C ↑", "clusters": "m"}
+COLUMNS = {"mflr_b": "mFLR B ↓", "mflr_c": "mFLR C ↓", "sc_b": "Sc B ↑", "sc_c": "Sc C ↑", "pa_b": "PA B ↑",
+           "miou_b": "mIoU B ↑", "pa_c": "PA C ↑", "miou_c": "mIoU C ↑", "rounds": "rounds", "clusters": "m"}
 MFLR = ("mflr_b", "mflr_c")
 
 
@@ -35,18 +43,27 @@ def seed_values(sizes: OffroadSizes, log: Callable = print) -> dict:
     pipe = config.pipeline
     model, data = model_on_a(config, log)
     active = source_frames(Source("B", 0, sizes.active_frames), config)
-    images = {"b": as_float(active), "c": as_float(source_frames(Source("C", 0, sizes.test_frames), config))}
+    test = source_frames(Source("C", 0, sizes.test_frames), config)
+    images = {"b": as_float(active), "c": as_float(test)}
+    every = {k: slice(None, None, max(1, len(x) // sizes.segmented)) for k, x in (("b", active), ("c", test))}
+    every = {k: np.arange(len(images[k]))[e][: sizes.segmented] for k, e in every.items()}  # scored by PA / mIoU
+    truth = {k: np.stack([f["label"] for f in x])[every[k]] for k, x in (("b", active), ("c", test))}
+    classes = num_classes(config)
     key = jax.random.key(config.seed)
 
-    def row(m, frames):
+    def row(m, frames, rounds=1):
         flr = {k: sequence_risk_sweep(m, x, pipe) for k, x in images.items()}
-        out = {"clusters": m.num_clusters, "frames": [int(i) for i in frames], "network": f"seed {config.seed}"}
+        out = {"clusters": m.num_clusters, "frames": [int(i) for i in frames], "network": f"seed {config.seed}",
+               "rounds": rounds}
         for k, f in flr.items():
             out[f"mflr_{k}"], out[f"sc_{k}"] = 100 * mean_frame_risk(f), 100 * scene_coverage(f, pipe.epsilon)
+            labels = segment(m, images[k][every[k]], pipe, crf=False)["labels"]  # votes; unknown counted wrong
+            s = segmentation_scores(to_classes(labels, m, classes), truth[k], classes)
+            out[f"pa_{k}"], out[f"miou_{k}"] = 100 * s["pixel_accuracy"], 100 * s["miou"]
         return out, flr["b"]
 
     values = {}
-    values["M_A"], flr_b = row(model, [])
+    values["M_A"], flr_b = row(model, [], rounds=0)
     t, budget = len(active), sizes.compared_budget
     picks = {f"Rand B{budget}": random_frames(jax.random.fold_in(key, 3), t, budget, sizes.gap),
              f"Unif B{budget}": uniform_frames(t, budget)}
@@ -54,13 +71,19 @@ def seed_values(sizes: OffroadSizes, log: Callable = print) -> dict:
     for label, frames in picks.items():
         new = annotated([active[i] for i in frames], config, 1)
         updated = update_model(jax.random.fold_in(key, 2), model, data, new, pipe)
-        values[label], _ = row(updated, frames)
+        values[label], flr_after = row(updated, frames)
         log(f"    {label}: frames {values[label]['frames']}, mFLR C {values[label]['mflr_c']:.1f}")
+        if label == f"Ours B{budget}":  # the trigger decides a second round (Phi^s on B > trigger)
+            second = active_round(jax.random.fold_in(key, 6), updated, concat_frames(data, new), images["b"],
+                                  lambda chosen: annotated([active[i] for i in chosen], config, 2),
+                                  dataclasses.replace(pipe, budget=budget), flr=flr_after)
+            both = sorted({*map(int, frames), *map(int, second["chosen"])})
+            values[f"Ours B{budget} + triggered round"], _ = row(second["model"], both, 1 + second["triggered"])
     return values
 
 
 def findings(v: dict) -> list[Finding]:
-    budgets = sorted(int(k.split("B")[-1]) for k in v if k.startswith("Ours"))
+    budgets = sorted(int(k.split("B")[-1]) for k in v if k.startswith("Ours") and "+" not in k)
     b = int(next(k for k in v if k.startswith("Rand")).split("B")[-1])
     ours, unif, rand = f"Ours B{b}", f"Unif B{b}", f"Rand B{b}"
     both = {"mflr_c": "mFLR C", "sc_c": "Sc C"}

@@ -74,3 +74,67 @@ def check_real(name: str, x) -> None:
     dtype = dtype_of(x)
     if dtype == bool or not (jnp.issubdtype(dtype, jnp.integer) or jnp.issubdtype(dtype, jnp.floating)):
         raise ValueError(f"{name} must have a real (integer or floating) dtype, got {dtype}")
+
+
+def check_range(name: str, x, low: float, high: float, hint: str = "") -> None:
+    """Every entry of ``x`` in ``[low, high]`` and not NaN (skipped for tracers); ``hint`` ends the message."""
+    if not is_concrete(x):
+        return
+    values = np.asarray(x)
+    bad = ~((values >= low) & (values <= high))
+    if bad.any():
+        raise ValueError(f"{name} must lie in [{low}, {high}]{hint}, got {int(bad.sum())} value(s) outside "
+                         f"(such as {values[bad][:3].tolist()})")
+
+
+def check_count(name: str, value, minimum: int = 1, maximum: int = 2**31 - 1) -> int:
+    """A whole number (int, or an integer NumPy scalar; not bool, not float) in ``[minimum, maximum]``."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r} ({type(value).__name__})")
+    if value < minimum:
+        raise ValueError(f"{name} must be >= {minimum}, got {value}")
+    if value > maximum:
+        raise ValueError(f"{name} must be <= {maximum}, got {value}")
+    return int(value)
+
+
+def check_number(name: str, value, low: float = -np.inf, high: float = np.inf, *, open_low: bool = False) -> float:
+    """A finite real number (int or float; not bool, not str) in ``[low, high]`` (``(low, high]`` with ``open_low``)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name} must be a number, got {value!r} ({type(value).__name__})")
+    inside = (value > low if open_low else value >= low) and value <= high
+    if not (np.isfinite(value) and inside):
+        raise ValueError(f"{name} must be a finite number in {'(' if open_low else '['}{low}, {high}], got {value!r}")
+    return float(value)
+
+
+def check_labels(name: str, x, count: int, void: int | None = None) -> None:
+    """Integer labels in ``[0, count)`` (or equal to ``void``); values checked only on concrete arrays."""
+    check_integer(name, x)
+    if not is_concrete(x) or np.size(x) == 0:
+        return
+    values = np.asarray(x)
+    bad = ((values < 0) | (values >= count)) & (values != void if void is not None else True)
+    if bad.any():
+        allowed = f"[0, {count - 1}]" + (f" or {void}" if void is not None else "")
+        raise ValueError(f"{name} must hold values in {allowed}, got {int(bad.sum())} outside "
+                         f"(such as {np.unique(values[bad])[:5].tolist()})")
+
+
+def memory_bytes() -> int:
+    """This machine's physical memory in bytes (0 where the system does not say)."""
+    import os
+
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return 0
+
+
+def check_fits_memory(name: str, count: int, item_bytes: int, what: str) -> None:
+    """``count`` items of ``item_bytes`` each (a batch's inputs, a lower bound of what it takes)
+    must fit in this machine's memory; refused before anything is allocated."""
+    total, memory = int(count) * int(item_bytes), memory_bytes()
+    if memory and total > memory:
+        raise ValueError(f"{name}: {count} {what} take at least {total / 2**30:.1f} GiB, more than this machine's "
+                         f"{memory / 2**30:.1f} GiB of memory")

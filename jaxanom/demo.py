@@ -14,7 +14,9 @@ import numpy as np
 
 from jaxanom import methods as scoring
 from jaxanom import sml
+from jaxanom._validate import check_count, check_number
 from jaxanom.cudam_score import PAPER_TEST_POSITIONS, PAPER_TRAIN_POSITIONS, equivalent_weight
+from jaxanom.data.synthetic import ANOMALY_SPLITS
 from jaxanom.evaluate import anomaly_results, class_statistics, predictions, predictor, segmentation_results
 from jaxanom.experiment import Experiment, build_network, frames, run_training
 from jaxanom.io import write_json_atomic, write_png_atomic
@@ -28,7 +30,7 @@ _ATTENTION_POSITIONS = (128 // 4) * (256 // 4)  # CuDAM's map of a 128 x 256 dem
 
 @dataclasses.dataclass(frozen=True)
 class DemoConfig:
-    """Sizes of the demo; ``quick()`` is a seconds-long smoke run of the same path.
+    """Sizes of the demo; ``quick()`` is a smoke run of the same path at tiny sizes.
 
     The demo's frames are far smaller than the paper's, so CuDAM's tau and sigma are scaled to
     the attention map's number of positions (``equivalent_weight``): with the paper's raw
@@ -47,6 +49,14 @@ class DemoConfig:
     anomaly_split: str = "anomaly"
     pictures: int = 4
     cudam_sigma: float = equivalent_weight(2e4, _ATTENTION_POSITIONS, PAPER_TEST_POSITIONS)
+
+    def __post_init__(self):
+        for name in ("stats_frames", "val_frames", "anomaly_frames"):
+            check_count(name, getattr(self, name))
+        check_count("pictures", self.pictures, minimum=0)
+        check_number("cudam_sigma", self.cudam_sigma, 0.0, open_low=True)
+        if self.anomaly_split not in ANOMALY_SPLITS:
+            raise ValueError(f"anomaly_split: expected one of {ANOMALY_SPLITS}, got {self.anomaly_split!r}")
 
     @classmethod
     def quick(cls) -> "DemoConfig":
@@ -105,12 +115,33 @@ def run_demo(out_dir: str | Path, config: DemoConfig = DemoConfig(), *, progress
 
 
 def results_table(metrics: dict, segmentation: dict | None = None) -> str:
-    """A markdown table of AP / AUROC / FPR@95 per method (percent)."""
-    lines = ["| method | AP | AUROC | FPR@95 |", "|---|---|---|---|"]
+    """A markdown table of AP / AUROC / FPR@95 per method (percent), with SegmentMeIfYouCan's
+    component metrics (mean sIoU, mean PPV, mean F1) where ``metrics`` hold them."""
+    components = all("components" in m for m in metrics.values())
+    extra = " sIoU | PPV | mean F1 |" if components else ""
+    lines = ["| method | AP | AUROC | FPR@95 |" + extra, "|---|---|---|---|" + "---|" * (3 * components)]
+    percent = lambda x: "n/a" if x is None else f"{100 * x:.2f}"  # noqa: E731
     for name, m in metrics.items():
-        lines.append(f"| {name} | {100 * m['ap']:.2f} | {100 * m['auroc']:.2f} | {100 * m['fpr_at_tpr']:.2f} |")
+        row = f"| {name} | {100 * m['ap']:.2f} | {100 * m['auroc']:.2f} | {100 * m['fpr_at_tpr']:.2f} |"
+        if components:
+            c = m["components"]
+            row += f" {percent(c['mean_siou'])} | {percent(c['mean_ppv'])} | {percent(c['f1_mean'])} |"
+        lines.append(row)
     if segmentation is not None:
         lines.append(f"\nsegmentation mIoU on in-distribution frames: {100 * segmentation['miou']:.2f}")
+    return "\n".join(lines)
+
+
+def conventions_table(metrics: dict) -> str:
+    """A markdown table of AP and FPR@95 (percent) per method under every convention the library
+    has (``metrics[name]["ap_conventions"]`` / ``["fpr_conventions"]``), side by side."""
+    from jaxanom.metrics.anomaly import AP_CONVENTIONS, FPR_CONVENTIONS
+
+    header = [f"AP {c}" for c in AP_CONVENTIONS] + [f"FPR@95 {c}" for c in FPR_CONVENTIONS]
+    lines = ["| method | " + " | ".join(header) + " |", "|---|" + "---|" * len(header)]
+    for name, m in metrics.items():
+        values = [m["ap_conventions"][c] for c in AP_CONVENTIONS] + [m["fpr_conventions"][c] for c in FPR_CONVENTIONS]
+        lines.append(f"| {name} | " + " | ".join(f"{100 * v:.2f}" for v in values) + " |")
     return "\n".join(lines)
 
 

@@ -6,6 +6,7 @@ benchmarks do (METHODS.md §6). ``segmentation_results`` sums confusion matrices
 """
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
 import jax
@@ -14,21 +15,23 @@ import numpy as np
 
 from jaxanom import methods as scoring
 from jaxanom.cudam_score import paper_sigma, upsample_attention
-from jaxanom.metrics import AnomalyMetricAccumulator, confusion_matrix, miou, per_class_iou, pixel_accuracy
-from jaxanom.metrics import pr_curve, restrict_to_roi, roc_curve
+from jaxanom.metrics import AnomalyMetricAccumulator, anomaly_metrics, confusion_matrix, miou, per_class_iou
+from jaxanom.metrics import pixel_accuracy, pr_curve, restrict_to_roi, roc_curve
+from jaxanom.metrics.components import component_summary, frame_components
 from jaxanom.train.step import model_input
 
 
 def predictor(model, variables) -> Callable[[np.ndarray], dict]:
     """A jitted ``images (B, H, W, 3) (uint8 RGB, or float normalised) -> {"logits" (B, H, W, C), "attention_up" (B, H, W)?}``.
 
+    uint8 images are normalised as ``model`` wants them (``jaxanom.train.step.model_input``).
     The attention map (if the model has one) is upsampled bilinearly to the image size (Eqs. 4, 10);
     ``"attention_positions"`` (a scalar) is then the h * w of the map before upsampling.
     """
 
     @jax.jit
     def forward(variables, images):
-        out = model.apply(variables, model_input(images), train=False)
+        out = model.apply(variables, model_input(images, model), train=False)
         result = {"logits": out["logits"].astype(jnp.float32)}
         if "attention" in out:
             result["attention_up"] = upsample_attention(out["attention"], images.shape[1:3])
@@ -53,22 +56,31 @@ def class_statistics(predict: Callable, batches: Iterable[dict]):
 
 def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, cudam_sigma: float | None = None,
                     mode: str = "exact", fpr_convention: str = "first", ap_convention: str = "step",
-                    keep_curves: bool = False) -> tuple[dict, dict]:
-    """Pooled metrics per method over batches ``{"logits", "label", "attention_up"?, "attention_positions"?,
-    "roi"?, "mmf_maps"?}``.
+                    keep_curves: bool = False, track: str | None = None) -> tuple[dict, dict]:
+    """Pooled metrics per method over batches ``{"logits", "label", "image"?, "name"?,
+    "attention_up"?, "attention_positions"?, "roi"?, "mmf_maps"?}``.
 
     ``stats``: SML ``(mean, std)``; ``cudam_sigma``: the ensemble weight of Eq. 10, by default
     (None) the paper-equivalent weight for each batch's attention-map size
     (``cudam_score.paper_sigma`` of ``"attention_positions"``). ``metrics["cudam"]["sigma"]``
-    lists the distinct sigmas used.
+    lists the distinct sigmas used. Every method's metrics hold ``ap_conventions`` and
+    ``fpr_conventions`` (all conventions' values).
+    ``track`` (``"anomaly"`` / ``"obstacle"``): also SegmentMeIfYouCan's component metrics at
+    the pooled best-F1 threshold (``metrics[name]["components"]``) and, per frame, the pixel
+    metrics (None where the frame lacks a class) and component metrics
+    (``metrics[name]["frames"]``); score maps wait in a temporary folder between the passes.
     Returns ``(metrics[name], curves[name])``; ``curves[name] = {"roc": (fpr, tpr), "pr":
     (recall, precision)}`` when ``keep_curves`` (it keeps every score on the host: small sets
     only). ``mode="binned"`` is not offered here because score ranges differ per method.
     """
-    accumulators, kept, sigmas = {}, {}, set()
+    import tempfile
+
+    accumulators, kept, sigmas, frames = {}, {}, set(), []
+    spill = tempfile.TemporaryDirectory(prefix="jaxanom-maps-") if track is not None else None
     for batch in outputs:
         names = scoring.check_methods(method_names, have_stats=stats is not None,
-                                      have_attention="attention_up" in batch, have_mmf="mmf_maps" in batch)
+                                      have_attention="attention_up" in batch, have_mmf="mmf_maps" in batch,
+                                      have_image="image" in batch)
         labels = np.asarray(batch["label"])
         if "roi" in batch:  # evaluate inside the region of interest only (MMF: the road)
             labels = restrict_to_roi(labels, batch["roi"])
@@ -76,18 +88,35 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, cudam_
         if "cudam" in names:
             sigma = paper_sigma(int(batch["attention_positions"])) if sigma is None else float(sigma)
             sigmas.add(sigma)
+        first = len(frames)
+        if spill is not None:
+            names_in_batch = batch.get("name", [None] * len(labels))
+            for index, label in enumerate(labels):
+                name = names_in_batch[index]
+                frames.append({"name": str(name) if name is not None else str(first + index), "pixels": {}})
+                np.save(Path(spill.name) / f"label_{first + index}.npy", label)
         for name in names:
             score = scoring.score_batch(name, batch["logits"], stats=stats, attention_up=batch.get("attention_up"),
-                                        cudam_sigma=sigma, mmf_maps=batch.get("mmf_maps"))
+                                        cudam_sigma=sigma, mmf_maps=batch.get("mmf_maps"), images=batch.get("image"))
             accumulators.setdefault(name, AnomalyMetricAccumulator(mode)).update(score, labels)
             if keep_curves:
                 kept.setdefault(name, []).append((np.asarray(score).ravel(), labels.ravel()))
+            if spill is not None:
+                for index, (one, label) in enumerate(zip(np.asarray(score), labels)):
+                    np.save(Path(spill.name) / f"{name}_{first + index}.npy", one)
+                    frames[first + index]["pixels"][name] = _frame_pixel_metrics(one, label, fpr_convention,
+                                                                                  ap_convention)
     if not accumulators:
         raise ValueError("outputs: expected at least one batch, got none")
-    metrics = {name: acc.compute(fpr_convention=fpr_convention, ap_convention=ap_convention)
+    metrics = {name: acc.compute(fpr_convention=fpr_convention, ap_convention=ap_convention, conventions=True)
                for name, acc in accumulators.items()}
     if "cudam" in metrics:
         metrics["cudam"]["sigma"] = sorted(sigmas)
+    if spill is not None:
+        with spill:
+            for name, values in metrics.items():
+                values["components"], values["frames"] = _component_pass(Path(spill.name), name, frames, track,
+                                                                         values["best_f1_threshold"])
     curves = {}
     for name, parts in kept.items():
         scores, labels = (np.concatenate(x) for x in zip(*parts))
@@ -95,6 +124,42 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, cudam_
         precision, recall, _ = pr_curve(scores, labels)
         curves[name] = {"roc": (fpr, tpr), "pr": (recall, precision)}
     return metrics, curves
+
+
+def _frame_pixel_metrics(score, label, fpr_convention: str, ap_convention: str) -> dict | None:
+    """AP / AUROC / FPR of one frame, or None when it has no anomaly or no normal pixel."""
+    present = np.isin((0, 1), label)
+    if not present.all():
+        return None
+    return anomaly_metrics(score, label, fpr_convention=fpr_convention, ap_convention=ap_convention)
+
+
+def _component_pass(folder: Path, name: str, frames: list[dict], track: str, threshold: float):
+    """``(pooled, per_frame)``: component metrics of method ``name``'s spilled maps at ``threshold``."""
+    per_frame, sious, ppvs = [], [], []
+    for index, frame in enumerate(frames):
+        label = np.load(folder / f"label_{index}.npy")
+        siou, ppv = frame_components(np.load(folder / f"{name}_{index}.npy"), label, threshold, track=track)
+        sious.append(siou)
+        ppvs.append(ppv)
+        per_frame.append({"name": frame["name"], **(frame["pixels"][name] or {"ap": None}),
+                          "components": _jsonable_components(component_summary(siou, ppv))})
+    pooled = component_summary(np.concatenate(sious), np.concatenate(ppvs))
+    return {"threshold": threshold, "track": track, **_jsonable_components(pooled)}, per_frame
+
+
+def _jsonable_components(summary: dict) -> dict:
+    """A ``component_summary`` for metrics.json: lists, NaN as None, without the per-component arrays."""
+    out = {}
+    for key, value in summary.items():
+        if key in ("tp", "fn", "fp"):
+            out[key] = [int(v) for v in value]
+        elif isinstance(value, int):
+            out[key] = value
+        elif key not in ("siou", "ppv"):
+            values = [None if np.isnan(v) else float(v) for v in np.ravel(value)]
+            out[key] = values if np.ndim(value) else values[0]
+    return out
 
 
 def segmentation_results(outputs: Iterable[dict], num_classes: int, ignore: int = 255) -> dict:

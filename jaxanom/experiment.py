@@ -15,6 +15,7 @@ from typing import Any, Sequence
 import jax
 import numpy as np
 
+from jaxanom._validate import check_count, check_fits_memory, check_number
 from jaxanom.io import write_json_atomic
 from jaxanom.train.loop import TrainConfig
 from jaxanom.train.step import LossConfig
@@ -27,7 +28,8 @@ DATASETS = ("synthetic", "cityscapes")
 class Experiment:
     """A network and its training data.
 
-    ``model``: a ``jaxanom.models.build_model`` name; ``attention``: None, "cudam" or "msaam";
+    ``model``: a ``jaxanom.models.build_model`` name; ``attention``: None, "cudam" or "msaam"
+    (None for ESPNet, which ignores the other DeepLabV3+ fields);
     ``cudam_position``: "deep", "surface" or "output" (CuDAM Table V; ``DeepLabV3Plus``);
     ``cudam_gate``: "paper" or "scale_free" (Eq. 3 or its size-free deviation);
     ``data``: "synthetic" (generated ``train_frames`` frames of ``height`` x ``width``) or
@@ -58,10 +60,28 @@ the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``:
     init_modules: tuple[str, ...] | None = None
 
     def __post_init__(self):
+        from jaxanom.models import model_family
+
+        if model_family(self.model) == "espnet" and self.attention is not None:
+            raise ValueError(f"attention: ESPNet ({self.model}) has no attention block; expected None, "
+                             f"got {self.attention!r}")
         if self.data not in DATASETS:
             raise ValueError(f"data: expected one of {DATASETS}, got {self.data!r}")
         if self.data != "synthetic" and not self.data_root:
             raise ValueError(f"data_root: expected the folder of the {self.data} dataset, got {self.data_root!r}")
+        if self.attention not in (None, "cudam", "msaam"):
+            raise ValueError(f"attention: expected None, 'cudam' or 'msaam', got {self.attention!r}")
+        for name in ("num_classes", "train_frames", "height", "width", "batch_size"):
+            check_count(name, getattr(self, name))
+        if len(self.crop) != 2 or len(self.scale_range) != 2:
+            raise ValueError(f"crop, scale_range: expected two values each, got {self.crop}, {self.scale_range}")
+        for index, size in enumerate(self.crop):
+            check_count(f"crop[{index}]", size)
+        low, high = (check_number(f"scale_range[{i}]", v, 0.0, open_low=True) for i, v in enumerate(self.scale_range))
+        if low > high:
+            raise ValueError(f"scale_range: expected (low, high) with low <= high, got {self.scale_range}")
+        # a lower bound of a batch: float32 RGB and an int32 label per pixel
+        check_fits_memory("batch_size", self.batch_size, self.crop[0] * self.crop[1] * 16, "training crops")
         if self.batch_size < 1 or self.train_frames < self.batch_size:
             raise ValueError(f"batch_size, train_frames: expected 1 <= batch_size <= train_frames, "
                              f"got {self.batch_size}, {self.train_frames}")
@@ -84,9 +104,11 @@ def _tuples(values: dict) -> dict:
 
 
 def build_network(experiment: Experiment):
-    """The Flax module of ``experiment``."""
-    from jaxanom.models import build_model
+    """The Flax module of ``experiment`` (an ESPNet is configured by its name and class count alone)."""
+    from jaxanom.models import build_model, model_family
 
+    if model_family(experiment.model) == "espnet":
+        return build_model(experiment.model, num_classes=experiment.num_classes)
     return build_model(experiment.model, num_classes=experiment.num_classes, attention=experiment.attention,
                        output_stride=experiment.output_stride, cudam_position=experiment.cudam_position,
                        cudam_gate=experiment.cudam_gate)

@@ -30,6 +30,21 @@ def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> Path:
     return path
 
 
+def write_with_atomic(path: str | os.PathLike, write) -> Path:
+    """``write(temporary_path)`` fills a temporary file beside ``path`` (any writer that takes a
+    file name, e.g. h5py), which is then renamed to ``path``; removed if ``write`` raises."""
+    path = Path(path)
+    fd, tmp = _temporary(path)
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
 def _temporary(path: Path) -> tuple[int, str]:
     """An open temporary file beside ``path`` (parents created) with the umask's permissions."""
     path.parent.mkdir(parents=True, exist_ok=True)

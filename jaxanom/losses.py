@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 
 IGNORE = 255
@@ -59,6 +60,19 @@ def cross_entropy(logits, labels, ignore: int = IGNORE, class_weights=None) -> j
             raise ValueError(f"class_weights: expected shape ({num_classes},), got {class_weights.shape}")
         weight = jnp.where(valid, class_weights[safe], 0.0)
     return jnp.sum(weight * nll) / jnp.maximum(jnp.sum(weight), jnp.finfo(jnp.float32).tiny)
+
+
+def balanced_class_weights(labels, num_classes: int, ignore: int = IGNORE) -> np.ndarray:
+    """Class weights ``w_c = N / (C N_c)`` (float64 (C,)) from host labels, ``ignore`` left out:
+    scikit-learn's ``"balanced"``; with them ``cross_entropy`` averages the per-class mean losses.
+    A class with no pixel gets 0. ValueError when no label is valid."""
+    labels = np.asarray(labels).ravel()
+    counts = np.bincount(labels[labels != ignore], minlength=num_classes).astype(np.float64)
+    if counts.size != num_classes:
+        raise ValueError(f"labels: expected values in [0, {num_classes}) or {ignore}, got up to {counts.size - 1}")
+    if not counts.sum():
+        raise ValueError(f"labels: expected at least one label other than {ignore}, got none")
+    return np.where(counts > 0, counts.sum() / (num_classes * np.maximum(counts, 1)), 0.0)
 
 
 def reward_logits(logits, attention_up, labels, tau: float = 5e4, ignore: int = IGNORE) -> jax.Array:

@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_finite, check_rank
+from jaxanom._validate import check_count, check_finite, check_rank
 
 
 class GaussianMixture(NamedTuple):
@@ -60,6 +60,12 @@ def log_gaussian(z: jax.Array, means: jax.Array, covariances: jax.Array) -> jax.
 
     ``-1/2 (D log 2 pi + log|Sigma_k| + |L_k^-1 (z - mu_k)|^2)`` with ``L_k = chol(Sigma_k)``.
     """
+    check_rank("z", z, 2, "(N, D)")
+    check_rank("means", means, 2, "(m, D)")
+    m, d = np.shape(means)
+    if np.shape(z)[1] != d or np.shape(covariances) != (m, d, d):
+        raise ValueError(f"z, means, covariances must have shapes (N, D), (m, D), (m, D, D) with one m and D, "
+                         f"got {np.shape(z)}, {np.shape(means)}, {np.shape(covariances)}")
     prec = _precision_cholesky(covariances)
     log_det = jnp.sum(jnp.log(jnp.diagonal(prec, axis1=-2, axis2=-1)), axis=-1)  # -1/2 log|Sigma|
     y = jnp.einsum("nd,kde->nke", z, prec) - jnp.einsum("kd,kde->ke", means, prec)[None]
@@ -175,8 +181,7 @@ def _check_fit_options(reg_covar, tol, max_iter) -> None:
         raise ValueError(f"reg_covar must be >= 0, got {reg_covar}")
     if not tol >= 0:
         raise ValueError(f"tol must be >= 0, got {tol}")
-    if int(max_iter) < 1:
-        raise ValueError(f"max_iter must be >= 1, got {max_iter}")
+    check_count("max_iter", max_iter)  # a loop counter in int32
 
 
 def _checked_result(result: EMResult) -> EMResult:
@@ -210,13 +215,10 @@ def fit_gmm(key, z, m: int, *, n_init: int = 3, lloyd_steps: int = 10, reg_covar
     The ``n_init`` initialisations (keys split from ``key``) run vmapped; the one with the
     highest lower bound is kept (the first on ties), as in sklearn. ``z (N, D)`` with N >= m.
     """
-    if int(m) < 1:
-        raise ValueError(f"m must be >= 1 component, got {m}")
+    check_count("m", m)
     x = _check_points(z, min_points=int(m))
-    if int(n_init) < 1:
-        raise ValueError(f"n_init must be >= 1, got {n_init}")
-    if int(lloyd_steps) < 0:
-        raise ValueError(f"lloyd_steps must be >= 0, got {lloyd_steps}")
+    check_count("n_init", n_init)
+    check_count("lloyd_steps", lloyd_steps, minimum=0)
     _check_fit_options(reg_covar, tol, max_iter)
     keys = jax.random.split(key, int(n_init))
     with jax.enable_x64(True):
@@ -262,15 +264,26 @@ def decisive_minimum(counts: Sequence[int], bics: Sequence[float], threshold: fl
 
 
 def select_components(key, z, counts: Sequence[int] = tuple(range(2, 13)), *, threshold: float = 10.0,
-                      **fit_options) -> tuple[int, dict[int, EMResult], dict[int, float]]:
+                      max_count: int | None = None, **fit_options) -> tuple[int, dict[int, EMResult], dict[int, float]]:
     """Fit every count in ``counts`` (default 2..12, D-B1) and pick one by ``decisive_minimum``.
 
-    Returns ``(m, {m: EMResult}, {m: BIC})``; ``fit_options`` go to ``fit_gmm``. Host-side.
+    While the pick is the last count scanned (the curve still falls at the top), the scan goes on
+    one count at a time up to ``max_count`` (default: no extension) and while m <= N, so a
+    minimum found is interior. Returns ``(m, {m: EMResult}, {m: BIC})``; ``fit_options`` go to
+    ``fit_gmm``. Host-side.
     """
     counts = [int(c) for c in counts]
     if len(counts) < 2 or min(counts) < 1:
         raise ValueError(f"counts must hold at least two component counts >= 1, got {counts}")
     x = _check_points(z, min_points=max(counts))
-    fits = {m: fit_gmm(jax.random.fold_in(key, m), x, m, **fit_options) for m in counts}
-    bics = {m: bic(x, fits[m].mixture) for m in counts}
-    return decisive_minimum(counts, [bics[m] for m in counts], threshold), fits, bics
+    top = max(counts) if max_count is None else max(int(max_count), max(counts))
+    fits, bics = {}, {}
+    while True:
+        for m in counts:
+            if m not in fits:
+                fits[m] = fit_gmm(jax.random.fold_in(key, m), x, m, **fit_options)
+                bics[m] = bic(x, fits[m].mixture)
+        chosen = decisive_minimum(counts, [bics[m] for m in counts], threshold)
+        if chosen < counts[-1] or counts[-1] >= min(top, x.shape[0]):
+            return chosen, fits, bics
+        counts.append(counts[-1] + 1)

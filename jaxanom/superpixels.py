@@ -17,19 +17,21 @@ clusters and returns int32 labels ``(H, W)`` in ``[0, K)``, one per pixel (MMF.m
 6. stop after ``iterations`` updates, or earlier once the residual E <= ``tol``; a last
    assignment to the final centres gives the labels.
 
-``round`` is half-to-even (NumPy's). There is no connectivity enforcement (not in Algorithm 1).
+``round`` is half-to-even (NumPy's). Connectivity enforcement (not in Algorithm 1) is an option.
+The input has 3 channels (Lab) or one (an anomaly map; Algorithm 1 with a scalar feature).
 The work dtype is float32, or float64 for float64 input under ``jax.enable_x64``.
 """
 from __future__ import annotations
 
 import functools
+import math
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxanom._batching import over_images
-from jaxanom._validate import check_finite, check_rank, dtype_of, is_concrete
+from jaxanom._validate import check_count, check_finite, check_rank, dtype_of, is_concrete
 
 # sRGB (D65) -> XYZ and the D65 white point, as scikit-image's ``rgb2lab`` uses them.
 _XYZ_FROM_RGB = np.array([[0.412453, 0.357580, 0.180423],
@@ -80,8 +82,75 @@ def grid_shape(shape: tuple[int, int], step: int) -> tuple[int, int]:
 
 def num_superpixels(shape: tuple[int, int], step: int) -> int:
     """K, the number of SLIC clusters (and label values) for an image of ``shape`` (H, W) at grid step S."""
+    check_count("step", step)
     rows, cols = grid_shape(shape, step)
     return rows * cols
+
+
+def scaled_step(shape: tuple[int, int], step: int = 8, reference: tuple[int, int] = (256, 512)) -> int:
+    """SLIC step S for an (H, W) frame: ``step`` at ``reference`` scaled by sqrt(H W / area of
+    reference), rounded, in [1, min(H, W)] (MMF.md D16 revisited): K stays near
+    ``num_superpixels(reference, step)`` (2048 by default), e.g. S = 2 at 64x128, 32 at 1080x1920."""
+    scale = math.sqrt(shape[0] * shape[1] / (reference[0] * reference[1]))
+    return int(min(max(1, round(step * scale)), min(shape)))
+
+
+def _shift(x: jax.Array, dy: int, dx: int, fill) -> jax.Array:
+    """``x[y + dy, x + dx]`` (``fill`` outside the image) for dy, dx in {-1, 0, 1}."""
+    padded = jnp.pad(x, 1, constant_values=fill)
+    return padded[1 + dy:1 + dy + x.shape[0], 1 + dx:1 + dx + x.shape[1]]
+
+
+_NEIGHBOURS = ((0, 1), (1, 0), (0, -1), (-1, 0))  # 4-connectivity
+
+
+def _components(labels: jax.Array) -> jax.Array:
+    """(H, W) int32: for each pixel, the least flat index of its 4-connected piece of equal labels
+    (min-label propagation with pointer jumping, until nothing changes)."""
+    height, width = labels.shape
+    size = height * width
+
+    def spread(state):
+        comp, _ = state
+        least = comp
+        for dy, dx in _NEIGHBOURS:
+            same = _shift(labels, dy, dx, -1) == labels
+            least = jnp.minimum(least, jnp.where(same, _shift(comp, dy, dx, size), size))
+        jumped = least.ravel()[least.ravel()].reshape(least.shape)  # the least index's own (smaller or equal) root
+        jumped = jumped.ravel()[jumped.ravel()].reshape(least.shape)
+        return jumped, jnp.any(jumped != comp)
+
+    start = jnp.arange(size, dtype=jnp.int32).reshape(height, width)
+    comp, _ = jax.lax.while_loop(lambda state: state[1], spread, (start, jnp.asarray(True)))
+    return comp
+
+
+def _enforce_connectivity(labels: jax.Array, num_segments: int) -> jax.Array:
+    """Labels (H, W) whose every superpixel is 4-connected: each label keeps its largest piece
+    (ties: the piece with the least flat index); every other piece joins the least label among the
+    kept pixels next to it, repeated until every pixel is kept. Labels stay in [0, K)."""
+    height, width = labels.shape
+    size = height * width
+    comp = _components(labels).ravel()
+    flat = labels.ravel()
+    piece_size = jax.ops.segment_sum(jnp.ones(size, jnp.int32), comp, size)[comp]
+    largest = jax.ops.segment_max(piece_size, flat, num_segments)[flat] == piece_size
+    first = jax.ops.segment_min(jnp.where(largest, comp, size), flat, num_segments)[flat]
+    kept = (largest & (comp == first)).reshape(height, width)
+    comp = comp.reshape(height, width)
+
+    def absorb(state):
+        final, kept = state
+        offer = jnp.full((height, width), num_segments, jnp.int32)
+        for dy, dx in _NEIGHBOURS:
+            neighbour = jnp.where(_shift(kept, dy, dx, False), _shift(final, dy, dx, num_segments), num_segments)
+            offer = jnp.minimum(offer, neighbour)
+        piece_offer = jax.ops.segment_min(jnp.where(kept, num_segments, offer).ravel(), comp.ravel(), size)[comp]
+        joins = ~kept & (piece_offer < num_segments)
+        return jnp.where(joins, piece_offer, final), kept | joins
+
+    final, _ = jax.lax.while_loop(lambda state: ~jnp.all(state[1]), absorb, (labels, kept))
+    return final
 
 
 def _sum_last(x: jax.Array) -> jax.Array:
@@ -98,7 +167,7 @@ def _gradient_energy(lab: jax.Array) -> jax.Array:
 
 
 def _initial_centres(lab: jax.Array, step: int) -> jax.Array:
-    """Steps 1-2: (K, 5) centres ``[l, a, b, y, x]`` on the grid, moved to the 3x3 gradient minimum."""
+    """Steps 1-2: (K, C + 2) centres ``[features..., y, x]`` on the grid, moved to the 3x3 gradient minimum."""
     height, width = lab.shape[:2]
     rows, cols = grid_shape((height, width), step)
     ys, xs = jnp.meshgrid(step // 2 + step * jnp.arange(rows), step // 2 + step * jnp.arange(cols), indexing="ij")
@@ -109,7 +178,7 @@ def _initial_centres(lab: jax.Array, step: int) -> jax.Array:
     best = jnp.argmin(_gradient_energy(lab)[cand_y, cand_x], axis=1)  # first minimum on ties
     y = jnp.take_along_axis(cand_y, best[:, None], 1)[:, 0]
     x = jnp.take_along_axis(cand_x, best[:, None], 1)[:, 0]
-    return jnp.concatenate([lab[y, x], jnp.stack([y, x], axis=1).astype(lab.dtype)], axis=1)
+    return jnp.concatenate([lab[y, x], jnp.stack([y, x], axis=1).astype(lab.dtype)], axis=1)  # (K, C + 2)
 
 
 def _grid_cells(height: int, width: int, step: int) -> jax.Array:
@@ -121,19 +190,19 @@ def _grid_cells(height: int, width: int, step: int) -> jax.Array:
 
 
 def _assign(lab: jax.Array, centres: jax.Array, step: int, compactness) -> jax.Array:
-    """Step 4: labels (H, W) int32 from centres (K, 5)."""
-    height, width = lab.shape[:2]
+    """Step 4: labels (H, W) int32 from centres (K, C + 2)."""
+    height, width, c = lab.shape
     k = centres.shape[0]
     window = jnp.arange(-step, step)
-    top = jnp.round(centres[:, 3]).astype(jnp.int32)
-    left = jnp.round(centres[:, 4]).astype(jnp.int32)
+    top = jnp.round(centres[:, c]).astype(jnp.int32)
+    left = jnp.round(centres[:, c + 1]).astype(jnp.int32)
     y = top[:, None, None] + window[None, :, None]  # (K, 2S, 1)
     x = left[:, None, None] + window[None, None, :]  # (K, 1, 2S)
     inside = (y >= 0) & (y < height) & (x >= 0) & (x < width)
     pixel = jnp.where(inside, y * width + x, height * width)  # out of the image: dropped
-    colour = lab[jnp.clip(y, 0, height - 1), jnp.clip(x, 0, width - 1)]  # (K, 2S, 2S, 3)
-    d_lab = _sum_last((colour - centres[:, None, None, :3]) ** 2)
-    d_xy = (y - centres[:, 3, None, None]) ** 2 + (x - centres[:, 4, None, None]) ** 2
+    colour = lab[jnp.clip(y, 0, height - 1), jnp.clip(x, 0, width - 1)]  # (K, 2S, 2S, C)
+    d_lab = _sum_last((colour - centres[:, None, None, :c]) ** 2)
+    d_xy = (y - centres[:, c, None, None]) ** 2 + (x - centres[:, c + 1, None, None]) ** 2
     distance = d_lab + (compactness / step) ** 2 * d_xy
     best = jnp.full(height * width, jnp.inf, distance.dtype).at[pixel].min(distance, mode="drop")
     winner = jnp.where(distance == best.at[pixel].get(mode="fill", fill_value=-1.0),
@@ -144,17 +213,18 @@ def _assign(lab: jax.Array, centres: jax.Array, step: int, compactness) -> jax.A
 
 
 def _update(lab: jax.Array, labels: jax.Array, centres: jax.Array) -> jax.Array:
-    """Step 5: (K, 5) mean ``[l, a, b, y, x]`` per cluster; an empty cluster keeps its centre."""
+    """Step 5: (K, C + 2) mean ``[features..., y, x]`` per cluster; an empty cluster keeps its centre."""
     height, width = labels.shape
+    c = lab.shape[-1] + 2
     ys, xs = jnp.meshgrid(jnp.arange(height), jnp.arange(width), indexing="ij")
-    ones = jnp.ones((height, width, 1), lab.dtype)  # a sixth column counts the pixels: one scatter
-    features = jnp.concatenate([lab, jnp.stack([ys, xs], -1).astype(lab.dtype), ones], -1).reshape(-1, 6)
+    ones = jnp.ones((height, width, 1), lab.dtype)  # a last column counts the pixels: one scatter
+    features = jnp.concatenate([lab, jnp.stack([ys, xs], -1).astype(lab.dtype), ones], -1).reshape(-1, c + 1)
     sums = jax.ops.segment_sum(features, labels.ravel(), centres.shape[0])
-    counts = sums[:, 5:]
-    return jnp.where(counts > 0, sums[:, :5] / jnp.maximum(counts, 1), centres)
+    counts = sums[:, c:]
+    return jnp.where(counts > 0, sums[:, :c] / jnp.maximum(counts, 1), centres)
 
 
-def _slic(lab: jax.Array, compactness, tol, step: int, iterations: int) -> jax.Array:
+def _slic(lab: jax.Array, compactness, tol, step: int, iterations: int, connectivity: bool = False) -> jax.Array:
     """Steps 1-6: at most ``iterations`` updates, stopping once E = sum_k |dy_k| + |dx_k| <= tol."""
 
     def going_on(state):
@@ -164,26 +234,28 @@ def _slic(lab: jax.Array, compactness, tol, step: int, iterations: int) -> jax.A
     def one_iteration(state):
         count, centres, _ = state
         moved = _update(lab, _assign(lab, centres, step, compactness), centres)
-        return count + 1, moved, jnp.sum(jnp.abs(moved[:, 3:] - centres[:, 3:]))
+        return count + 1, moved, jnp.sum(jnp.abs(moved[:, -2:] - centres[:, -2:]))
 
     start = (0, _initial_centres(lab, step), jnp.asarray(jnp.inf, lab.dtype))
     _, centres, _ = jax.lax.while_loop(going_on, one_iteration, start)
-    return _assign(lab, centres, step, compactness)
+    labels = _assign(lab, centres, step, compactness)
+    return _enforce_connectivity(labels, centres.shape[0]) if connectivity else labels
 
 
 _rgb_to_lab_jit = jax.jit(_rgb_to_lab)
-_slic_jit = jax.jit(_slic, static_argnames=("step", "iterations"))
+_SLIC_STATIC = ("step", "iterations", "connectivity")
+_slic_jit = jax.jit(_slic, static_argnames=_SLIC_STATIC)
 
 
-@functools.partial(jax.jit, static_argnames=("step", "iterations"))
-def _slic_batch(lab: jax.Array, compactness, tol, step: int, iterations: int) -> jax.Array:
-    return over_images(lambda image: _slic(image, compactness, tol, step, iterations), lab)
+@functools.partial(jax.jit, static_argnames=_SLIC_STATIC)
+def _slic_batch(lab: jax.Array, compactness, tol, step: int, iterations: int, connectivity: bool = False) -> jax.Array:
+    return over_images(lambda image: _slic(image, compactness, tol, step, iterations, connectivity), lab)
 
 
 def _check_slic(lab, step, compactness, iterations, tol, batched: bool):
-    check_rank("lab", lab, 4 if batched else 3, "(B, H, W, 3)" if batched else "(H, W, 3)")
-    if np.shape(lab)[-1] != 3:
-        raise ValueError(f"lab must have 3 channels (L, a, b) in its last axis, got shape {np.shape(lab)}")
+    check_rank("lab", lab, 4 if batched else 3, "(B, H, W, C)" if batched else "(H, W, C)")
+    if np.shape(lab)[-1] not in (1, 3):
+        raise ValueError(f"lab must have 3 channels (L, a, b) or 1 in its last axis, got shape {np.shape(lab)}")
     if not np.issubdtype(dtype_of(lab), np.floating):
         raise ValueError(f"lab must be a float array (from rgb_to_lab), got dtype {dtype_of(lab)}")
     height, width = np.shape(lab)[-3:-1]
@@ -201,25 +273,28 @@ def _check_slic(lab, step, compactness, iterations, tol, batched: bool):
     return jnp.asarray(lab, dtype), jnp.asarray(compactness, dtype), tol, int(step), int(iterations)
 
 
-def slic(lab, step: int, compactness: float = 10.0, iterations: int = 10, tol: float | None = None) -> jax.Array:
-    """SLIC (MMF Algorithm 1) of one image: lab ``(H, W, 3)`` float -> labels ``(H, W)`` int32.
+def slic(lab, step: int, compactness: float = 10.0, iterations: int = 10, tol: float | None = None,
+         connectivity: bool = False) -> jax.Array:
+    """SLIC (MMF Algorithm 1) of one image: lab ``(H, W, 3)`` float, or one channel ``(H, W, 1)``
+    (e.g. an anomaly map, MMF Sec. III-B; scale it like L, to [0, 100]) -> labels ``(H, W)`` int32.
 
     Labels lie in ``[0, num_superpixels((H, W), step))``; every pixel has one. ``step`` S (grid
     step in pixels, 1 <= S <= min(H, W)) and ``iterations`` are static; ``compactness`` m weighs
     the spatial distance (``D = d_lab^2 + (m/S)^2 d_xy^2``). ``tol``: stop before ``iterations``
     once the centres move by E = sum_k |dy_k| + |dx_k| <= tol (Algorithm 1's residual error);
-    None runs every iteration. Pass Lab from ``rgb_to_lab`` (MMF.md D3: the image, not the
-    anomaly map, is segmented).
+    None runs every iteration. ``connectivity`` (static; not in Algorithm 1): afterwards each
+    superpixel keeps its largest 4-connected piece and the other pieces join a neighbouring
+    superpixel, so every superpixel is connected and K is unchanged.
     """
     *args, step, iterations = _check_slic(lab, step, compactness, iterations, tol, batched=False)
-    return _slic_jit(*args, step=step, iterations=iterations)
+    return _slic_jit(*args, step=step, iterations=iterations, connectivity=bool(connectivity))
 
 
 def slic_batch(lab, step: int, compactness: float = 10.0, iterations: int = 10,
-               tol: float | None = None) -> jax.Array:
-    """``slic`` over a batch: lab ``(B, H, W, 3)`` -> labels ``(B, H, W)`` int32 (each image stops on its own)."""
+               tol: float | None = None, connectivity: bool = False) -> jax.Array:
+    """``slic`` over a batch: lab ``(B, H, W, C)`` -> labels ``(B, H, W)`` int32 (each image stops on its own)."""
     *args, step, iterations = _check_slic(lab, step, compactness, iterations, tol, batched=True)
-    return _slic_batch(*args, step=step, iterations=iterations)
+    return _slic_batch(*args, step=step, iterations=iterations, connectivity=bool(connectivity))
 
 
-__all__ = ["grid_shape", "num_superpixels", "rgb_to_lab", "slic", "slic_batch"]
+__all__ = ["grid_shape", "num_superpixels", "rgb_to_lab", "scaled_step", "slic", "slic_batch"]

@@ -100,3 +100,42 @@ def plot_curves(path: str | os.PathLike, curves: Mapping[str, tuple], *, kind: s
     buffer = io.BytesIO()
     figure.savefig(buffer, format="png")
     write_bytes_atomic(path, buffer.getvalue())
+
+
+def score_figure(image, score, *, title: str, label: str = "anomaly score", cmap: str = "inferno",
+                 alpha: float = 0.6, width: int = 1600) -> np.ndarray:
+    """A picture for people: ``image`` (H, W, 3) uint8 RGB and ``score`` (H, W) laid over it as a
+    heat map, in two titled panels with a colour bar of the score's values; ``width`` pixels wide.
+
+    Returns RGB uint8. The colour range is the score's finite range on this image.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+    from matplotlib.figure import Figure
+
+    image, score = np.asarray(image), np.asarray(score, np.float64)
+    if image.ndim != 3 or image.shape[-1] != 3 or image.shape[:2] != score.shape:
+        raise ValueError(f"image, score: expected (H, W, 3) and (H, W) of one size, got {image.shape} and {score.shape}")
+    finite = score[np.isfinite(score)]
+    low, high = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+    high = high if high > low else low + 1.0
+    dpi, bar = 100, 0.035
+    panel = width / dpi / (2 + bar + 0.2)
+    figure = Figure(figsize=(width / dpi, panel * image.shape[0] / image.shape[1] + 0.9), dpi=dpi)
+    FigureCanvasAgg(figure)
+    left, right, scale = figure.subplots(1, 3, gridspec_kw={"width_ratios": [1, 1, bar]})
+    left.imshow(image)
+    left.set_title("image", fontsize=12)
+    right.imshow(overlay(image, heatmap(score, vmin=low, vmax=high, cmap=cmap), alpha=alpha))
+    right.set_title(label, fontsize=12)
+    for axes in (left, right):
+        axes.set_axis_off()
+    figure.suptitle(title, fontsize=13)
+    figure.colorbar(ScalarMappable(Normalize(low, high), cmap), cax=scale).ax.tick_params(labelsize=10)
+    figure.subplots_adjust(left=0.01, right=0.95, bottom=0.03, top=0.87, wspace=0.04)
+    figure.canvas.draw()
+    return np.ascontiguousarray(np.asarray(figure.canvas.buffer_rgba())[..., :3])

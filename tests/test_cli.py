@@ -61,7 +61,7 @@ def test_evaluate_reads_real_road_anomaly_frames(demo_dir, tmp_path, road_anomal
 
 
 def test_evaluate_missing_dataset_folder_is_one_line(demo_dir, tmp_path, capsys):
-    code = main(["evaluate", "--run", str(demo_dir / "run"), "--dataset", "road-anomaly",
+    code = main(["evaluate", "--run", str(demo_dir / "run"), "--dataset", "road-anomaly", "--methods", "msp",
                  "--path", str(tmp_path / "nowhere"), "--out", str(tmp_path / "o")])
     error = capsys.readouterr().err.strip()
     assert code == 2 and "nowhere" in error and len(error.splitlines()) == 1
@@ -200,3 +200,17 @@ def test_cudam_tau_flag_and_config_tau_win_over_the_default():
     assert with_cudam_tau(e, None).train.loss.tau == e.train.loss.tau != LossConfig.tau  # set by the config
     paper = dataclasses.replace(e, train=dataclasses.replace(e.train, loss=LossConfig(method="cudam")))
     assert with_cudam_tau(paper, None).train.loss.tau == pytest.approx(5e4 * 16 * 24 / (180 * 180))
+
+
+def test_fit_stats_refuses_non_finite_statistics_and_names_its_flags(demo_dir, tmp_path, capsys):
+    """Issue 22: --strength 1e308 wrote std = inf with exit 0; the advice named library arguments."""
+    stats = tmp_path / "s.npz"
+    code = main(["fit-stats", "--run", str(demo_dir / "run"), "--frames", "4", "--policy", "shrink",
+                 "--strength", "1e308", "--out", str(stats)])
+    error = capsys.readouterr().err.strip()
+    assert code == 2 and len(error.splitlines()) == 1 and "smaller --strength" in error, error
+    assert not stats.exists() and not list(tmp_path.iterdir())
+    code = main(["fit-stats", "--run", str(demo_dir / "run"), "--frames", "1", "--out", str(stats)])
+    error = capsys.readouterr().err.strip()
+    assert code == 2 and "pass --missing pooled, or --policy min_count or shrink" in error, error
+    assert 'missing="pooled"' not in error and not stats.exists()

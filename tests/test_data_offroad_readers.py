@@ -58,7 +58,7 @@ RUGD_MAP = "0 void 0 0 0\n1 dirt 108 64 20\n2 sand 255 229 204\n3 grass 0 102 0\
 RUGD_COLOURS = {0: (0, 0, 0), 1: (108, 64, 20), 2: (255, 229, 204), 3: (0, 102, 0), 4: (0, 255, 0)}
 
 
-def _rugd(root, sequence="trail-3", numbers=(100, 5, 10)):
+def _rugd(root, sequence="park-2", numbers=(1901, 5, 10)):
     (root / "RUGD_annotations").mkdir(parents=True, exist_ok=True)
     (root / "RUGD_annotations" / "RUGD_annotation-colormap.txt").write_text(RUGD_MAP)
     rng = np.random.default_rng(1)
@@ -66,7 +66,7 @@ def _rugd(root, sequence="trail-3", numbers=(100, 5, 10)):
     for n in numbers:
         ids = rng.integers(0, 5, (5, 7))
         colour = np.array([RUGD_COLOURS[k] for k in ids.ravel()]).reshape(5, 7, 3)
-        name = f"{sequence}-{n:05d}"
+        name = f"{sequence}_{n:05d}"  # the real names, e.g. park-2/park-2_01901.png
         _write(root / "RUGD_frames-with-annotations" / sequence / f"{name}.png", rng.integers(0, 255, (5, 7, 3)))
         _write(root / "RUGD_annotations" / sequence / f"{name}.png", colour)
         truth[name] = np.where(ids == 0, 255, ids)
@@ -75,26 +75,26 @@ def _rugd(root, sequence="trail-3", numbers=(100, 5, 10)):
 
 def test_rugd_frames_come_in_video_order_with_colour_map_ids(tmp_path):
     truth = _rugd(tmp_path)
-    reader = RUGD(tmp_path, "trail-3")
-    assert [reader[i]["name"] for i in range(3)] == ["trail-3-00005", "trail-3-00010", "trail-3-00100"]
+    reader = RUGD(tmp_path, "park-2")
+    assert [reader[i]["name"] for i in range(3)] == ["park-2_00005", "park-2_00010", "park-2_01901"]
     assert reader.class_names == ("void", "dirt", "sand", "grass", "tree")
     for i in range(3):
         frame = reader[i]
         np.testing.assert_array_equal(frame["label"], truth[frame["name"]])
-        np.testing.assert_array_equal(frame["image"], cv2.imread(str(tmp_path / "RUGD_frames-with-annotations" / "trail-3" / f"{frame['name']}.png"))[..., ::-1])
+        np.testing.assert_array_equal(frame["image"], cv2.imread(str(tmp_path / "RUGD_frames-with-annotations" / "park-2" / f"{frame['name']}.png"))[..., ::-1])
 
 
 def test_rugd_bad_folders_and_files(tmp_path):
     with pytest.raises(FileNotFoundError, match="RUGD frames of 'creek'"):
         RUGD(tmp_path, "creek")
     _rugd(tmp_path)
-    (tmp_path / "RUGD_annotations" / "trail-3" / "trail-3-00010.png").unlink()
-    with pytest.raises(FileNotFoundError, match="trail-3-00010"):
-        RUGD(tmp_path, "trail-3")
+    (tmp_path / "RUGD_annotations" / "park-2" / "park-2_00010.png").unlink()
+    with pytest.raises(FileNotFoundError, match="park-2_00010"):
+        RUGD(tmp_path, "park-2")
     _rugd(tmp_path)
     (tmp_path / "RUGD_annotations" / "RUGD_annotation-colormap.txt").write_text("0 void zero 0 0\n")
     with pytest.raises(ValueError, match="line 1"):
-        RUGD(tmp_path, "trail-3")
+        RUGD(tmp_path, "park-2")
     (tmp_path / "RUGD_annotations" / "RUGD_annotation-colormap.txt").unlink()
     with pytest.raises(FileNotFoundError, match="colour map"):
-        RUGD(tmp_path, "trail-3")
+        RUGD(tmp_path, "park-2")

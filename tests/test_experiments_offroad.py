@@ -23,14 +23,18 @@ def test_smoke_run_writes_tables_that_the_summary_includes(tmp_path):
     assert list(exp2) == ["LV1", "LV2", "LV3"] and [exp2[k]["classes"] for k in exp2] == [4, 6, 10]
     assert all(row["clusters"] in (2, 3) and 1 <= row["recovered"] <= row["clusters"] for row in exp2.values())
     sizes = offroad_sizes(Scale.smoke())
-    assert list(table2) == ["M_A", "Rand B2", "Unif B2", "Ours B1", "Ours B2"]
+    assert list(table2) == ["M_A", "Rand B2", "Unif B2", "Ours B1", "Ours B2", "Ours B2 + triggered round"]
     for label, row in table2.items():
-        assert all(0 <= row[k] <= 100 for k in ("mflr_b", "mflr_c", "sc_b", "sc_c"))
+        assert all(0 <= row[k] <= 100 for k in ("mflr_b", "mflr_c", "sc_b", "sc_c", "pa_b", "pa_c", "miou_b", "miou_c"))
+        if "+" in label:  # the second round's frames join the first's (it ran only if the trigger fired)
+            assert row["rounds"] in (1, 2) and 2 <= len(row["frames"]) <= 2 * row["rounds"]
+            continue
         assert len(row["frames"]) == (0 if label == "M_A" else int(label[-1]))
         assert all(b - a > sizes.gap for a, b in zip(row["frames"], row["frames"][1:])) or label.startswith("Unif")
-    assert list(table3)[:2] == ["5-class M_A", "5-class M_A + CRF"] and len(table3) == 12
+    assert list(table3)[:3] == ["5-class M_A", "5-class M_A known argmax", "5-class M_A + CRF"] and len(table3) == 18
     for label, row in table3.items():
         assert 0 <= row["pa"] <= 100 and 0 <= row["iou"] <= 100 and math.isfinite(row["iou"])
+        assert all(0 <= row[k] <= 100 or math.isnan(row[k]) for k in ("pre", "rec", "fpr"))
         assert row["clusters"] == 5 if label.startswith("5-class") else row["clusters"] in (2, 3)
     # The summary renders each experiment's own table (no ROC/PR curve lines for them).
     text = summary([json.loads((out / f"{r['name']}.json").read_text()) for r in results])
@@ -78,8 +82,11 @@ def test_findings_need_the_difference_to_exceed_the_spread():
 
     names = ["5-class M_A", "5-class D4 (paper D20)", "5-class D8 (paper D40)", "4-class M_A", "4-class D4 (paper D20)",
              "4-class D8 (paper D40)"]
-    table3 = _rows(**{f"{n}{crf}": {"pa": (50 + 10 * i + (5 if crf else 0), 1.0), "iou": (20 + 5 * i + (3 if crf else 0), 1.0)}
-                      for i, n in enumerate(names) for crf in ("", " + CRF")})
-    assert [f.holds for f in offroad_table3.findings(table3)] == [True] * 6
+    gain = {"": 0, " known argmax": 2, " + CRF": 5}
+    table3 = _rows(**{f"{n}{r}": {"pa": (50 + 10 * i + gain[r], 0.5), "iou": (20 + 5 * i + gain[r], 0.5)}
+                      for i, n in enumerate(names) for r in gain})
+    assert [f.holds for f in offroad_table3.findings(table3)] == [True] * 8
+    table3["5-class D8 (paper D40) known argmax"]["pa"] = 104.8  # the CRF only fills unknown: control as good
+    assert [f.holds for f in offroad_table3.findings(table3)] == [True, True, True, False, True, True, True, True]
     table3["5-class D8 (paper D40) + CRF"]["iou_std"] = 10.0
-    assert [f.holds for f in offroad_table3.findings(table3)] == [True, True, False, True, True, True]
+    assert [f.holds for f in offroad_table3.findings(table3)] == [True, True, False, False, True, True, True, True]

@@ -18,7 +18,7 @@ sys.meta_path.insert(0, Block())
 MODULES = ["jaxanom", "jaxanom.scores", "jaxanom.sml", "jaxanom.metrics", "jaxanom.models", "jaxanom.nn",
            "jaxanom.losses", "jaxanom.train.step", "jaxanom.train.loop", "jaxanom.methods", "jaxanom.cli",
            "benchmarks.__main__", "benchmarks.bench_data", "benchmarks.bench_losses", "benchmarks.bench_metrics",
-           "benchmarks.bench_models", "benchmarks.bench_scaling", "benchmarks.bench_sml"]
+           "benchmarks.bench_models", "benchmarks.bench_scaling", "benchmarks.bench_sml", "benchmarks.bench_espnet"]
 
 
 def test_imports_without_grain_and_tensorboardx():

@@ -78,6 +78,34 @@ def test_cross_entropy_class_weights_match_numpy(run):
     np.testing.assert_allclose(got, ref_cross_entropy(logits, labels, weights), rtol=1e-5)
 
 
+@pytest.mark.parametrize("positive", [0.005, 0.3])
+def test_balanced_class_weights_match_scikit_learn_and_average_the_classes(positive):
+    from sklearn.utils.class_weight import compute_class_weight
+
+    # rare positives (void clutter covers 0.49% of the MMF training pixels) and ignored pixels
+    rng = np.random.default_rng(int(positive * 1000))
+    labels = np.where(rng.random((4, 30, 40)) < positive, 1, 0)
+    labels[rng.random(labels.shape) < 0.1] = VOID
+    weights = losses.balanced_class_weights(labels, 2)
+    valid = labels[labels != VOID]
+    np.testing.assert_allclose(weights, compute_class_weight("balanced", classes=np.arange(2), y=valid), rtol=1e-12)
+    # with these weights cross-entropy is the mean over classes of each class's mean loss
+    logits = rng.normal(size=labels.shape + (2,)).astype(np.float32)
+    log_p = logits - np.log(np.exp(logits).sum(-1, keepdims=True))
+    nll = -np.take_along_axis(log_p, np.where(labels == VOID, 0, labels)[..., None], -1)[..., 0]
+    expected = np.mean([nll[labels == c].mean() for c in (0, 1)])
+    got = losses.cross_entropy(logits, labels, class_weights=weights.astype(np.float32))
+    np.testing.assert_allclose(float(got), expected, rtol=1e-5)
+
+
+def test_balanced_class_weights_edge_cases():
+    np.testing.assert_allclose(losses.balanced_class_weights(np.array([0, 0, 2, VOID]), 3), [0.5, 0.0, 1.0])  # N = 3
+    with pytest.raises(ValueError, match="at least one label"):
+        losses.balanced_class_weights(np.full(4, VOID), 2)
+    with pytest.raises(ValueError, match="expected values in"):
+        losses.balanced_class_weights(np.array([0, 3]), 2)
+
+
 def test_cross_entropy_ignores_void_logits_entirely():
     logits, labels, _, _ = random_batch(4)
     changed = logits.copy()

@@ -5,6 +5,7 @@ import pytest
 from scipy import ndimage
 
 from jaxanom.metrics import component_metrics
+from jaxanom.metrics.components import component_summary, frame_components
 
 
 def hand_drawn_scene():
@@ -122,3 +123,77 @@ def test_bad_input_raises():
         component_metrics([scores[None]], [labels[None]])
     with pytest.raises(ValueError, match="labels: expected values"):
         component_metrics([scores], [labels + 2])
+
+
+def one_predicted_component_over_two_objects():
+    """20 x 30, obstacle track. Ground truth G1 rows 0-4 x cols 0-6 (35 px), G2 rows 0-6 x
+    cols 10-14 (35 px). Predicted P1 rows 0-4 x cols 0-16 (85 px: G1 35, G2 25, background 25),
+    P2 rows 10-17 x cols 0-9 (80 px of background)."""
+    labels = np.zeros((20, 30), np.uint8)
+    labels[0:5, 0:7] = labels[0:7, 10:15] = 1
+    scores = np.zeros((20, 30), np.float32)
+    scores[0:5, 0:17] = scores[10:18, 0:10] = 1.0
+    return scores, labels
+
+
+def test_hand_worked_two_objects_under_one_prediction():
+    scores, labels = one_predicted_component_over_two_objects()
+    result = component_metrics([scores], [labels], track="obstacle", threshold=0.5)
+    # sIoU(G) = |G ∩ P1| / (|G| + background pixels of P1): the other object's 25 px are not counted
+    np.testing.assert_allclose(np.sort(result["siou"]), [25 / 60, 35 / 60])
+    np.testing.assert_allclose(np.sort(result["ppv"]), [0.0, 60 / 85])  # P2, P1
+    # TP: t <= .40 both (.417, .583), t = .45-.55 G1 only, t >= .60 none; FP: P2 always, P1 (.706) at t = .75
+    np.testing.assert_array_equal(result["tp"], [2] * 4 + [1] * 3 + [0] * 4)
+    np.testing.assert_array_equal(result["fn"], [0] * 4 + [1] * 3 + [2] * 4)
+    np.testing.assert_array_equal(result["fp"], [1] * 10 + [2])
+    expected = [4 / 5] * 4 + [2 / 4] * 3 + [0.0] * 4  # 2 TP / (2 TP + FN + FP)
+    np.testing.assert_allclose(result["f1"], expected)
+    np.testing.assert_allclose(result["f1_mean"], (4 * 0.8 + 3 * 0.5) / 11)
+    assert (result["num_truth"], result["num_predicted"]) == (2, 2)
+
+
+def small_object_under_a_prediction():
+    """20 x 20, obstacle track. Ground truth S rows 0-1 x cols 0-2 (6 px < 10: becomes void),
+    B rows 10-14 x cols 10-14 (25 px). Predicted P1 rows 0-5 x cols 0-8 (54 px, 6 of them on S),
+    P2 rows 10-14 x cols 8-19 (60 px: B 25, background 35)."""
+    labels = np.zeros((20, 20), np.uint8)
+    labels[0:2, 0:3] = labels[10:15, 10:15] = 1
+    scores = np.zeros((20, 20), np.float32)
+    scores[0:6, 0:9] = scores[10:15, 8:20] = 1.0
+    return scores, labels
+
+
+def test_hand_worked_small_object_rules():
+    scores, labels = small_object_under_a_prediction()
+    siou, ppv = frame_components(scores, labels, 0.5, track="obstacle")
+    # P1 keeps its 54 >= 50 px (sizes are counted before S turns void) but has 48 px left, none on B
+    np.testing.assert_allclose(siou, [25 / 60])
+    np.testing.assert_allclose(np.sort(ppv), [0.0, 25 / 60])
+    summary = component_summary(siou, ppv)
+    np.testing.assert_array_equal(summary["fp"], [1] * 4 + [2] * 7)
+    np.testing.assert_allclose(summary["f1"], [2 / 3] * 4 + [0.0] * 7)
+    np.testing.assert_allclose(summary["f1_mean"], 8 / 33)
+    # the anomaly track's rules (500 / 100 px) leave no component: F1 undefined
+    siou, ppv = frame_components(scores, labels, 0.5, track="anomaly")
+    assert siou.size == ppv.size == 0 and np.isnan(component_summary(siou, ppv)["f1_mean"])
+
+
+def test_pooled_counts_are_the_sum_of_the_frames():
+    frames = [one_predicted_component_over_two_objects(), small_object_under_a_prediction()]
+    pooled = component_metrics([s for s, _ in frames], [l for _, l in frames], track="obstacle", threshold=0.5)
+    # t = .25: TP 2 + 1, FN 0 + 0, FP 1 + 1 -> 6 / 8 (not the mean of 4/5 and 2/3)
+    assert pooled["f1"][0] == pytest.approx(6 / 8)
+    np.testing.assert_allclose(pooled["mean_siou"], (25 / 60 + 35 / 60 + 25 / 60) / 3)
+    np.testing.assert_allclose(pooled["mean_ppv"], (0 + 60 / 85 + 0 + 25 / 60) / 4)
+
+
+def test_frame_components_refuses_bad_input():
+    scores, labels = small_object_under_a_prediction()
+    with pytest.raises(ValueError, match="labels"):
+        frame_components(scores, labels[:5], 0.5)
+    with pytest.raises(ValueError, match="labels"):
+        frame_components(scores, labels + 3, 0.5)
+    with pytest.raises(ValueError, match="threshold"):
+        frame_components(scores, labels, float("nan"))
+    with pytest.raises(ValueError, match="track"):
+        frame_components(scores, labels, 0.5, track="lane")

@@ -135,36 +135,96 @@ def test_bad_input_raises(args, message):
         superpixel_score(*args)
 
 
+@pytest.mark.parametrize("block_rows", [0, 2.0, -3])
+def test_bad_block_rows_raise(block_rows):
+    with pytest.raises(ValueError, match="block_rows must be None or an integer >= 1"):
+        superpixel_scores(np.zeros((4, 5)), np.zeros((4, 5)), np.zeros((4, 5), int), 3, block_rows=block_rows)
+
+
 def test_batch_needs_rank_three():
     with pytest.raises(ValueError, match="anomaly must have rank 3"):
         superpixel_score_batch(np.zeros((4, 5)), np.zeros((4, 5)), np.zeros((4, 5), int), 3)
 
 
-@pytest.mark.parametrize("k,used", [(9, 9), (10, 6), (40, 33), (5, 1)])
-def test_median_distance_matches_numpy(k, used):
-    from jaxanom.mmf.postprocess import _median_distance
+@pytest.mark.parametrize("k,used,spread,rows", [(9, 9, False, None), (10, 6, False, 3), (40, 33, False, 7),
+                                                (5, 1, False, None), (9, 9, True, 1), (10, 10, True, None),
+                                                (23, 20, True, 4)])
+def test_median_distance_matches_numpy(k, used, spread, rows):
+    from jaxanom.mmf.postprocess import _block_rows, _median_distance
 
-    rng = np.random.default_rng(k)
-    centres = rng.integers(0, 6, (k, 2)).astype(np.float32) / 2  # repeated distances: ties
+    rng = np.random.default_rng(k + 100 * spread)
+    if spread:  # continuous distances over decades: the two middle values sit in different radix buckets
+        centres = (rng.random((k, 2)) * 10.0 ** rng.integers(-2, 4, (k, 1))).astype(np.float32)
+    else:  # repeated distances: ties
+        centres = rng.integers(0, 6, (k, 2)).astype(np.float32) / 2
     valid = np.zeros(k, bool)
     valid[rng.choice(k, used, replace=False)] = True
     i, j = np.triu_indices(k, 1)
-    pairs = np.linalg.norm(centres[i] - centres[j], axis=1)[valid[i] & valid[j]]
-    r2 = np.sum((centres[:, None] - centres[None]) ** 2, axis=-1)
-    got = float(_median_distance(r2, valid))
-    if pairs.size:  # odd and even pair counts (36, 15, 528)
+    pairs = np.sqrt(np.sum((centres[i] - centres[j]) ** 2, axis=1, dtype=np.float32))[valid[i] & valid[j]]
+    got = float(_median_distance(jax.numpy.asarray(centres), jax.numpy.asarray(valid), _block_rows(k, rows)))
+    if pairs.size:  # odd and even pair counts (36, 15, 528, 45, 190)
         assert got == pytest.approx(np.median(pairs), rel=1e-6)
     else:
         assert np.isnan(got)
 
 
-def test_smallest_at_rank_is_the_sorted_entry():
-    from jaxanom.mmf.postprocess import _smallest_at_rank
+def dense_eq6(anomaly, road, labels, k, include_self=False):
+    """Eq. 6 in NumPy float64 with the whole K x K matrix (vectorised; independent of the loop above)."""
+    flat = labels.ravel()
+    counts = np.bincount(flat, minlength=k).astype(np.float64)
+    valid = counts > 0
+    mean = lambda v: np.bincount(flat, v.ravel().astype(np.float64), minlength=k) / np.maximum(counts, 1)  # noqa: E731
+    ys, xs = np.mgrid[:labels.shape[0], :labels.shape[1]]
+    centres = np.stack([mean(ys), mean(xs)], 1)
+    r = np.linalg.norm(centres[:, None] - centres[None], axis=-1)
+    i, j = np.triu_indices(k, 1)
+    both = valid[i] & valid[j]
+    omega = np.median(r[i, j][both]) if both.any() else np.nan
+    with np.errstate(invalid="ignore", divide="ignore"):
+        weight = np.where(r == 0, 1.0, np.exp(-r**2 / (2 * omega**2)))
+    pair = valid[None] & (np.ones((k, k), bool) if include_self else ~np.eye(k, dtype=bool))
+    score = mean(anomaly) * np.sum(np.where(pair, mean(road) * counts / labels.size * weight, 0.0), axis=1)
+    out = np.zeros(k)
+    low, high = score[valid].min(), score[valid].max()
+    if high > low:
+        out[valid] = (score[valid] - low) / (high - low)
+    return out
 
-    rng = np.random.default_rng(12)
-    values = np.concatenate([rng.random(3001) * 1e3, np.full(400, 0.25), [0.0, 0.0, np.inf, 1e-38]]).astype(np.float32)
-    bits = jax.lax.bitcast_convert_type(jax.numpy.asarray(rng.permutation(values)), jax.numpy.int32)
-    ordered = np.sort(values)
-    for rank in (0, 1, 2, 3, 250, 1700, 3404, values.size - 1):
-        got = jax.lax.bitcast_convert_type(_smallest_at_rank(bits, rank), jax.numpy.float32)
-        assert float(got) == ordered[rank], rank
+
+@pytest.mark.parametrize("height,width,k,used,include_self,block_rows", [
+    (13, 17, 30, 23, False, 4), (13, 17, 30, 23, False, None), (9, 31, 41, 41, True, 7), (9, 31, 41, 41, False, 1),
+    (5, 3, 11, 1, False, 3), (1, 1, 3, 1, True, 2), (11, 7, 50, 2, False, 64),
+])
+def test_blockwise_matches_dense_numpy(height, width, k, used, include_self, block_rows):
+    # K not a multiple of the block, empty ids, a single superpixel, a 1x1 image, two superpixels
+    anomaly, road, labels = random_case(np.random.default_rng(height * width + k), height, width, k, used)
+    scores, valid = superpixel_scores(anomaly, road, labels, k, include_self=include_self, block_rows=block_rows)
+    np.testing.assert_allclose(np.asarray(scores), dense_eq6(anomaly, road, labels, k, include_self),
+                               rtol=1e-4, atol=1e-5)
+    np.testing.assert_array_equal(np.asarray(valid), np.isin(np.arange(k), labels))
+
+
+def test_memory_grows_with_k_not_k_squared():
+    # XLA's own account of the compiled program's scratch memory, at K = 8192 (dense pairs: 256 MB a float32 array)
+    from jaxanom.mmf.postprocess import _superpixel_scores_jit
+
+    shape, k = (64, 128), 8192
+    args = (jax.numpy.zeros(shape), jax.numpy.zeros(shape), jax.numpy.zeros(shape, jax.numpy.int32))
+    compiled = _superpixel_scores_jit.lower(*args, num_segments=k, block_rows=16).compile()
+    assert compiled.memory_analysis().temp_size_in_bytes < 16 * 2**20
+
+
+@pytest.mark.parametrize("centres,rows", [
+    ([[1.0, 2.0]] * 5 + [[4.0, 6.0]], 2),  # 10 of 15 pairs coincide: omega = 0
+    ([[1.0, 2.0]] * 3 + [[4.0, 6.0]], None),  # 3 of 6 pairs at 0, 3 at 5: omega = (0 + 5) / 2
+    ([[0.0, 0.0]] * 4, 3),  # every centroid equal: omega = 0
+])
+def test_median_distance_with_coincident_centroids(centres, rows):
+    from jaxanom.mmf.postprocess import _block_rows, _median_distance
+
+    centres = np.array(centres, np.float32)
+    i, j = np.triu_indices(len(centres), 1)
+    expected = np.median(np.linalg.norm(centres[i] - centres[j], axis=1))
+    got = _median_distance(jax.numpy.asarray(centres), jax.numpy.ones(len(centres), bool),
+                           _block_rows(len(centres), rows))
+    assert float(got) == expected

@@ -85,8 +85,8 @@ def test_table_over_two_seeds_is_written_and_summarised(tmp_path, untrained_part
     saved = json.loads((out / f"{exp.NAME}.json").read_text())
     assert saved["num_seeds"] == 2 and saved["scale"]["height"] == 32 and saved["scale"]["width"] == 64
     rows = {row["label"]: row for row in saved["table"]}
-    assert list(rows) == [row[0] for row in exp.ROWS]
-    for label, method, _, _ in exp.ROWS:
+    assert list(rows) == [row[0] for row in exp.ROWS] + [label for label, _ in exp.SLIC_VARIANTS]
+    for label, method in [row[:2] for row in exp.ROWS] + [(label, "mmf") for label, _ in exp.SLIC_VARIANTS]:
         row = rows[label]
         assert row["score"] == method and len(row["ap_seeds"]) == 2
         for metric in ("ap", "fpr95", "auroc", "miou"):
@@ -102,6 +102,9 @@ def test_table_over_two_seeds_is_written_and_summarised(tmp_path, untrained_part
     assert set(saved["networks"]) == {n for row in saved["table"] for n in row["networks"]}
     assert saved["findings"] == [dataclasses.asdict(f) for f in exp.findings(result_values(saved))]
     assert saved["description"].startswith("MMF smoke. Sizes: 32 x 64")
+    table_text = (out / f"{exp.NAME}.md").read_text()  # each network's own step count, not one for all
+    assert "training steps per network" not in table_text and "training steps: segmenter" in table_text
+    assert "SLIC step 1 px on the image" in saved["description"]  # scaled_step((32, 64)) = 1
     text = write_results(out).read_text()
     assert exp.TITLE in text and "| MMF (assistant maps + post-processor) | `mmf` |" in text
 

@@ -105,3 +105,46 @@ def test_dissimilarity_net_fits_one_batch_through_the_train_loop(tmp_path):
     prob = np.asarray(anomaly_probability(model.apply(state.variables, batch["image"], **kw)["logits"]))
     valid = label != 255
     assert ((prob > 0.5) == (label == 1))[valid].mean() > 0.95
+
+
+@pytest.fixture(scope="module")
+def tiny_dissimilarity():
+    """A tiny DissimilarityNet at initialisation, its inputs and a jitted forward."""
+    inputs = _inputs(np.random.default_rng(7))
+    model = DissimilarityNet(3, width=1 / 16)
+    variables = jax.jit(model.init)(jax.random.key(3, impl="rbg"), **inputs)  # rbg: 3x faster to compile here
+    forward = jax.jit(lambda v, kw: model.apply(v, **kw)["logits"])
+    return variables, inputs, forward
+
+
+def _changes(forward, variables, inputs, **replaced) -> float:
+    """max |logits(inputs with ``replaced``) - logits(inputs)|."""
+    return float(np.max(np.abs(forward(variables, dict(inputs, **replaced)) - forward(variables, inputs))))
+
+
+@pytest.mark.parametrize("zero_prior", [False, True])
+def test_output_depends_on_image_resynthesis_and_depth_at_initialisation(tiny_dissimilarity, zero_prior):
+    # SynBoost concatenates the correlation after the prior product, so even with E2(u) = 0 (u = 0
+    # at initialisation, zero biases) the image and the resynthesis reach the decoder
+    variables, inputs, forward = tiny_dissimilarity
+    if zero_prior:
+        inputs = dict(inputs, uncertainty=np.zeros_like(inputs["uncertainty"]))
+    flipped = {name: inputs[name][:, ::-1].copy() for name in ("images", "resynthesis", "semantic_depth")}
+    assert _changes(forward, variables, inputs, images=flipped["images"]) > 1e-6
+    assert _changes(forward, variables, inputs, resynthesis=flipped["resynthesis"]) > 1e-6
+    if not zero_prior:  # Ŝ_D enters through the product with E2(u): its encoder's output must be used
+        assert _changes(forward, variables, inputs, semantic_depth=flipped["semantic_depth"]) > 1e-6
+
+
+def test_assistant_maps_multiply_the_fused_features(tiny_dissimilarity):
+    # h_l ⊙ E2_l(u): with every fusion conv zeroed h_l = 0, so u can no longer change the output
+    # (a sum h_l + E2_l(u) would still pass u on); with the fusion intact it does
+    variables, inputs, forward = tiny_dissimilarity
+    other_u = inputs["uncertainty"][:, ::-1].copy()
+    assert _changes(forward, variables, inputs, uncertainty=other_u) > 1e-6
+    params = dict(variables["params"])
+    for level in range(4):
+        params[f"fuse{level}"] = jax.tree.map(jnp.zeros_like, params[f"fuse{level}"])
+    zeroed = dict(variables, params=params)
+    assert _changes(forward, zeroed, inputs, uncertainty=other_u) == 0.0
+    assert _changes(forward, zeroed, inputs, images=inputs["images"][:, ::-1].copy()) > 1e-6  # correlation path

@@ -85,6 +85,75 @@ def test_permutohedral_close_to_exact():
     assert np.mean(exact.argmax(-1) == truth) > np.mean(probs.argmax(-1) == truth) + 0.05
 
 
+def noisy_scene(rng, h, w, num_labels, colour_noise):
+    """``two_region_scene``'s layout with Gaussian colour noise of std ``colour_noise`` (texture)."""
+    probs, _, truth = two_region_scene(rng, h, w, num_labels)
+    image = np.clip(rng.random((num_labels, 3))[truth] + rng.normal(size=(h, w, 3)) * colour_noise, 0, 1)
+    return probs, image.astype(np.float32)
+
+
+@pytest.mark.parametrize("h, w, sxy_b, sxy_g, normalization", [
+    (32, 48, 80.0, 3.0, "symmetric"), (32, 48, 20.0, 3.0, "none"),
+    (64, 96, 15.0, 0.5625, "symmetric")])  # the last: the pipeline's sigmas scaled to W = 96 (sub-pixel)
+def test_permutohedral_agrees_with_exact_on_textured_images(h, w, sxy_b, sxy_g, normalization):
+    # issue 20: with the lattice's self weight taken as 1 (it is 0.4-0.8) these agreed on 65-88 % at
+    # colour noise 0.3; over 5 seeds now >= 95 % here (the full table: benchmarks/RESULTS.md)
+    for noise in (0.0, 0.15, 0.3):
+        probs, image = noisy_scene(np.random.default_rng(h + int(10 * noise)), h, w, 3, noise)
+        kwargs = dict(sxy_b=sxy_b, sxy_g=sxy_g, normalization=normalization)
+        exact = np.asarray(dense_crf(probs, image, method="exact", **kwargs)).argmax(-1)
+        lattice = np.asarray(dense_crf(probs, image, **kwargs)).argmax(-1)
+        assert np.mean(exact == lattice) >= 0.95, (noise, np.mean(exact == lattice))
+
+
+def test_lattice_self_weight_is_the_filter_diagonal():
+    import jax
+    import jax.numpy as jnp
+
+    from jaxanom.offroad.crf import build_lattice, lattice_filter
+
+    rng = np.random.default_rng(6)
+    with jax.enable_x64(True):
+        for d, spread in ((2, 3.0), (5, 2.0), (3, 0.4), (5, 12.0)):  # dense to sparse lattices
+            features = jnp.asarray(rng.random((70, d)) * spread, jnp.float32)
+            lattice = build_lattice(features)
+            matrix = np.asarray(lattice_filter(lattice, jnp.eye(70, dtype=jnp.float32)))  # column j = K e_j
+            np.testing.assert_allclose(lattice.self_weight, np.diag(matrix), rtol=1e-5, atol=1e-7)
+
+
+def test_positional_filter_is_the_exact_gaussian_sum():
+    from jaxanom.offroad.crf import positional_filter
+
+    rng = np.random.default_rng(7)
+    h, w, sigma = 7, 11, 1.7
+    values = rng.random((h * w, 2)).astype(np.float32)
+    yy, xx = np.mgrid[0:h, 0:w]
+    pos = np.stack([yy.ravel(), xx.ravel()], 1).astype(np.float64)
+    kernel = np.exp(-np.sum((pos[:, None] - pos[None]) ** 2, -1) / (2 * sigma**2))
+    np.testing.assert_allclose(positional_filter(h, w, sigma)(values), kernel @ values, rtol=1e-5)
+
+
+def test_mass_scale_makes_lattice_messages_match_the_exact_ones():
+    import jax
+    import jax.numpy as jnp
+
+    from jaxanom.offroad.crf import build_lattice, crf_features, exact_filter, lattice_filter, mass_scale
+
+    rng = np.random.default_rng(8)
+    probs, image = noisy_scene(rng, 24, 32, 3, 0.15)
+    with jax.enable_x64(True):
+        features = crf_features(jnp.asarray(image), 10.0, 13.0, 1.0)[0]
+        lattice = build_lattice(features)
+        q = jnp.asarray(probs.reshape(-1, 3))
+        exact = np.asarray(exact_filter(features, q) - q)
+        approx = np.asarray(lattice_filter(lattice, q) - lattice.self_weight[:, None] * q)
+        scale = float(mass_scale(lattice, features))
+    error = lambda m: np.linalg.norm(m - exact) / np.linalg.norm(exact)  # noqa: E731
+    assert 0.3 < scale < 0.8  # the raw lattice carries about half the exact kernel's mass
+    # measured 0.27 scaled, 0.5 unscaled: the lattice's kernel shape differs on a sparse colour cloud
+    assert error(approx / scale) <= 0.35 < 0.45 <= error(approx)
+
+
 def test_batch_twin_equals_single_images():
     rng = np.random.default_rng(4)
     scenes = [two_region_scene(rng, 12, 20, 3)[:2] for _ in range(2)]

@@ -74,3 +74,58 @@ def test_segmentation_scores_count_unknown_as_wrong_against_a_numpy_reference():
         union = np.sum(((predicted == c) | (truth == c)) & kept)
         ious.append(inter / union)
     assert out["miou"] == pytest.approx(np.mean(ious))
+
+
+def four_cluster_patches(seed, per=30, dim=4, neighbours=8, spread=0.05):
+    """P^train as the pipeline lays it out: each anchor followed by ``neighbours`` near-duplicates."""
+    rng = np.random.default_rng(seed)
+    classes = np.repeat(np.arange(4), per)
+    anchors = (rng.normal(size=(4, dim)) * 10)[classes] + rng.normal(size=(4 * per, dim))
+    offsets = np.concatenate([np.zeros((1, dim)), rng.normal(size=(neighbours, dim)) * spread])
+    z = (anchors[:, None] + offsets[None]).reshape(-1, dim)
+    return z, np.repeat(classes, neighbours + 1), np.arange(len(z)) % (neighbours + 1) == 0
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_bic_on_anchors_recovers_four_separated_clusters(seed):
+    from jaxanom.mixture import select_components
+    from jaxanom.offroad.pipeline import category_model
+
+    # issue 20: BIC on anchors + 8 near-duplicates each chose 9 here (N counted 9 times)
+    z, reference, anchor = four_cluster_patches(seed)
+    config = OffroadConfig(components=(2, 3, 4, 5, 6), gmm_inits=2)
+    model = category_model(jax.random.key(seed), None, z, anchor, reference, config)
+    assert model.num_clusters == 4 and sorted(model.cluster_class) == [0, 1, 2, 3]
+    assert len(model.train_raw) == len(z)  # r_sigma is still calibrated on all of P^train
+    on_all, _, _ = select_components(jax.random.key(seed), z, (2, 3, 4, 5, 6), n_init=2, max_count=12)
+    assert on_all > 4  # the duplicates' effect this guards against
+
+
+def test_bic_scan_extends_until_the_minimum_is_interior():
+    from jaxanom.mixture import select_components
+
+    z, _, anchor = four_cluster_patches(1)
+    m, _, bics = select_components(jax.random.key(1), z[anchor], (2, 3), n_init=2, max_count=8)
+    assert m == 4 and max(bics) >= 5  # the scan 2..3 fell at its top; it went on past 4
+    m, _, bics = select_components(jax.random.key(1), z[anchor], (2, 3), n_init=2)
+    assert m == 3 and sorted(bics) == [2, 3]  # no extension without max_count
+
+
+def test_segmentation_scores_precision_recall_fpr_against_sklearn():
+    from sklearn.metrics import confusion_matrix, precision_score, recall_score
+
+    rng = np.random.default_rng(3)
+    truth = rng.integers(0, 4, (13, 7))
+    truth[2, :4] = 255
+    truth[truth == 2] = 1  # class 2 never occurs: its recall is undefined
+    predicted = rng.integers(0, 5, (13, 7))  # 4 = unknown (wrong, never a class)
+    predicted[predicted == 3] = 0  # class 3 never predicted: its precision is undefined
+    out = segmentation_scores(predicted, truth, 4)
+    kept = truth != 255
+    y, p = truth[kept], predicted[kept]
+    occurs, predicted_classes = np.unique(y), np.intersect1d(np.unique(p), np.arange(4))
+    assert out["recall"] == pytest.approx(recall_score(y, p, labels=occurs, average="macro", zero_division=0))
+    assert out["precision"] == pytest.approx(precision_score(y, p, labels=predicted_classes, average="macro"))
+    m = confusion_matrix(y, p, labels=np.arange(5))
+    fpr = [(m[:, c].sum() - m[c, c]) / (m.sum() - m[c].sum()) for c in range(4)]
+    assert out["fpr"] == pytest.approx(np.mean(fpr))

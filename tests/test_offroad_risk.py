@@ -39,7 +39,7 @@ def test_classify_matches_numpy(m, d):
     k_star = log_density.argmax(axis=1)
     raw = -log_density.max(axis=1)
     risk = np.array([np.mean(ref_train_raw <= v) for v in raw])
-    labels = np.where(risk <= r_sigma, k_star, m)
+    labels = np.where(raw <= np.sort(ref_train_raw)[math.ceil(0.9 * 200) - 1], k_star, m)  # Eq. 10 on raw risks
     np.testing.assert_array_equal(got.cluster, k_star)
     np.testing.assert_array_equal(got.labels, labels)
     np.testing.assert_allclose(got.risk, risk, rtol=1e-6)
@@ -52,6 +52,31 @@ def test_classify_matches_numpy(m, d):
     batch = rk.classify_batch(np.stack([z, z[::-1]]), mixture, r_sigma, train_raw)
     np.testing.assert_array_equal(batch.labels[0], got.labels)
     np.testing.assert_array_equal(batch.labels[1], got.labels[::-1])
+
+
+@pytest.mark.parametrize("n_train", [7, 20, 61])
+def test_calibrated_labels_are_eq10_on_the_raw_order_statistic(n_train):
+    # issue 20: F_train is flat between order statistics, so F_train <= r_sigma called points in
+    # (r_(k), r_(k+1)) known, and with delta = 1 it never gave unknown (a point 70 sigma away was known)
+    rng = np.random.default_rng(n_train)
+    mixture = random_mixture(rng, 3, 2)
+    z_train = mixture.means[rng.integers(0, 3, n_train)] + rng.normal(size=(n_train, 2))
+    z = np.concatenate([rng.normal(size=(2000, 2)) * 4, mixture.means[:1] + 70 * np.sqrt(mixture.covariances[0, 0, 0])])
+    log_density = numpy_log_density(z, mixture)
+    raw, k_star = -log_density.max(axis=1), log_density.argmax(axis=1)
+    train_sorted = np.sort(-numpy_log_density(z_train, mixture).max(axis=1))
+    for delta in (0.5, 0.8, 0.95, 1.0):
+        k = math.ceil(round(delta * n_train, 9))
+        bound = train_sorted[k - 1]
+        between = (raw > bound) & (raw < train_sorted[min(k, n_train - 1)])
+        assert k == n_train or between.any()  # points between the order statistics are exercised
+        train_raw, train_r = rk.training_risks(z_train, mixture)
+        got = rk.classify(z, mixture, rk.risk_bound(train_r, delta), train_raw)
+        np.testing.assert_array_equal(got.labels, np.where(raw <= bound, k_star, 3))
+        _, r_lit = rk.training_risks(z_train, mixture, risk="literal")
+        literal = rk.classify(z, mixture, rk.risk_bound(r_lit, delta), risk="literal")
+        np.testing.assert_array_equal(got.labels, literal.labels)
+    assert got.labels[-1] == 3  # delta = 1: the point 70 sigma away is unknown
 
 
 def test_literal_and_calibrated_labels_agree_in_2d():

@@ -85,7 +85,7 @@ def test_missing_key_and_non_finite_values_are_refused(sml):
     with pytest.raises(ValueError, match=r"missing \(1\): layer3\.7\.bn2\.running_var$"):
         from_torch(state, "sml-deeplabv3plus")
     state = {**sml[1], "final1.0.weight": np.full_like(sml[1]["final1.0.weight"], np.nan)}
-    with pytest.raises(ValueError, match=r"not finite floats \(1\): final1\.0\.weight"):
+    with pytest.raises(ValueError, match=r"not finite floating-point tensors \(1\): final1\.0\.weight \(\d+ NaN/Inf\)"):
         from_torch(state, "sml-deeplabv3plus")
 
 
@@ -197,7 +197,7 @@ class NotATensor:
 
 def test_unsafe_and_damaged_files_are_refused(tmp_path):
     torch.save({"state_dict": {"w": torch.ones(2)}, "extra": NotATensor()}, tmp_path / "pickled.pth")
-    with pytest.raises(ValueError, match="weights_only"):
+    with pytest.raises(ValueError, match="refused: it holds Python objects besides tensors .*NotATensor"):
         read_state_dict(tmp_path / "pickled.pth")
     for name in ("damaged.pth", "damaged.npz", "damaged.safetensors"):
         (tmp_path / name).write_bytes(b"\x80\x02not a checkpoint" * 7)

@@ -5,6 +5,9 @@ pip finds beside torch's CPU wheel is linked against CUDA libraries, so its C ex
 operators only) cannot load and ``import torchvision`` fails while registering them; the model
 definitions are pure Python, so they are then imported without running ``torchvision/__init__``.
 
+``ESPNetTorch`` is our own PyTorch rendering of the ESPNet authors' network (with the light decoder,
+names as in their checkpoints), ``randomize_prelu`` also draws PReLU slopes.
+
 ``SMLDeepV3Plus`` is our own PyTorch rendering of the SML authors' ``DeepR101V3PlusD_OS8``
 (github shjung13/Standardized-max-logits, ``network/deepv3.py`` and ``network/Resnet.py``), with
 their parameter names so that their checkpoints' keys load into it: a deep stem packed as
@@ -135,3 +138,120 @@ class SMLDeepV3Plus(nn.Module):
                            align_corners=True)
         logits = self.final2(self.final1(torch.cat([self.bot_fine(low), up], dim=1)))
         return F.interpolate(logits, size=x.shape[2:], mode="bilinear", align_corners=True)
+
+
+# ----------------------------------------------------------------------------- ESPNet
+# Our own rendering of the ESPNet authors' ``ESPNet`` (github sacmehta/ESPNet, ``train/Model.py``),
+# written from the paper and the key names of their checkpoints: the same module names, so their
+# state dicts load into it; NCHW; BN eps 1e-3; PReLU with one slope per channel.
+class _BR(nn.Module):
+    def __init__(self, channels: int):
+        super().__init__()
+        self.bn, self.act = nn.BatchNorm2d(channels, eps=1e-3), nn.PReLU(channels)
+
+    def forward(self, x):
+        return self.act(self.bn(x))
+
+
+class _CBR(_BR):
+    def __init__(self, cin: int, cout: int, kernel: int, stride: int = 1):
+        super().__init__(cout)
+        self.conv = nn.Conv2d(cin, cout, kernel, stride, kernel // 2, bias=False)
+
+    def forward(self, x):
+        return super().forward(self.conv(x))
+
+
+class _C(nn.Module):  # a bias-free conv wrapped as ``.conv``, as the authors' C / CDilated
+    def __init__(self, cin: int, cout: int, kernel: int, stride: int = 1, dilation: int = 1):
+        super().__init__()
+        self.conv = nn.Conv2d(cin, cout, kernel, stride, dilation * (kernel // 2), dilation, bias=False)
+
+    def forward(self, x):
+        return self.conv(x)
+
+
+class _ESP(nn.Module):
+    """Strided (``bn`` and ``act`` directly) or not (``bn`` is a _BR, residual when cin == cout and add)."""
+
+    def __init__(self, cin: int, cout: int, strided: bool = False, add: bool = True):
+        super().__init__()
+        n = cout // 5
+        self.c1 = _C(cin, n, 3, 2) if strided else _C(cin, n, 1)
+        self.d1 = _C(n, cout - 4 * n, 3)
+        self.d2, self.d4, self.d8, self.d16 = (_C(n, n, 3, 1, d) for d in (2, 4, 8, 16))
+        self.strided, self.add = strided, add and cin == cout and not strided
+        if strided:
+            self.bn, self.act = nn.BatchNorm2d(cout, eps=1e-3), nn.PReLU(cout)
+        else:
+            self.bn = _BR(cout)
+
+    def forward(self, x):
+        r = self.c1(x)
+        a2 = self.d2(r)
+        a4 = a2 + self.d4(r)
+        a8 = a4 + self.d8(r)
+        a16 = a8 + self.d16(r)
+        y = torch.cat([self.d1(r), a2, a4, a8, a16], 1)
+        if self.add:
+            y = x + y
+        return self.act(self.bn(y)) if self.strided else self.bn(y)
+
+
+class _ESPEncoder(nn.Module):
+    def __init__(self, classes: int, p: int, q: int):
+        super().__init__()
+        self.level1 = _CBR(3, 16, 3, 2)
+        self.b1 = _BR(19)
+        self.level2_0 = _ESP(19, 64, strided=True)
+        self.level2 = nn.ModuleList([_ESP(64, 64) for _ in range(p)])
+        self.b2 = _BR(131)
+        self.level3_0 = _ESP(131, 128, strided=True)
+        self.level3 = nn.ModuleList([_ESP(128, 128) for _ in range(q)])
+        self.b3 = _BR(256)
+        self.classifier = _C(256, classes, 1)
+
+
+class ESPNetTorch(nn.Module):
+    """ESPNet with the light decoder; ``forward`` returns eval-mode logits NCHW at the input size."""
+
+    def __init__(self, classes: int = 20, p: int = 2, q: int = 8):
+        super().__init__()
+        self.encoder = _ESPEncoder(classes, p, q)
+        self.level3_C = _C(131, classes, 1)
+        self.br = nn.BatchNorm2d(classes, eps=1e-3)
+        self.conv = _CBR(16 + classes, classes, 3)
+        self.up_l3 = nn.Sequential(nn.ConvTranspose2d(classes, classes, 2, 2, bias=False))
+        self.combine_l2_l3 = nn.Sequential(_BR(2 * classes), _ESP(2 * classes, classes, add=False))
+        self.up_l2 = nn.Sequential(nn.ConvTranspose2d(classes, classes, 2, 2, bias=False), _BR(classes))
+        self.classifier = nn.ConvTranspose2d(classes, classes, 2, 2, bias=False)
+
+    def forward(self, x):
+        e = self.encoder
+        pool = nn.AvgPool2d(3, 2, 1)  # count_include_pad=True
+        half = pool(x)
+        s1 = e.level1(x)
+        d2 = e.level2_0(e.b1(torch.cat([s1, half], 1)))
+        y2 = d2
+        for layer in e.level2:
+            y2 = layer(y2)
+        t2 = e.b2(torch.cat([y2, d2, pool(half)], 1))
+        d3 = e.level3_0(t2)
+        y3 = d3
+        for layer in e.level3:
+            y3 = layer(y3)
+        c8 = e.classifier(e.b3(torch.cat([d3, y3], 1)))
+        x = self.combine_l2_l3(torch.cat([self.level3_C(t2), self.up_l3(self.br(c8))], 1))
+        return self.classifier(self.conv(torch.cat([self.up_l2(x), s1], 1)))
+
+
+def randomize_prelu(module: nn.Module, seed: int) -> nn.Module:
+    """``randomize`` plus random PReLU slopes in [-0.5, 1] (the default 0.25 everywhere would hide a
+    slope put on the wrong channel or layer)."""
+    randomize(module, seed)
+    gen = torch.Generator().manual_seed(seed + 1)
+    with torch.no_grad():
+        for layer in module.modules():
+            if isinstance(layer, nn.PReLU):
+                layer.weight.copy_(torch.rand(layer.weight.shape, generator=gen) * 1.5 - 0.5)
+    return module

@@ -1,4 +1,4 @@
-"""The ``jaxanom`` command: demo, train, fit-stats, evaluate, score, convert-weights.
+"""The ``jaxanom`` command: demo, train, fit-stats, evaluate, predict, score, convert-weights.
 
 Every command writes into an output folder that must be new or empty (``--overwrite`` allows
 a non-empty one), and ends with a non-zero exit and a one-line reason on bad input.
@@ -7,12 +7,15 @@ One module per command; each has ``add_parser(commands)`` and ``run(args)``.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import sys
+import threading
 
-from jaxanom.cli import convert_weights, demo, evaluate, fit_stats, score, train
-from jaxanom.cli.common import CommandError, release_claims
+from jaxanom.cli import convert_weights, demo, evaluate, fit_stats, predict, score, train
+from jaxanom.cli.common import CommandError, end_outputs, release_claims
 
-COMMANDS = (demo, train, fit_stats, evaluate, score, convert_weights)
+COMMANDS = (demo, train, fit_stats, evaluate, predict, score, convert_weights)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -21,20 +24,48 @@ def main(argv: list[str] | None = None) -> int:
     if not hasattr(args, "handler"):
         parser.print_help()
         return 2
+    failed = True
     try:
-        args.handler(args)
+        with _sigterm_as_interrupt():
+            args.handler(args)
+        failed = False
     except (CommandError, ValueError, FileNotFoundError, FileExistsError) as error:
         print(f"jaxanom {args.command}: error: {error}", file=sys.stderr)
         return 2
     except OSError as error:  # the file system refused (permissions, full disk, read-only): one line too
         print(f"jaxanom {args.command}: error: {error.strerror or error}: {error.filename or ''}", file=sys.stderr)
         return 2
+    except Terminated:
+        print(f"jaxanom {args.command}: terminated (SIGTERM); nothing half-written is left", file=sys.stderr)
+        return 128 + signal.SIGTERM
     except KeyboardInterrupt:
         print(f"jaxanom {args.command}: interrupted", file=sys.stderr)
         return 130
     finally:
         release_claims()
+        end_outputs(failed)
     return 0
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (schedulers, containers, ``kill``), raised where SIGINT raises KeyboardInterrupt."""
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """Within the block, SIGTERM unwinds the command as Ctrl-C does: temporaries and claims go."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum, frame):
+        raise Terminated()
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from jaxanom.cli.common import add_common, out_folder
+from jaxanom.cli.common import add_common, out_folder, positive_int
 
 
 def add_parser(commands) -> None:
@@ -16,8 +16,9 @@ def add_parser(commands) -> None:
                         help="another paper's demo instead: mmf (multi-mechanism fusion, jaxanom.mmf.demo) or "
                         "offroad (active + contrastive off-road segmentation, jaxanom.offroad.demo)")
     parser.add_argument("--out", default="jaxanom-demo", help="output folder (default: %(default)s)")
-    parser.add_argument("--quick", action="store_true", help="a seconds-long smoke run of the same path")
-    parser.add_argument("--steps", type=int, help="training steps (default: 1500; --quick: 3)")
+    parser.add_argument("--quick", action="store_true",
+                        help="a smoke run of the same path at tiny sizes (minutes on a CPU, mostly compiling)")
+    parser.add_argument("--steps", type=positive_int, help="training steps (default: 1500; --quick: 3)")
     parser.add_argument("--config", help="offroad: a JSON file of OffroadDemoConfig fields; mmf: a JSON file of "
                         "MMFDemoConfig fields, e.g. the \"config\" of a results.json (every trainable part)")
     parser.add_argument("--synthesizer", choices=["class_mean", "spade"],

@@ -1,7 +1,8 @@
 """``jaxanom evaluate``: pooled anomaly metrics of a trained run on an anomaly dataset."""
 from __future__ import annotations
 
-from jaxanom.cli.common import DEFAULT_METHODS, CommandError, add_common, add_scoring, load_stats, out_folder
+from jaxanom.cli.common import (DEFAULT_METHODS, CommandError, add_common, add_scoring, load_stats, nonnegative_int,
+                                out_folder, positive_int)
 
 DATASETS = {
     "synthetic": "synthetic anomaly split (PATH = split name: anomaly, anomaly_small, anomaly_large)",
@@ -12,6 +13,9 @@ DATASETS = {
     "lost-and-found": "Lost and Found (PATH = root with leftImg8bit/, gtCoarse/, disparity/; for --mmf)",
 }
 MMF_DEFAULT_METHODS = "entropy,resynthesis,resynthesis_post,mmf_raw,mmf"
+# SegmentMeIfYouCan's component rules per dataset (smiyc: RoadAnomaly21 or RoadObstacle21, say which)
+TRACKS = {"synthetic": "anomaly", "road-anomaly": "anomaly", "fishyscapes-laf": "anomaly",
+          "fishyscapes-static": "anomaly", "lost-and-found": "obstacle", "smiyc": None}
 
 
 def add_parser(commands) -> None:
@@ -27,12 +31,20 @@ def add_parser(commands) -> None:
     parser.add_argument("--path", required=True, help="dataset folder (see the list above)")
     parser.add_argument("--base", help="base dataset root (Fishyscapes only)")
     parser.add_argument("--depth", help="smiyc with --mmf: folder of <name>_disparity.png files (the tracks have none)")
-    parser.add_argument("--frames", type=int, default=64, help="synthetic frames (default: %(default)s)")
+    parser.add_argument("--frames", type=positive_int, default=64, help="synthetic frames (default: %(default)s)")
     add_scoring(parser)
     parser.add_argument("--cudam-sigma", type=float,
                         help="CuDAM ensemble weight (Eq. 10); default: the paper's 2e4 rescaled to the attention "
                         "map's size (equivalent_weight), recorded in metrics.json")
-    parser.add_argument("--pictures", type=int, default=0, help="frames to draw (default: %(default)s)")
+    parser.add_argument("--track", choices=["anomaly", "obstacle", "none"],
+                        help="SegmentMeIfYouCan component metrics (sIoU, PPV, mean F1; pooled and per frame) with "
+                        "the anomaly track's size rules (RoadAnomaly21, Road Anomaly, Fishyscapes) or the obstacle "
+                        "track's (RoadObstacle21, Lost and Found); none: pixel metrics only. Default: the dataset's "
+                        "track; smiyc needs it")
+    parser.add_argument("--all-conventions", action="store_true",
+                        help="also print AP (step, trapz, envelope) and FPR@95 (first, interp, nearest, strict) side "
+                        "by side (metrics.json always holds them)")
+    parser.add_argument("--pictures", type=nonnegative_int, default=0, help="frames to draw (default: %(default)s)")
     add_common(parser, progress=False)
     parser.set_defaults(handler=run)
 
@@ -57,25 +69,36 @@ def anomaly_source(args, size: dict | None = None):
 
 
 def run(args) -> None:
+    from jaxanom import methods as scoring
+    from jaxanom._validate import check_number
     from jaxanom.data.pipeline import evaluation_batches
-    from jaxanom.demo import results_table
+    from jaxanom.demo import conventions_table, results_table
     from jaxanom.evaluate import anomaly_results, predictions, predictor
-    from jaxanom.experiment import build_network, load_variables
+    from jaxanom.experiment import build_network, load_experiment, load_variables
     from jaxanom.io import write_json_atomic
 
+    track = args.track or TRACKS[args.dataset]
+    if track is None:
+        raise CommandError("--track: the smiyc dataset holds either track; pass --track anomaly (RoadAnomaly21) or "
+                           "--track obstacle (RoadObstacle21)")
     stats = load_stats(args.stats)
-    if args.mmf:
+    if args.cudam_sigma is not None:
+        check_number("--cudam-sigma", args.cudam_sigma, 0.0, open_low=True)
+    if args.mmf:  # every check before the first frame is read or scored
+        names = scoring.check_methods((args.methods or MMF_DEFAULT_METHODS).split(","), have_stats=stats is not None,
+                                      have_attention=False, have_mmf=True)
         source, batches = mmf_batches(args)
-        names = (args.methods or MMF_DEFAULT_METHODS).split(",")
     else:
+        names = scoring.check_methods((args.methods or DEFAULT_METHODS).split(","), have_stats=stats is not None,
+                                      have_attention=load_experiment(args.run).attention == "cudam")
         source = anomaly_source(args)
         experiment, variables = load_variables(args.run)
         predict = predictor(build_network(experiment), variables)
         batches = predictions(predict, evaluation_batches(source, batch_size=1))
-        names = (args.methods or DEFAULT_METHODS).split(",")
     out = out_folder(args.out, args.overwrite)
     metrics, _ = anomaly_results(batches, names, stats=stats, cudam_sigma=args.cudam_sigma,
-                                 fpr_convention=args.fpr_convention, ap_convention=args.ap_convention)
+                                 fpr_convention=args.fpr_convention, ap_convention=args.ap_convention,
+                                 track=None if track == "none" else track)
     record = {"dataset": args.dataset, "path": args.path, "frames": len(source), "metrics": metrics}
     if args.mmf:
         record["mmf"] = args.mmf
@@ -90,6 +113,8 @@ def run(args) -> None:
 
         write_pictures(out, predict, source, stats, args.pictures)
     print(results_table(metrics))
+    if args.all_conventions:
+        print("\n" + conventions_table(metrics))
 
 
 def mmf_batches(args):
@@ -103,7 +128,7 @@ def mmf_batches(args):
     if not (folder / "results.json").is_file():
         raise CommandError(f"--mmf {folder}: expected a folder written by `jaxanom demo mmf` (with results.json)")
     config = load_config(folder / "results.json").pipeline
-    if args.dataset.startswith("fishyscapes") or (args.dataset == "smiyc" and not args.depth):
+    if args.dataset not in ("synthetic", "lost-and-found", "smiyc") or (args.dataset == "smiyc" and not args.depth):
         raise CommandError(f"--mmf: the {args.dataset} dataset has no disparity; use synthetic, lost-and-found or "
                            "smiyc with --depth")
     seg = config.segmenter

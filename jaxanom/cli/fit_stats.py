@@ -1,10 +1,15 @@
 """``jaxanom fit-stats``: SML class statistics (Eqs. 3-4) of a trained run."""
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 
 from jaxanom.cli.common import CLAIM, CommandError, add_common, claim, positive_int
+from jaxanom.sml.policy import DEFAULT_POLICY, DEFAULT_STRENGTH, POLICIES
+
+_LIBRARY_ADVICE = 'pass missing="pooled" or a policy ("min_count", "shrink")'  # sml.policy.finalize's
+_FLAG_ADVICE = "pass --missing pooled, or --policy min_count or shrink"
 
 
 def add_parser(commands) -> None:
@@ -26,14 +31,14 @@ def add_parser(commands) -> None:
 
 def add_policy(parser) -> None:
     """``--policy``, ``--min-count``, ``--strength`` (``jaxanom.sml.stats_finalize``)."""
-    parser.add_argument("--policy", choices=["none", "min_count", "shrink"], default="none",
+    parser.add_argument("--policy", choices=POLICIES, default=DEFAULT_POLICY,
                         help="scarce classes: the original's estimate (none), the pooled statistics below "
                         "--min-count pixels (min_count), or shrinkage toward the pooled statistics with a prior "
                         "of --strength pixels (shrink) (default: %(default)s)")
     parser.add_argument("--min-count", type=float, default=10_000,
                         help="pixels below which a class is scarce: pooled by min_count, warned about always "
                         "(default: %(default)g)")
-    parser.add_argument("--strength", type=float, default=10_000,
+    parser.add_argument("--strength", type=float, default=DEFAULT_STRENGTH,
                         help="shrink: the pooled prior's weight in pixels (default: %(default)g)")
 
 
@@ -52,12 +57,21 @@ def run(args) -> None:
     from jaxanom.data.pipeline import evaluation_batches
     from jaxanom.evaluate import class_statistics, predictor
     from jaxanom.experiment import build_network, frames, load_variables
+    from jaxanom.sml.policy import check_policy
 
     out = Path(args.out)
     if out.is_dir():
         raise CommandError(f"--out {out}: is a folder; expected the path of the .npz file to write")
+    if args.out.endswith(("/", os.sep)):
+        raise CommandError(f"--out {args.out}: names a folder; expected the path of the .npz file to write")
+    if out.suffix != ".npz":
+        raise CommandError(f"--out {args.out}: expected a file name ending in .npz (what --stats reads)")
     if out.exists() and not args.overwrite:
         raise CommandError(f"--out {out}: file exists; choose another or pass --overwrite")
+    try:
+        check_policy(args.policy, args.min_count, args.strength)
+    except ValueError as error:
+        raise CommandError(f"--policy, --min-count, --strength: {error}") from None
     experiment, variables = load_variables(args.run)
     source = frames(experiment, "train", args.frames)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -65,8 +79,12 @@ def run(args) -> None:
     batches = evaluation_batches(source, batch_size=experiment.batch_size)
     predict = predictor(build_network(experiment), variables)
     stats = class_statistics(predict, batches)
-    final = sml.stats_finalize_report(stats, missing=args.missing, policy=args.policy,
-                                      min_count=args.min_count, strength=args.strength)
+    try:
+        final = sml.stats_finalize_report(stats, missing=args.missing, policy=args.policy,
+                                          min_count=args.min_count, strength=args.strength)
+    except ValueError as error:  # the library names its arguments; say the flags instead
+        raise CommandError(str(error).replace(_LIBRARY_ADVICE, _FLAG_ADVICE)
+                           .replace("use a smaller strength", "use a smaller --strength")) from None
     policy = {"policy": args.policy, "missing": args.missing, "min_count": args.min_count,
               "strength": args.strength, "frames": len(source)}
     sml.save_stats(out, final.mean, final.std, final.count, status=final.status, policy=policy)

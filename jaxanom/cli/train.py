@@ -5,7 +5,7 @@ import dataclasses
 import runpy
 from pathlib import Path
 
-from jaxanom.cli.common import CLAIM, CommandError, add_common, claim, out_folder
+from jaxanom.cli.common import CLAIM, CommandError, add_common, claim, nonnegative_int, out_folder, positive_int
 
 
 def add_parser(commands) -> None:
@@ -21,9 +21,9 @@ def add_parser(commands) -> None:
     parser.add_argument("--attention", choices=["none", "cudam", "msaam"], help="attention module")
     parser.add_argument("--data", choices=["synthetic", "cityscapes"], help="training data")
     parser.add_argument("--data-root", help="dataset folder (Cityscapes layout)")
-    parser.add_argument("--steps", type=int, help="training steps")
-    parser.add_argument("--batch-size", type=int, help="global batch size")
-    parser.add_argument("--seed", type=int, help="random seed")
+    parser.add_argument("--steps", type=positive_int, help="training steps")
+    parser.add_argument("--batch-size", type=positive_int, help="global batch size")
+    parser.add_argument("--seed", type=nonnegative_int, help="random seed")
     parser.add_argument("--distributed", action="store_true",
                         help="multi-host: one process per host, joined by jax.distributed.initialize (SLURM, Open MPI "
                         "and TPU pods are detected; see the README)")
@@ -71,7 +71,15 @@ def run(args) -> None:
     if experiment.attention == "cudam":
         print(f"CuDAM tau = {experiment.train.loss.tau:.6g} (position {experiment.cudam_position}, "
               f"gate {experiment.cudam_gate})")
-    run_training(experiment, out, progress=not args.no_progress)
+    from jaxanom.train.loop import NonFiniteLossError
+
+    try:
+        run_training(experiment, out, progress=not args.no_progress)
+    except NonFiniteLossError as error:
+        raise CommandError(f"the run diverged: {error}. --resume repeats the same steps from there; start a new run "
+                           f"with a lower learning rate (optim.lr, now {experiment.train.optim.lr:g}) or "
+                           "gradient clipping "
+                           "(optim.clip_norm) in --config") from None
     print(f"trained {experiment.train.steps} steps on {jax.device_count()} devices ({jax.process_count()} "
           f"processes); checkpoints in {out / 'checkpoints'}")
 

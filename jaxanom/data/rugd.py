@@ -1,7 +1,8 @@
 """RUGD reader (Wigness et al., IROS 2019): ordered video frames of one sequence, official layout.
 
-Layout: ``<root>/RUGD_frames-with-annotations/<sequence>/<sequence>-<number>.png``, colour-coded
-labels ``<root>/RUGD_annotations/<sequence>/<sequence>-<number>.png`` and the colour map
+Layout: ``<root>/RUGD_frames-with-annotations/<sequence>/<sequence>_<number>.png`` (e.g.
+``park-2/park-2_01901.png``, five digits), colour-coded labels under the same name in
+``<root>/RUGD_annotations/<sequence>/`` and the colour map
 ``RUGD_annotation-colormap.txt`` (lines ``id name R G B``) in ``RUGD_annotations/`` or in
 ``<root>``. Frames come in the order of their number (the video order the active-learning gap
 of Eq. 16 relies on). Labels are the colour map's ids, with its ``void`` class as 255.
@@ -47,10 +48,10 @@ class RUGD(_ColourFrames):
         if colormap is None:
             raise FileNotFoundError(f"RUGD colour map: none of {[str(p) for p in candidates]} exists")
         self.class_names, colours = read_colormap(colormap)
-        pattern = re.compile(rf"^{re.escape(sequence)}-(\d+)\.png$")
+        pattern = re.compile(rf"^{re.escape(sequence)}_(\d+)\.png$")
         numbered = sorted((int(m.group(1)), p) for p in frame_dir.iterdir() if (m := pattern.match(p.name)))
         if not numbered:
-            raise FileNotFoundError(f"RUGD frames of {sequence!r}: no {sequence}-<number>.png files in {frame_dir}")
+            raise FileNotFoundError(f"RUGD frames of {sequence!r}: no {sequence}_<number>.png files in {frame_dir}")
         frames = []
         for _, image in numbered:
             label = label_dir / image.name

@@ -88,8 +88,9 @@ class AnomalyMetricAccumulator:
         self.histogram += np.asarray(_histogram(scores, labels, low, high, self.num_bins))
 
     def compute(self, *, fpr_convention: str = "first", ap_convention: str = "step",
-                tpr: float = 0.95) -> dict:
-        """Metrics of all images so far, as ``anomaly_metrics`` returns them. Binned mode adds
+                tpr: float = 0.95, conventions: bool = False) -> dict:
+        """Metrics of all images so far, as ``anomaly_metrics`` returns them (``conventions``:
+        with every AP / FPR convention's value too). Binned mode adds
         ``ap_error_bound``, ``auroc_error_bound``, ``fpr_error_bound`` (|binned - exact| <= bound)
         and has no "nearest" FPR; its thresholds are lower bin edges."""
         check_conventions(fpr_convention, ap_convention, tpr)
@@ -106,7 +107,7 @@ class AnomalyMetricAccumulator:
             padded = _pad_to_few_sizes(keys, positives, negatives, self._count_dtype())
             summary = curve_summary(*padded, jnp.float64(tpr))
             metrics = summary_to_metrics(summary, self.counts, fpr_convention, ap_convention, tpr,
-                                         bool(self.float64_keys))
+                                         bool(self.float64_keys), conventions)
         if self.mode == "binned":
             low, high = (float(x) for x in self.score_range)
             edge = lambda key: low + (self.num_bins - 1 - int(key)) * (high - low) / self.num_bins  # noqa: E731

@@ -105,10 +105,15 @@ def _pixel_points(scores, labels):
 
 
 def summary_to_metrics(summary: dict, counts: dict, fpr_convention: str, ap_convention: str,
-                       tpr: float, float64_keys: bool) -> dict:
-    """The ``curve_summary`` of the chosen conventions as a dict of Python numbers."""
+                       tpr: float, float64_keys: bool, conventions: bool = False) -> dict:
+    """The ``curve_summary`` of the chosen conventions as a dict of Python numbers; with
+    ``conventions``, also ``ap_conventions`` / ``fpr_conventions``: every convention's value."""
     to_score = lambda key: float(keys_to_scores(np.asarray([key]), float64_keys)[0])  # noqa: E731
-    return {
+    extra = {}
+    if conventions:
+        extra = {"ap_conventions": {name: float(summary[f"ap_{name}"]) for name in AP_CONVENTIONS},
+                 "fpr_conventions": {name: float(summary[f"fpr_{name}"]) for name in FPR_CONVENTIONS}}
+    return {**extra,
         "ap": float(summary[f"ap_{ap_convention}"]),
         "auroc": float(summary["auroc"]),
         "fpr_at_tpr": float(summary[f"fpr_{fpr_convention}"]),
@@ -122,7 +127,7 @@ def summary_to_metrics(summary: dict, counts: dict, fpr_convention: str, ap_conv
 
 
 def anomaly_metrics(scores, labels, *, fpr_convention: str = "first", ap_convention: str = "step",
-                    tpr: float = 0.95) -> dict:
+                    tpr: float = 0.95, conventions: bool = False) -> dict:
     """AP, AUROC and FPR at ``tpr`` over all non-void pixels of ``scores`` / ``labels``.
 
     scores: float (...), any leading shape (one image or a stacked dataset); labels: integer
@@ -130,8 +135,10 @@ def anomaly_metrics(scores, labels, *, fpr_convention: str = "first", ap_convent
     ``threshold_at_tpr`` (the score of the first point with TPR >= tpr), ``best_f1`` and
     ``best_f1_threshold`` (pixel F1 maximised over thresholds; predict score >= threshold),
     ``num_positives``, ``num_negatives``, ``num_void``, ``num_thresholds`` and the settings.
-    Conventions as in ``jaxanom.metrics.curve``. Raises ValueError on bad input and when no
-    positive or no negative pixel is left after removing void.
+    Conventions as in ``jaxanom.metrics.curve``; ``conventions=True`` adds ``ap_conventions``
+    and ``fpr_conventions``, dicts of every AP / FPR convention's value (one computation).
+    Raises ValueError on bad input and when no positive or no negative pixel is left after
+    removing void.
     """
     check_conventions(fpr_convention, ap_convention, tpr)
     with jax.enable_x64(True):
@@ -139,7 +146,7 @@ def anomaly_metrics(scores, labels, *, fpr_convention: str = "first", ap_convent
         require_both_classes(counts)
         summary = _pixel_summary(scores, labels, jnp.float64(tpr))
         return summary_to_metrics(summary, counts, fpr_convention, ap_convention, tpr,
-                                  scores.dtype == jnp.float64)
+                                  scores.dtype == jnp.float64, conventions)
 
 
 def _points(scores, labels):

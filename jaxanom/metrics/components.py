@@ -12,8 +12,17 @@ Follows the SegmentMeIfYouCan definitions (Chan et al., 2021) and their benchmar
 - PPV(p) of predicted component p: |p ∩ ground truth| / |p|;
 - at t in linspace(0.25, 0.75, 11), pooled over images: TP = #{sIoU >= t}, FN = #{sIoU < t},
   FP = #{PPV < t}, F1 = 2 TP / (2 TP + FN + FP); ``f1_mean`` is their mean.
-The benchmark code predicts score > threshold with a binned threshold; here the threshold is an
-exact score and pixels at it are predicted, the mask whose pixel F1 is the best.
+Checked against the benchmark's code (github SegmentMeIfYouCan/road-anomaly-benchmark,
+``road_anomaly_benchmark/metrics/instance_segmentation.py``: ``default_instancer``,
+``segment_metrics``, ``MetricSegment`` configs ``SegEval-AnomalyTrack`` 500 / 100 and
+``SegEval-ObstacleTrack`` 50 / 10): the same rules, including that a predicted component's size
+is counted before small ground-truth components become void, that ``FP`` counts predicted
+components by PPV (``prec_pred``; early versions used their sIoU), and that mean sIoU / PPV and
+F1 pool the components of all frames. Two deliberate differences (docs/decisions/predict.md):
+the benchmark predicts score > threshold with a threshold taken from a binned PR curve; here the
+threshold is an exact score and pixels at it are predicted (the mask whose pixel F1 is the best).
+And its size rule also loops over the background "component" 0, which makes every non-anomaly
+pixel void in an image with fewer than 100 / 10 of them; here only label-1 components are tested.
 """
 from __future__ import annotations
 
@@ -28,15 +37,14 @@ SIOU_THRESHOLDS = np.linspace(0.25, 0.75, 11)
 
 def component_metrics(scores_per_image, labels_per_image, *, track: str = "anomaly",
                       threshold: float | None = None) -> dict:
-    """SMIYC component metrics of a dataset.
+    """SMIYC component metrics of a dataset, pooled over its images.
 
     scores_per_image: sequence of float (H, W) maps; labels_per_image: the matching uint8
-    (H, W) labels in {0, 1, 255}. Returns a dict: ``threshold``, ``siou`` (per ground-truth
-    component) and ``ppv`` (per predicted component) as float64 arrays, ``mean_siou``,
-    ``mean_ppv``, ``siou_thresholds``, ``tp``, ``fn``, ``fp``, ``f1`` (11,) and ``f1_mean``.
+    (H, W) labels in {0, 1, 255}. Returns ``component_summary`` of all components (``siou``
+    per ground-truth component, ``ppv`` per predicted component, as float64 arrays, ``tp``,
+    ``fn``, ``fp``, ``f1`` (11,), ``f1_mean``, ...) plus ``threshold`` and ``track``.
     """
-    if track not in TRACKS:
-        raise ValueError(f"track: expected one of {tuple(TRACKS)}, got {track!r}")
+    _check_track(track)
     scores_per_image, labels_per_image = list(scores_per_image), list(labels_per_image)
     if len(scores_per_image) != len(labels_per_image) or not scores_per_image:
         raise ValueError(f"labels_per_image: expected one label map per score map (at least one), got "
@@ -48,20 +56,50 @@ def component_metrics(scores_per_image, labels_per_image, *, track: str = "anoma
         pixels.update(scores, labels)  # validates labels / NaN / shapes
     if threshold is None:
         threshold = pixels.compute()["best_f1_threshold"]
-    min_predicted, min_ground_truth = TRACKS[track]
-    per_image = [image_components(np.asarray(s) >= threshold, np.asarray(l), min_predicted, min_ground_truth)
-                 for s, l in zip(scores_per_image, labels_per_image)]
+    per_image = [frame_components(s, l, threshold, track=track) for s, l in zip(scores_per_image, labels_per_image)]
     siou = np.concatenate([s for s, _ in per_image])
     ppv = np.concatenate([p for _, p in per_image])
+    return {"threshold": float(threshold), "track": track, **component_summary(siou, ppv)}
+
+
+def frame_components(scores, labels, threshold: float, *, track: str = "anomaly") -> tuple[np.ndarray, np.ndarray]:
+    """One image: ``(sIoU per ground-truth component, PPV per predicted component)``, float64,
+    of the mask ``scores >= threshold`` under the track's size rules (module docstring).
+
+    scores: float (H, W); labels: (H, W) in {0, 1, 255}; threshold: a finite score (use the
+    dataset's, e.g. ``component_metrics``' or the pooled best-F1 pixel threshold).
+    """
+    _check_track(track)
+    scores, labels = np.asarray(scores), np.asarray(labels)
+    if scores.ndim != 2 or labels.shape != scores.shape:
+        raise ValueError(f"labels: expected (H, W) maps of one shape, got scores {scores.shape}, labels {labels.shape}")
+    if not np.isin(labels, (0, 1, 255)).all():
+        raise ValueError(f"labels: expected values in {{0, 1, 255}}, got {np.setdiff1d(labels, (0, 1, 255))[:5].tolist()}")
+    if not np.isfinite(threshold):
+        raise ValueError(f"threshold: expected a finite score, got {threshold}")
+    return image_components(scores >= threshold, labels, *TRACKS[track])
+
+
+def component_summary(siou, ppv) -> dict:
+    """The benchmark's numbers from the sIoU of ground-truth components and the PPV of predicted
+    ones (of one image or pooled over many): at t in ``SIOU_THRESHOLDS`` TP = #{sIoU >= t},
+    FN = #{sIoU < t}, FP = #{PPV < t}, F1 = 2 TP / (2 TP + FN + FP) (NaN where that is 0/0);
+    ``f1_mean`` their mean, ``mean_siou`` / ``mean_ppv`` the means over components (NaN if none)."""
+    siou, ppv = np.asarray(siou, np.float64), np.asarray(ppv, np.float64)
     tp = np.array([np.sum(siou >= t) for t in SIOU_THRESHOLDS])
     fn = np.array([np.sum(siou < t) for t in SIOU_THRESHOLDS])
     fp = np.array([np.sum(ppv < t) for t in SIOU_THRESHOLDS])
     denominator = 2 * tp + fn + fp
     f1 = np.where(denominator > 0, 2 * tp / np.maximum(denominator, 1), np.nan)
-    mean = lambda x: float(x.mean()) if x.size else float("nan")  # noqa: E731
-    return {"threshold": float(threshold), "siou": siou, "ppv": ppv, "mean_siou": mean(siou),
-            "mean_ppv": mean(ppv), "siou_thresholds": SIOU_THRESHOLDS, "tp": tp, "fn": fn, "fp": fp,
-            "f1": f1, "f1_mean": mean(f1), "track": track}
+    mean = lambda x: float(x.mean()) if x.size and not np.isnan(x).all() else float("nan")  # noqa: E731
+    return {"siou": siou, "ppv": ppv, "mean_siou": mean(siou), "mean_ppv": mean(ppv),
+            "siou_thresholds": SIOU_THRESHOLDS, "tp": tp, "fn": fn, "fp": fp, "f1": f1, "f1_mean": mean(f1),
+            "num_truth": int(siou.size), "num_predicted": int(ppv.size)}
+
+
+def _check_track(track: str) -> None:
+    if track not in TRACKS:
+        raise ValueError(f"track: expected one of {tuple(TRACKS)}, got {track!r}")
 
 
 def _components(mask: np.ndarray, min_size: int) -> tuple[np.ndarray, np.ndarray]:

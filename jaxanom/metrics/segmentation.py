@@ -61,6 +61,9 @@ def confusion_counts(prediction, label, num_classes: int, ignore: int = 255) -> 
 
 def _parts(matrix):
     matrix = np.asarray(matrix, np.float64)
+    if matrix.ndim != 2 or matrix.shape[0] != matrix.shape[1]:
+        raise ValueError(f"matrix must be a square (C, C) confusion matrix (rows: label, columns: prediction), "
+                         f"got shape {matrix.shape}")
     true_positive = np.diag(matrix)
     return true_positive, matrix.sum(axis=1), matrix.sum(axis=0), matrix.sum()
 

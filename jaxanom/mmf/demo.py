@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxanom.data.synthetic import SyntheticScenes
+from jaxanom._validate import check_count
+from jaxanom.data.synthetic import ANOMALY_SPLITS, SyntheticScenes
 from jaxanom.evaluate import anomaly_results
 from jaxanom.experiment import Experiment
 from jaxanom.io import write_bytes_atomic, write_json_atomic, write_png_atomic
@@ -34,6 +35,12 @@ class MMFDemoConfig:
     anomaly_split: str = "anomaly"
     anomaly_frames: int = 32
     pictures: int = 4
+
+    def __post_init__(self):
+        if self.anomaly_split not in ANOMALY_SPLITS:
+            raise ValueError(f"anomaly_split: expected one of {ANOMALY_SPLITS}, got {self.anomaly_split!r}")
+        check_count("anomaly_frames", self.anomaly_frames)
+        check_count("pictures", self.pictures, minimum=0)
 
     @classmethod
     def quick(cls) -> "MMFDemoConfig":
@@ -73,7 +80,8 @@ def scored_batches(pipe: MMFPipeline, source, batch_size: int, keep: int = 0, ke
                 kept.append((frame, {k: v[i] for k, v in maps.items() if k != "num_segments"}))
         batch = {"logits": maps["logits"], "label": np.stack([f["label"] for f in frames]),
                  "mmf_maps": {"mmf": maps["mmf"], "resynthesis": maps["resynthesis_score"],
-                              "superpixels": maps["superpixels"], "num_segments": maps["num_segments"]}}
+                              "num_segments": maps["num_segments"],
+                              **{k: v for k, v in maps.items() if k.startswith("superpixels")}}}
         if "roi" in frames[0]:  # the road region of interest, where the dataset has one
             batch["roi"] = np.stack([f["roi"] for f in frames])
         yield batch

@@ -25,6 +25,8 @@ import dataclasses
 import hashlib
 import io
 import json
+import zipfile
+import zlib
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -32,23 +34,26 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxanom._validate import check_count, check_fits_memory, check_number
 from jaxanom.data.synthetic import SyntheticScenes
 from jaxanom.data.transforms import normalize
 from jaxanom.experiment import Experiment, build_network, jsonable, load_variables, run_training
 from jaxanom.io import write_bytes_atomic
+from jaxanom.losses import balanced_class_weights
 from jaxanom.mmf.perceptual import anomaly_map_batch, perceptual_difference_batch
 from jaxanom.mmf.gan_train import GANConfig, train_gan, trained_generator
 from jaxanom.mmf.synthesis import ClassMeanSynthesizer, SPADESynthesizer, resynthesize
+from jaxanom.mmf.training_free import SLIC_INPUTS, segment
 from jaxanom.mmf.uncertainty import uncertainty_maps_batch
 from jaxanom.models.dissimilarity import DissimilarityNet, anomaly_probability
 from jaxanom.models.patch_discriminator import MultiscaleDiscriminator
 from jaxanom.models.resnet import RESNETS, ResNet
 from jaxanom.models.rgbd import RGBDNet, depth_input
 from jaxanom.models.spade_generator import SPADEGenerator
-from jaxanom.superpixels import num_superpixels, rgb_to_lab, slic_batch
 from jaxanom.train.loop import TrainConfig, train
 from jaxanom.train.restore import trained_variables
 from jaxanom.train.optim import OptimConfig
+from jaxanom.train.step import LossConfig
 
 _SEGMENTER = Experiment(
     attention=None, train_frames=128, height=64, width=128, crop=(64, 128), scale_range=(0.75, 1.25), batch_size=8,
@@ -62,11 +67,16 @@ class MMFConfig:
 
     ``segmenter``: the segmenter's experiment (its frames, size and schedule are the pipeline's);
     ``rgbd_*``: RGB-D net backbone, decoder width, steps; ``dissim_*``: dissimilarity nets' width
-    multiplier, steps, learning rate (Adam, betas 0.9 / 0.999), frames and void clutter per frame;
+    multiplier, steps, learning rate (Adam, betas 0.9 / 0.999), frames and void clutter per frame,
+    ``dissim_balance``: class-weighted cross-entropy (``losses.balanced_class_weights``);
     ``synthesizer``: ``"class_mean"`` or ``"spade"``; ``gan_*`` (SPADE only): steps, base width nf,
     upsamplings n, SPADE hidden width, critic layers (MMF.md A2.2's tiny nf = 8, n = 3);
-    ``slic_step``: SLIC grid step S in pixels (D16); ``batch_size`` for the RGB-D and dissimilarity
-    nets.
+    ``slic_step``: SLIC grid step S in pixels, None: ``superpixels.scaled_step`` of the frame
+    (8 px at 256x512, K ~ 2048 at any size; D16 revisited); ``slic_input``: what SLIC segments,
+    ``"image"`` (its Lab, D3) or ``"anomaly"`` (the map Eq. 6 scores, scaled to [0, 100]: the
+    paper's Sec. III-B / Fig. 4, one segmentation per dissimilarity net); ``slic_connectivity``:
+    superpixels made connected (``superpixels.slic``); ``batch_size`` for the RGB-D and
+    dissimilarity nets.
     """
 
     segmenter: Experiment = _SEGMENTER
@@ -77,9 +87,12 @@ class MMFConfig:
     dissim_steps: int = 300
     dissim_lr: float = 1e-3
     dissim_frames: int = 96
+    dissim_balance: bool = True
     void_objects: int = 4
     batch_size: int = 8
-    slic_step: int = 8
+    slic_step: int | None = None
+    slic_input: str = "image"
+    slic_connectivity: bool = False
     synthesizer: str = "class_mean"
     gan_steps: int = 300
     gan_nf: int = 8
@@ -92,19 +105,32 @@ class MMFConfig:
         if s.data != "synthetic" or s.height % 8 or s.width % 8 or tuple(s.crop) != (s.height, s.width):
             raise ValueError(f"segmenter: expected synthetic data, height and width divisible by 8 and crop = "
                              f"(height, width), got {s.data}, {s.height} x {s.width}, crop {s.crop}")
-        if min(self.rgbd_steps, self.dissim_steps, self.dissim_frames, self.batch_size) < 1:
-            raise ValueError("rgbd_steps, dissim_steps, dissim_frames, batch_size: expected >= 1")
+        if self.rgbd_backbone not in RESNETS:
+            raise ValueError(f"rgbd_backbone: expected one of {sorted(RESNETS)}, got {self.rgbd_backbone!r}")
+        for name in ("rgbd_channels", "rgbd_steps", "dissim_steps", "dissim_frames", "batch_size", "gan_steps",
+                     "gan_nf", "gan_upsamples", "gan_hidden", "gan_layers"):
+            check_count(name, getattr(self, name))
+        check_count("void_objects", self.void_objects, minimum=0)
+        if self.slic_step is not None:  # None: scaled with the frame (superpixels.scaled_step)
+            check_count("slic_step", self.slic_step, maximum=min(s.height, s.width))
+        if self.slic_input not in SLIC_INPUTS:
+            raise ValueError(f"slic_input: expected one of {SLIC_INPUTS}, got {self.slic_input!r}")
+        for name in ("dissim_balance", "slic_connectivity"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name}: expected true or false, got {getattr(self, name)!r}")
+        check_number("dissim_width", self.dissim_width, 0.0, open_low=True)
+        check_number("dissim_lr", self.dissim_lr, 0.0, open_low=True)
+        # a lower bound of an RGB-D or dissimilarity batch: float32 RGB and an int32 label per pixel
+        check_fits_memory("batch_size", self.batch_size, s.height * s.width * 16, "frames of the RGB-D net")
         if self.synthesizer not in SYNTHESIZERS:
             raise ValueError(f"synthesizer: expected one of {SYNTHESIZERS}, got {self.synthesizer!r}")
-        if min(self.gan_steps, self.gan_nf, self.gan_upsamples, self.gan_hidden, self.gan_layers) < 1:
-            raise ValueError("gan_steps, gan_nf, gan_upsamples, gan_hidden, gan_layers: expected >= 1")
         if s.height % 2 ** self.gan_upsamples or s.width % 2 ** self.gan_upsamples:
             raise ValueError(f"gan_upsamples: expected 2^n to divide the segmenter's {s.height} x {s.width}, "
                              f"got n = {self.gan_upsamples}")
 
     @classmethod
     def quick(cls) -> "MMFConfig":
-        """A seconds-long run of the same path (tests, ``demo mmf --quick``)."""
+        """A smoke run of the same path at tiny sizes (tests, ``demo mmf --quick``; most of its time is compiling)."""
         seg = dataclasses.replace(_SEGMENTER, train_frames=4, height=32, width=64, crop=(32, 64), batch_size=4,
                                   train=dataclasses.replace(_SEGMENTER.train, steps=2, eval_every=2, save_every=2,
                                                             optim=dataclasses.replace(_SEGMENTER.train.optim,
@@ -128,10 +154,15 @@ class MMFConfig:
         ``spade``, ``dissimilarity``): its settings and those of the parts it depends on (the
         dissimilarity nets depend on the SPADE settings only when they see its resynthesis)."""
         spade = ("synthesizer",) + _SPADE_FIELDS if part == "dissimilarity" and self.synthesizer == "spade" else ()
-        return self.key(*_PARTS[part], *spade)
+        key = self.key(*_PARTS[part], *spade)
+        if part in _REVISIONS:  # a changed network or training: older folders are not reused
+            key = hashlib.sha256(f"{key} {_REVISIONS[part]}".encode()).hexdigest()[:12]
+        return key
 
 
 SYNTHESIZERS = ("class_mean", "spade")
+_REVISIONS = {"dissimilarity": "correlation concatenated after the prior product (issue 20)"}
+_SLIC_FIELDS = ("slic_step", "slic_input", "slic_connectivity")  # scoring only: in no part's key
 _SPADE_FIELDS = ("gan_steps", "gan_nf", "gan_upsamples", "gan_hidden", "gan_layers")
 # the class-mean parts' keys leave out the SPADE settings (caches of class-mean runs stay valid)
 _PARTS = {"segmenter": ("segmenter",),
@@ -139,7 +170,7 @@ _PARTS = {"segmenter": ("segmenter",),
           "synthesizer": ("segmenter",),
           "spade": ("segmenter", "batch_size") + _SPADE_FIELDS,
           "dissimilarity": tuple(f.name for f in dataclasses.fields(MMFConfig)
-                                 if f.name not in ("slic_step", "synthesizer") + _SPADE_FIELDS)}
+                                 if f.name not in ("synthesizer",) + _SLIC_FIELDS + _SPADE_FIELDS)}
 
 
 def training_stream(arrays: dict[str, np.ndarray], batch_size: int, seed: int) -> Iterator[dict]:
@@ -157,10 +188,12 @@ def training_stream(arrays: dict[str, np.ndarray], batch_size: int, seed: int) -
         yield batch
 
 
-def _train_config(run_dir: Path, steps: int, lr: float, seed: int, progress: bool, adam: bool = False) -> TrainConfig:
+def _train_config(run_dir: Path, steps: int, lr: float, seed: int, progress: bool, adam: bool = False,
+                  class_weights: tuple[float, ...] | None = None) -> TrainConfig:
     optim = OptimConfig(name="adamw", lr=lr, weight_decay=0.0 if adam else 1e-4, poly_power=0.0 if adam else 0.9)
     return TrainConfig(run_dir=str(run_dir), steps=steps, seed=seed, optim=optim, eval_every=steps,
-                       save_every=max(1, steps // 2), keep=1, progress=progress)
+                       save_every=max(1, steps // 2), keep=1, progress=progress,
+                       loss=LossConfig(class_weights=class_weights))
 
 
 def _run_dir(config: MMFConfig, root: Path, part: str, name: str = "") -> Path:
@@ -182,9 +215,14 @@ def _dissimilarity_model(config: MMFConfig, assisted: bool) -> DissimilarityNet:
                             use_depth=assisted, width=config.dissim_width)
 
 
-def _dissimilarity_train_config(config: MMFConfig, root: Path, name: str, progress: bool) -> TrainConfig:
+def _dissimilarity_train_config(config: MMFConfig, root: Path, name: str, progress: bool,
+                                labels: np.ndarray | None = None) -> TrainConfig:
+    """The nets' training run; with ``dissim_balance`` and the training ``labels``, cross-entropy
+    weighted by ``losses.balanced_class_weights`` (void clutter is rare: D12 revisited)."""
+    weights = (tuple(float(w) for w in balanced_class_weights(labels, 2))
+               if config.dissim_balance and labels is not None else None)
     return _train_config(_run_dir(config, root, "dissimilarity", name), config.dissim_steps, config.dissim_lr,
-                         config.segmenter.train.seed, progress, adam=True)
+                         config.segmenter.train.seed, progress, adam=True, class_weights=weights)
 
 
 def _gan_models(config: MMFConfig) -> tuple[SPADEGenerator, MultiscaleDiscriminator]:
@@ -211,7 +249,23 @@ def load_synthesizer(config: MMFConfig, root: Path) -> ClassMeanSynthesizer | SP
     synth_file = _run_dir(config, root, "synthesizer").with_suffix(".npz")
     if not synth_file.is_file():
         raise ValueError(f"{synth_file}: no such file")
-    return ClassMeanSynthesizer(np.load(synth_file)["means"])
+    return _class_means(synth_file, config.segmenter.num_classes)
+
+
+def _class_means(synth_file: Path, num_classes: int) -> ClassMeanSynthesizer:
+    """The cached class means in ``synth_file``; ValueError naming it when it is not one (no pickles read)."""
+    try:
+        with np.load(synth_file, allow_pickle=False) as data:
+            means = np.asarray(data["means"])
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as error:
+        problem = "it holds Python objects" if "allow_pickle" in str(error) else f"{type(error).__name__}: {error}"
+        raise ValueError(f"{synth_file}: not class means written by jaxanom ({problem}); "
+                         "delete it to refit them") from None
+    floats = np.issubdtype(means.dtype, np.floating)
+    if means.shape != (num_classes + 1, 3) or not floats or not np.isfinite(means).all():
+        raise ValueError(f"{synth_file}: expected finite float class means of shape ({num_classes + 1}, 3), got "
+                         f"{means.dtype} {means.shape}; delete it to refit them")
+    return ClassMeanSynthesizer(means)
 
 
 def build_synthesizer(config: MMFConfig, root: Path, frames: list[dict],
@@ -229,7 +283,7 @@ def build_synthesizer(config: MMFConfig, root: Path, frames: list[dict],
         return SPADESynthesizer(generator, jax.device_get(state.generator_variables))
     synth_file = _run_dir(config, root, "synthesizer").with_suffix(".npz")
     if synth_file.exists():
-        return ClassMeanSynthesizer(np.load(synth_file)["means"])
+        return _class_means(synth_file, num_classes)
     synthesizer = ClassMeanSynthesizer.fit(frames, num_classes)
     buffer = io.BytesIO()
     np.savez(buffer, means=synthesizer.means)
@@ -286,7 +340,7 @@ class MMFPipeline:
         for name, assisted in (("mmf", True), ("resynthesis", False)):
             model = _dissimilarity_model(config, assisted)
             data = {k: arrays[k] for k in ("image", "label", *model.extra_inputs)}
-            state = train(_dissimilarity_train_config(config, root, name, progress),
+            state = train(_dissimilarity_train_config(config, root, name, progress, arrays["label"]),
                           model, training_stream(data, config.batch_size, seed + 2))
             pipe.dissimilarity[name] = (model, jax.device_get(state.variables))
         return pipe
@@ -341,17 +395,18 @@ class MMFPipeline:
         """Every map of MMF for a list of equally sized frames (``image``, ``disparity``):
         ``logits``, ``entropy`` (U), ``distance`` (D), ``perceptual`` (L), ``anomaly`` (A),
         ``resynthesis`` (r, [0, 1]), ``mmf`` / ``resynthesis_score`` (a of the two nets),
-        ``superpixels`` and ``num_segments`` (SLIC on the image)."""
+        ``superpixels`` and ``num_segments`` (SLIC of ``config.slic_input``; with ``"anomaly"``,
+        ``superpixels`` segments ``mmf`` and ``superpixels_resynthesis`` segments ``resynthesis_score``)."""
         out = self._network_maps(frames)
         inputs = self._dissimilarity_inputs(frames, out)
         for name, (model, variables) in self.dissimilarity.items():
             kw = {k: inputs[k] for k in model.extra_inputs}
             logits = _dissimilarity_forward(model, variables, inputs["image"], kw)
             out["mmf" if name == "mmf" else "resynthesis_score"] = np.asarray(anomaly_probability(logits))
-        images = np.stack([f["image"] for f in frames])
-        lab = rgb_to_lab(images.astype(np.float32) / 255.0)
-        out["superpixels"] = np.asarray(slic_batch(lab, self.config.slic_step))
-        out["num_segments"] = num_superpixels(images.shape[1:3], self.config.slic_step)
+        c = self.config
+        out.update(segment(np.stack([f["image"] for f in frames]),
+                           {"superpixels": out["mmf"], "superpixels_resynthesis": out["resynthesis_score"]},
+                           step=c.slic_step, slic_input=c.slic_input, connectivity=c.slic_connectivity))
         return out
 
 

@@ -11,6 +11,10 @@ With Omega_j the pixels of superpixel j of an (H, W) image (MMF.md A2.8, decisio
   each pixel takes the score of its superpixel.
 
 Label ids with no pixel are ignored; ``num_segments`` K is static (``superpixels.num_superpixels``).
+Memory is O(K) plus one block of ``block_rows`` x K pair distances at a time (by default about
+4M pairs, 16 MB a float32 array): the K x K pairs are visited block by block (``lax.scan``), three
+times (two radix-selection passes for omega, one for the sums), and the result is exact (the
+same value as summing the full K x K matrix, up to float32 summation order).
 """
 from __future__ import annotations
 
@@ -30,39 +34,88 @@ def _segment_means(values: jax.Array, labels: jax.Array, counts: jax.Array, k: i
     return sums / jnp.maximum(counts, 1.0).reshape((k,) + (1,) * (values.ndim - 1))
 
 
-def _smallest_at_rank(bits: jax.Array, rank) -> jax.Array:
-    """The ``rank``-th smallest (0-based) of int32 ``bits`` >= 0, e.g. the bit patterns of
-    non-negative float32 values (whose integer order is the floats' order).
+_PAIRS_PER_BLOCK = 1 << 22  # entries of one (rows, K) block of pair distances: 16 MB in float32
+_UNUSED = np.iinfo(np.int32).max  # above every float32's bits
 
-    Radix selection: a histogram of the high 16 bits finds the value's bucket, a histogram of
-    the low 16 bits inside that bucket finds the value. Exact, two passes, and far faster on
-    XLA:CPU than a float sort.
+
+def _block_rows(k: int, block_rows: int | None) -> int:
+    """Rows of superpixels per block: ``block_rows``, else as many as fit ``_PAIRS_PER_BLOCK`` pairs."""
+    return max(1, min(k, block_rows or _PAIRS_PER_BLOCK // k))
+
+
+def _scan_rows(fn, carry, centres: jax.Array, valid: jax.Array, rows: int):
+    """Fold ``fn(carry, index (R,), valid (R,), r2 (R, K)) -> (carry, out (R,))`` over blocks of R
+    superpixels (the last block padded with invalid rows); returns ``(carry, out (K,))``.
+
+    Only one (R, K) block of squared centroid distances exists at a time, so memory is O(R K),
+    and every block computes r2 with the same expression (identical values in every pass).
     """
-    bits = bits.ravel()
-    high = bits >> 16
-    below = jnp.cumsum(jnp.bincount(high, length=1 << 15))
-    bucket = jnp.sum(below <= rank)  # the first bucket whose running count passes rank
-    inside = rank - jnp.where(bucket > 0, below[jnp.maximum(bucket - 1, 0)], 0)
-    low = jnp.cumsum(jnp.bincount(bits & 0xFFFF, (high == bucket).astype(jnp.int32), length=1 << 16))
-    return (bucket << 16) | jnp.sum(low <= inside)
+    k = centres.shape[0]
+    blocks = -(-k // rows)
+    padded_centres = jnp.pad(centres, ((0, blocks * rows - k), (0, 0)))
+    padded_valid = jnp.pad(valid, (0, blocks * rows - k))
+
+    def step(carry, block):
+        start = block * rows
+        mine = jax.lax.dynamic_slice_in_dim(padded_centres, start, rows)
+        r2 = (mine[:, None, 0] - centres[None, :, 0]) ** 2 + (mine[:, None, 1] - centres[None, :, 1]) ** 2
+        return fn(carry, start + jnp.arange(rows), jax.lax.dynamic_slice_in_dim(padded_valid, start, rows), r2)
+
+    carry, out = jax.lax.scan(step, carry, jnp.arange(blocks))
+    return carry, out.reshape(-1)[:k]
 
 
-def _median_distance(r2: jax.Array, valid: jax.Array) -> jax.Array:
-    """omega: median of r_ij = sqrt(r2_ij) over pairs i < j of valid superpixels (NaN without pairs)."""
+def _median_distance(centres: jax.Array, valid: jax.Array, rows: int) -> jax.Array:
+    """omega: median of r_ij = |c_i - c_j| over the pairs i < j of valid superpixels (NaN without pairs).
+
+    Exact radix selection over the int32 bits of r_ij (non-negative floats order as their bits),
+    in two blockwise passes: a histogram of the high 16 bits finds the bucket of the lower middle
+    value; a histogram of the low 16 bits inside that bucket (and the least value above it)
+    finds the lower and the upper middle values. NumPy's median is their mean.
+    """
     k = valid.shape[0]
-    keep = (jnp.arange(k)[:, None] < jnp.arange(k)[None, :]) & valid[:, None] & valid[None, :]
-    unused = jnp.iinfo(jnp.int32).max  # above every float's bits: never counted
-    bits = jnp.where(keep, jax.lax.bitcast_convert_type(jnp.sqrt(r2), jnp.int32), unused)
-    count = jnp.sum(keep, dtype=jnp.int32)
-    lower = _smallest_at_rank(bits, (count - 1) // 2)
-    # the next order statistic: the same value if it repeats, else the next larger one
-    upper = jnp.where(jnp.sum(bits <= lower) > count // 2, lower, jnp.min(jnp.where(bits > lower, bits, unused)))
+    columns = jnp.arange(k)
+
+    def pair_bits(index, mine, r2):
+        keep = (index[:, None] < columns[None, :]) & mine[:, None] & valid[None, :]
+        return keep, jax.lax.bitcast_convert_type(jnp.sqrt(r2), jnp.int32)
+
+    def count_high(hist, index, mine, r2):
+        keep, bits = pair_bits(index, mine, r2)
+        return hist.at[(bits >> 16).ravel()].add(keep.ravel().astype(jnp.int32)), jnp.zeros(index.shape)
+
+    high, _ = _scan_rows(count_high, jnp.zeros(1 << 15, jnp.int32), centres, valid, rows)
+    count = jnp.sum(high)
+    rank = (count - 1) // 2
+    below = jnp.cumsum(high)
+    bucket = jnp.sum(below <= rank)  # the first bucket whose running count passes rank
+    before = jnp.where(bucket > 0, below[jnp.maximum(bucket - 1, 0)], 0)
+
+    def count_low(carry, index, mine, r2):
+        low, above = carry
+        keep, bits = pair_bits(index, mine, r2)
+        in_bucket = keep & ((bits >> 16) == bucket)
+        low = low.at[(bits & 0xFFFF).ravel()].add(in_bucket.ravel().astype(jnp.int32))
+        above = jnp.minimum(above, jnp.min(jnp.where(keep & ((bits >> 16) > bucket), bits, _UNUSED)))
+        return (low, above), jnp.zeros(index.shape)
+
+    (low, above), _ = _scan_rows(count_low, (jnp.zeros(1 << 16, jnp.int32), jnp.int32(_UNUSED)), centres, valid, rows)
+    running = jnp.cumsum(low)
+    lower_low = jnp.sum(running <= rank - before)
+    lower = (bucket << 16) | lower_low
+    # the next order statistic: lower again if it repeats, else the next filled low bin, else the least above
+    later = (jnp.arange(1 << 16) > lower_low) & (low > 0)
+    next_in_bucket = (bucket << 16) | jnp.argmax(later)
+    upper = jnp.where(before + running[lower_low] > count // 2, lower,
+                      jnp.where(jnp.any(later), next_in_bucket, above))
     middle = jax.lax.bitcast_convert_type(jnp.stack([lower, upper]), jnp.float32)
     return jnp.where(count > 0, (middle[0] + middle[1]) / 2, jnp.nan)
 
 
-def _superpixel_scores(anomaly, road, labels, num_segments: int, include_self: bool = False):
+def _superpixel_scores(anomaly, road, labels, num_segments: int, include_self: bool = False,
+                       block_rows: int | None = None):
     k = num_segments
+    rows = _block_rows(k, block_rows)
     height, width = labels.shape
     flat = labels.ravel()
     counts = jax.ops.segment_sum(jnp.ones(flat.shape, jnp.float32), flat, k)
@@ -71,35 +124,43 @@ def _superpixel_scores(anomaly, road, labels, num_segments: int, include_self: b
     alpha = _segment_means(anomaly.ravel().astype(jnp.float32), flat, counts, k)
     p = _segment_means(road.ravel().astype(jnp.float32), flat, counts, k)
     centres = _segment_means(jnp.stack([ys.ravel(), xs.ravel()], -1), flat, counts, k)
-    n = counts / (height * width)
-    r2 = (centres[:, None, 0] - centres[None, :, 0]) ** 2 + (centres[:, None, 1] - centres[None, :, 1]) ** 2
-    omega = _median_distance(r2, valid)
-    weight = jnp.where(r2 == 0, 1.0, jnp.exp(-r2 / (2.0 * omega**2)))  # r = 0: weight 1 even if omega = 0
-    pair = valid[None, :] & (True if include_self else ~jnp.eye(k, dtype=bool))
-    score = alpha * jnp.sum(jnp.where(pair, p * n * weight, 0.0), axis=1)
+    mass = jnp.where(valid, p * counts / (height * width), 0.0)  # p_j n_j; 0 for empty ids
+    omega = _median_distance(centres, valid, rows)
+    columns = jnp.arange(k)
+
+    def neighbourhood(carry, index, mine, r2):  # sum_j p_j n_j w_ij for one block of rows i
+        weight = jnp.where(r2 == 0, 1.0, jnp.exp(-r2 / (2.0 * omega**2)))  # r = 0: weight 1 even if omega = 0
+        pair = True if include_self else index[:, None] != columns[None, :]
+        return carry, jnp.sum(jnp.where(pair, mass * weight, 0.0), axis=1)
+
+    _, total = _scan_rows(neighbourhood, None, centres, valid, rows)
+    score = alpha * total
     low = jnp.min(jnp.where(valid, score, jnp.inf))
     high = jnp.max(jnp.where(valid, score, -jnp.inf))
     normalised = jnp.where(valid & (high > low), (score - low) / jnp.where(high > low, high - low, 1.0), 0.0)
     return normalised, valid
 
 
-def _superpixel_score(anomaly, road, labels, num_segments: int, include_self: bool = False):
-    scores, _ = _superpixel_scores(anomaly, road, labels, num_segments, include_self)
+def _superpixel_score(anomaly, road, labels, num_segments: int, include_self: bool = False,
+                      block_rows: int | None = None):
+    scores, _ = _superpixel_scores(anomaly, road, labels, num_segments, include_self, block_rows)
     return scores[labels]
 
 
-_STATIC = ("num_segments", "include_self")
+_STATIC = ("num_segments", "include_self", "block_rows")
 _superpixel_scores_jit = jax.jit(_superpixel_scores, static_argnames=_STATIC)
 _superpixel_score_jit = jax.jit(_superpixel_score, static_argnames=_STATIC)
 
 
 @functools.partial(jax.jit, static_argnames=_STATIC)
-def _superpixel_score_batch(anomaly, road, labels, num_segments: int, include_self: bool = False):
-    one = functools.partial(_superpixel_score, num_segments=num_segments, include_self=include_self)
+def _superpixel_score_batch(anomaly, road, labels, num_segments: int, include_self: bool = False,
+                            block_rows: int | None = None):
+    one = functools.partial(_superpixel_score, num_segments=num_segments, include_self=include_self,
+                            block_rows=block_rows)
     return over_images(one, anomaly, road, labels)
 
 
-def _check(anomaly, road_probability, labels, num_segments, batched: bool):
+def _check(anomaly, road_probability, labels, num_segments, block_rows, batched: bool):
     rank, layout = (3, "(B, H, W)") if batched else (2, "(H, W)")
     check_rank("anomaly", anomaly, rank, layout)
     for name, x in (("road_probability", road_probability), ("labels", labels)):
@@ -108,6 +169,8 @@ def _check(anomaly, road_probability, labels, num_segments, batched: bool):
     check_integer("labels", labels)
     if not isinstance(num_segments, (int, np.integer)) or num_segments < 1:
         raise ValueError(f"num_segments must be an integer >= 1, got {num_segments!r}")
+    if block_rows is not None and (not isinstance(block_rows, (int, np.integer)) or block_rows < 1):
+        raise ValueError(f"block_rows must be None or an integer >= 1, got {block_rows!r}")
     check_finite("anomaly", anomaly)
     check_finite("road_probability", road_probability)
     if is_concrete(labels) and np.size(labels):
@@ -117,26 +180,33 @@ def _check(anomaly, road_probability, labels, num_segments, batched: bool):
     return jnp.asarray(anomaly), jnp.asarray(road_probability), jnp.asarray(labels, jnp.int32), int(num_segments)
 
 
-def superpixel_scores(anomaly, road_probability, labels, num_segments: int, *, include_self: bool = False):
+def superpixel_scores(anomaly, road_probability, labels, num_segments: int, *, include_self: bool = False,
+                      block_rows: int | None = None):
     """Eq. 6 per superpixel: ``(scores (K,) float32 in [0, 1], valid (K,) bool)``.
 
     anomaly a, road_probability (H, W) float; labels (H, W) int in [0, K) (from ``slic``).
-    ``valid`` marks the ids that have pixels; the others score 0.
+    ``valid`` marks the ids that have pixels; the others score 0. ``block_rows``: superpixels per
+    block of pair distances (None: as many as fit 4M pairs); it changes memory, not the result.
     """
-    args = _check(anomaly, road_probability, labels, num_segments, batched=False)
-    return _superpixel_scores_jit(*args[:3], num_segments=args[3], include_self=include_self)
+    args = _check(anomaly, road_probability, labels, num_segments, block_rows, batched=False)
+    return _superpixel_scores_jit(*args[:3], num_segments=args[3], include_self=include_self,
+                                  block_rows=block_rows)
 
 
-def superpixel_score(anomaly, road_probability, labels, num_segments: int, *, include_self: bool = False):
+def superpixel_score(anomaly, road_probability, labels, num_segments: int, *, include_self: bool = False,
+                     block_rows: int | None = None):
     """Eq. 6 as a map: each pixel gets its superpixel's normalised score, ``(H, W)`` float32 in [0, 1].
 
     Inputs as ``superpixel_scores``. MMF detects anomalies where this exceeds 0.5 (§IV-A).
     """
-    args = _check(anomaly, road_probability, labels, num_segments, batched=False)
-    return _superpixel_score_jit(*args[:3], num_segments=args[3], include_self=include_self)
+    args = _check(anomaly, road_probability, labels, num_segments, block_rows, batched=False)
+    return _superpixel_score_jit(*args[:3], num_segments=args[3], include_self=include_self,
+                                 block_rows=block_rows)
 
 
-def superpixel_score_batch(anomaly, road_probability, labels, num_segments: int, *, include_self: bool = False):
+def superpixel_score_batch(anomaly, road_probability, labels, num_segments: int, *, include_self: bool = False,
+                           block_rows: int | None = None):
     """``superpixel_score`` over a batch: ``(B, H, W)`` inputs -> ``(B, H, W)`` float32."""
-    args = _check(anomaly, road_probability, labels, num_segments, batched=True)
-    return _superpixel_score_batch(*args[:3], num_segments=args[3], include_self=include_self)
+    args = _check(anomaly, road_probability, labels, num_segments, block_rows, batched=True)
+    return _superpixel_score_batch(*args[:3], num_segments=args[3], include_self=include_self,
+                                   block_rows=block_rows)

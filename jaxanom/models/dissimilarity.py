@@ -13,8 +13,10 @@ the assistant maps (the plain resynthesis baseline); ``extra_inputs`` lists what
 Encoders: E1, a VGG16 shared by image and resynthesis, tapped after relu1_2, relu2_2, relu3_3,
 relu4_3 (strides 1, 2, 4, 8); E2 (separate weights for Ŝ, Ŝ_D and the assistant maps): conv7x7
 + ReLU, then three stride-2 conv3x3 + ReLU, tapped after each. Level l fuses
-h_l = conv1x1([E1_l(x), E1_l(r), E2_l(Ŝ), E2_l(Ŝ_D), sum_c E1_l(x) E1_l(r)]) and multiplies it
-point by point with E2_l(u). Decoder (four blocks; D8): conv3x3 + SELU, SPADE block conditioned
+h_l = conv1x1([E1_l(x), E1_l(r), E2_l(Ŝ), E2_l(Ŝ_D)]), multiplies it point by point with
+E2_l(u), then (``correlation``) prepends the channel sum_c E1_l(x) E1_l(r), as SynBoost's
+``DissimNetPrior`` does (after the product: with E2(u) = 0, e.g. u = 0 at initialisation, the
+output still depends on x and r). Decoder (four blocks; D8): conv3x3 + SELU, SPADE block conditioned
 on Ŝ, transposed conv 2x2 stride 2 (the last block ends with a 1x1 conv to 2 classes instead),
 each later block reading the previous output concatenated with h_l. a = softmax(logits)[..., 1].
 ``width`` scales every width (1/8 is the CPU preset). E1 is trained from scratch here (D10).
@@ -124,10 +126,12 @@ class DissimilarityNet(nn.Module):
         fused = []
         for level, features in enumerate((64, 128, 256, 512)):
             parts = [fx[level], fr[level]] + [m[level] for m in maps]
-            if self.correlation:
-                parts.append((fx[level] * fr[level]).sum(axis=-1, keepdims=True))
             h = _conv(self._w(features), 1, dt, f"fuse{level}")(jnp.concatenate(parts, axis=-1))
-            fused.append(h if prior is None else h * prior[level])
+            if prior is not None:
+                h = h * prior[level]
+            if self.correlation:  # after the product, as SynBoost: it reaches the decoder even where E2(u) = 0
+                h = jnp.concatenate([(fx[level] * fr[level]).sum(axis=-1, keepdims=True), h], axis=-1)
+            fused.append(h)
         hidden = self._w(128)
         x = fused[3]
         for block, features in enumerate((256, 256, 128, 64)):

@@ -36,6 +36,9 @@ def min_frames(budget: int, gap: int) -> int:
     return (budget - 1) * (gap + 1) + 1
 
 
+SELECTIONS = ("dp", "greedy")  # the methods of select_hard_frames
+
+
 def select_hard_frames(flr, budget: int, gap: int, *, method: str = "dp") -> np.ndarray:
     """Eq. 16: indices ``(B,)`` (ascending) of B frames with maximal total FLR, pairwise > ``gap`` apart.
 
@@ -43,10 +46,10 @@ def select_hard_frames(flr, budget: int, gap: int, *, method: str = "dp") -> np.
     left (the earliest on ties) and drops its neighbours, and raises if that runs out of frames.
     """
     values = _check(flr, budget, gap)
+    if method not in SELECTIONS:
+        raise ValueError(f"method must be one of {SELECTIONS}, got {method!r}")
     if method == "greedy":
         return _greedy(values, int(budget), int(gap))
-    if method != "dp":
-        raise ValueError(f"method must be 'dp' or 'greedy', got {method!r}")
     t_total, b_total, step = values.size, int(budget), int(gap) + 1
     best = np.full((t_total + 1, b_total + 1), -np.inf)
     best[:, 0] = 0.0

@@ -16,9 +16,13 @@ Two filters compute ``K Q``:
 - ``method="exact"``: the O(N^2) sum in row blocks (the oracle; up to ~10^4 pixels);
 - ``method="permutohedral"``: the permutohedral lattice of Adams, Baek & Davis (2010): features
   are lifted onto the (d+1)-dimensional lattice, splatted with barycentric weights, blurred
-  with [1 2 1]/2 along each of the d+1 lattice directions and sliced back. The lattice (keys,
-  neighbours, weights) is built once per image: keys are packed into int64 codes and made
-  unique with ``jnp.unique(size=N (d+1))``; neighbours are found by ``searchsorted``.
+  with [1 2 1]/2 along each of the d+1 lattice directions and sliced back, for the bilateral
+  kernel. Its keys are packed into int64 codes and sorted once (``lattice_keys``, which also
+  counts the vertices); the tables get that many slots (``lattice_tables``). ``K~`` subtracts
+  the lattice's own diagonal (``Lattice.self_weight``, 0.4-0.8, not 1) and divides by
+  ``mass_scale`` (the lattice's off-diagonal mass over the exact kernel's, ~0.4-0.6). The
+  smoothness kernel depends only on positions and separates: it is computed exactly
+  (``positional_filter``), with no lattice.
 
 The public ``dense_crf`` computes in float32 (the lattice keys in int64 under a local
 ``jax.enable_x64``) and returns Q ``(H, W, L)``.
@@ -26,13 +30,13 @@ The public ``dense_crf`` computes in float32 (the lattice keys in int64 under a 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_finite, check_rank
+from jaxanom._validate import check_finite, check_range, check_rank
 
 _BLOCK = 512  # rows of the exact kernel computed at once
 
@@ -71,12 +75,30 @@ def exact_filter(features: jax.Array, values: jax.Array) -> jax.Array:
 class Lattice(NamedTuple):
     """A built lattice: per point and vertex the vertex id ``(N, d+1)`` and weight ``(N, d+1)``;
     per lattice direction the two neighbours of every vertex ``(d+1, 2, S)`` (S = empty slot);
-    ``fits``: whether every key fitted the int64 packing (else the lattice is wrong)."""
+    ``self_weight (N,)``: the filter's weight of each point on itself (``lattice_filter``'s
+    diagonal); ``fits``: whether every key fitted the int64 packing (else the lattice is wrong)."""
 
     vertex: jax.Array
     weight: jax.Array
     neighbours: jax.Array
+    self_weight: jax.Array
     fits: jax.Array
+
+
+class LatticeKeys(NamedTuple):
+    """The first half of a build: the sorted vertex codes of all points (no table size yet)."""
+
+    codes: jax.Array  # (N (d+1),) int64, point-major
+    order: jax.Array  # argsort of codes
+    slot: jax.Array  # (N (d+1),) the distinct-vertex index of codes[order]
+    weight: jax.Array  # (N, d+1) barycentric weights
+    rank: jax.Array  # (N, d+1) the simplex ordering of the coordinates
+    fits: jax.Array
+
+    @property
+    def count(self) -> jax.Array:
+        """The number of distinct vertices (int32 scalar)."""
+        return self.slot[..., -1] + 1
 
 
 def _elevate(features: jax.Array) -> jax.Array:
@@ -91,13 +113,14 @@ def _elevate(features: jax.Array) -> jax.Array:
     return jnp.concatenate([suffix[:, :1], tail - j * cf], axis=-1)  # e_0 = sum cf, e_j = sum_{i>=j} cf_i - j cf_{j-1}
 
 
-def build_lattice(features: jax.Array, size: int | None = None) -> Lattice:
-    """The permutohedral lattice of ``features (N, d)`` (already divided by their std devs).
+def _packing(d: int):
+    bits = 62 // d
+    return jnp.int64(1) << jnp.arange(d, dtype=jnp.int64) * bits, jnp.int64(1) << (bits - 1)
 
-    ``size`` (static): room for that many distinct vertices (default ``N (d+1)``, always
-    enough); with fewer than the lattice has, ``fits`` is false. ``vertex_count`` tells how
-    many there are, so a caller can build with a tight size (blur and search cost O(size)).
-    """
+
+def lattice_keys(features: jax.Array) -> LatticeKeys:
+    """Simplex vertices and barycentric weights of ``features (N, d)`` (already divided by their
+    std devs), their codes sorted once; ``.count`` sizes the tables of ``lattice_tables``."""
     n, d = features.shape
     elevated = _elevate(features)
     rem0 = jnp.round(elevated / (d + 1)) * (d + 1)
@@ -120,31 +143,83 @@ def build_lattice(features: jax.Array, size: int | None = None) -> Lattice:
     r = jnp.arange(d + 1)
     canonical = r[:, None] - (d + 1) * (jnp.arange(d + 1)[None, :] > d - r[:, None])
     keys = rem0[:, None, :d].astype(jnp.int64) + canonical[:, rank[:, :d]].transpose(1, 0, 2)  # (N, d+1, d)
-    bits = 62 // d
-    base = jnp.int64(1) << jnp.arange(d, dtype=jnp.int64) * bits
-    half = jnp.int64(1) << (bits - 1)
+    base, half = _packing(d)
     codes = jnp.sum((keys + half) * base, axis=-1).reshape(-1)
-    capacity = n * (d + 1)
-    size = capacity if size is None else size
-    empty = jnp.iinfo(jnp.int64).max
     order = jnp.argsort(codes)
     ordered = codes[order]
     slot = jnp.cumsum(jnp.concatenate([jnp.ones((1,), jnp.int32), (ordered[1:] != ordered[:-1]).astype(jnp.int32)])) - 1
-    inverse = jnp.zeros((capacity,), jnp.int32).at[order].set(slot)
-    unique = jnp.full((size,), empty, jnp.int64).at[slot].set(ordered, mode="drop")  # sorted; unused slots: `empty`
+    fits = jnp.max(jnp.abs(keys)) < half - (d + 2)  # digits (also neighbours') in their field
+    return LatticeKeys(codes, order, slot, bary, rank.astype(jnp.int32), fits)
+
+
+def lattice_tables(keys: LatticeKeys, size: int) -> Lattice:
+    """The vertex tables of ``keys`` with room for ``size`` (static) distinct vertices: blur and
+    neighbour search cost O(size); with fewer than ``keys.count``, ``fits`` is false."""
+    n, dp1 = keys.weight.shape
+    d = dp1 - 1
+    base, _ = _packing(d)
+    empty = jnp.iinfo(jnp.int64).max
+    inverse = jnp.zeros((n * dp1,), jnp.int32).at[keys.order].set(keys.slot).reshape(n, dp1)
+    unique = jnp.full((size,), empty, jnp.int64).at[keys.slot].set(keys.codes[keys.order], mode="drop")  # sorted
     # neighbour along direction j: key - 1 everywhere and + d at j (j < d); the opposite one: its negative
     step = -jnp.sum(base) + (d + 1) * jnp.concatenate([base, jnp.zeros((1,), jnp.int64)])
     queries = unique[None, None, :] + jnp.stack([step, -step], axis=1)[:, :, None]  # (d+1, 2, size)
     at = jnp.clip(jnp.searchsorted(unique, queries.reshape(-1)), 0, size - 1).reshape(queries.shape)
     found = (unique[at] == queries) & (unique != empty)[None, None, :]
-    neighbours = jnp.where(found, at, size)
-    fits = (jnp.max(jnp.abs(keys)) < half - (d + 2)) & (slot[-1] < size)  # digits (also neighbours') in their field
-    return Lattice(inverse.reshape(n, d + 1), bary, neighbours.astype(jnp.int32), fits)
+    neighbours = jnp.where(found, at, size).astype(jnp.int32)
+    self_weight = _self_weights(inverse, keys.weight, keys.rank, neighbours)
+    return Lattice(inverse, keys.weight, neighbours, self_weight, keys.fits & (keys.slot[-1] < size))
+
+
+def _self_weights(vertex, weight, rank, neighbours):
+    """Diagonal of the splat-blur-slice operator: ``alpha sum_{a,b} w_a w_b B[v_a, v_b]`` per point.
+
+    ``B[v_a, v_b]`` (what a unit splatted at vertex b holds at vertex a after the d+1 blurs) sums
+    over the walks b -> a that move by s_j in {-1, 0, 1} lattice steps along direction j, in blur
+    order, with weight 1/2 per move. The simplex's v_a - v_b is a sum of steps over the directions
+    whose rank lies in (d - max(a,b), d - min(a,b)] (sign: + if a < b); since the d+1 steps sum to
+    0, the walks are that pattern plus a constant c in {-1, 0, 1}. A walk counts only if every
+    vertex it passes exists in this lattice (a missing one holds nothing), checked with the
+    neighbour tables.
+    """
+    n, dp1 = weight.shape
+    d = dp1 - 1
+    size = neighbours.shape[-1]
+    walks = [(a, b, c) for a in range(dp1) for b in range(dp1) for c in (-1, 0, 1)
+             if a == b or c == (-1 if a < b else 1) or c == 0]  # the walks whose moves stay in {-1, 0, 1}
+    a, b, c = (np.array(x) for x in zip(*walks))
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    sign = np.where(a < b, 1, -1)
+    gain = 0.5 ** np.where(c == 0, hi - lo, np.where(a == b, dp1, dp1 - (hi - lo)))  # 1/2 per move
+    inside = (rank[:, None, :] > d - hi[None, :, None]) & (rank[:, None, :] <= d - lo[None, :, None])  # (N, W, d+1)
+    moves = (sign[None, :, None] * inside + c[None, :, None]).astype(jnp.int32)
+    # one gather per direction: rows (j, +1), (j, -1), (j, stay) of a table whose slot `size` is "missing"
+    stay = jnp.broadcast_to(jnp.arange(size + 1, dtype=jnp.int32), (dp1, 1, size + 1))
+    table = jnp.concatenate([jnp.concatenate([neighbours, jnp.full((dp1, 2, 1), size, jnp.int32)], -1), stay], 1)
+    table = table.at[:, 2, size].set(size).reshape(-1)
+    at = vertex[:, b]
+    for j in range(dp1):
+        row = jnp.where(moves[..., j] == 1, 0, jnp.where(moves[..., j] == -1, 1, 2))
+        at = table[(3 * j + row) * (size + 1) + at]
+    pair = weight[:, a] * weight[:, b] * jnp.where(at < size, jnp.asarray(gain, weight.dtype), 0.0)
+    return _alpha(dp1) * jnp.sum(pair, axis=-1)
+
+
+def _alpha(dp1: int) -> float:
+    """The slice's scale ``1 / (1 + 2^-d)``: a point on a vertex of a full lattice weighs itself 1."""
+    return 1.0 / (1.0 + 2.0 ** (-(dp1 - 1)))
+
+
+def build_lattice(features: jax.Array, size: int | None = None) -> Lattice:
+    """The permutohedral lattice of ``features (N, d)`` (already divided by their std devs), with
+    room for ``size`` (static) vertices (default ``N (d+1)``, always enough)."""
+    keys = lattice_keys(features)
+    return lattice_tables(keys, keys.codes.shape[0] if size is None else size)
 
 
 def vertex_count(features: jax.Array) -> jax.Array:
     """The number of distinct lattice vertices of ``features (N, d)`` (int32 scalar)."""
-    return build_lattice(features, size=1).vertex.max() + 1
+    return lattice_keys(features).count
 
 
 def lattice_filter(lattice: Lattice, values: jax.Array) -> jax.Array:
@@ -158,43 +233,67 @@ def lattice_filter(lattice: Lattice, values: jax.Array) -> jax.Array:
         return grid.at[:size].add(0.5 * (grid[pair[0]] + grid[pair[1]])), None
 
     grid, _ = jax.lax.scan(blur, splat, lattice.neighbours)
-    alpha = 1.0 / (1.0 + 2.0 ** (-(dp1 - 1)))
-    return alpha * jnp.einsum("nr,nrl->nl", lattice.weight, grid[lattice.vertex])
+    return _alpha(dp1) * jnp.einsum("nr,nrl->nl", lattice.weight, grid[lattice.vertex])
 
 
 # ---- mean field --------------------------------------------------------------------------------
 
 
-def _mean_field(unary, filters, weights, iters: int, symmetric: bool):
+def positional_filter(height: int, width: int, sigma) -> Callable[[jax.Array], jax.Array]:
+    """The smoothness filter ``sum_j exp(-|p_i - p_j|^2 / 2 sigma^2) v_j`` (self included), exactly:
+    the Gaussian separates over rows and columns, ``K v = K_y V K_x`` (O(N (H + W)) per label)."""
+    def matrix(n):
+        x = jnp.arange(n, dtype=jnp.float32) / sigma
+        return jnp.exp(-0.5 * (x[:, None] - x[None, :]) ** 2)
+
+    rows, cols = matrix(height), matrix(width)
+    return lambda v: jnp.einsum("ab,bcl,cd->adl", rows, v.reshape(height, width, -1), cols).reshape(height * width, -1)
+
+
+def mass_scale(lattice: Lattice, features: jax.Array, rows: int = 64) -> jax.Array:
+    """``c`` with ``K~_lattice ~ c K~``: the lattice's off-diagonal mass over the exact kernel's,
+    both summed over ``rows`` (static) evenly strided points (O(rows N)); 1 if the exact is 0."""
+    n = features.shape[0]
+    picked = jnp.arange(0, n, max(1, n // rows))
+    exact = jnp.sum(jnp.exp(-0.5 * jnp.sum((features[picked][:, None] - features[None]) ** 2, -1))) - picked.size
+    approx = jnp.sum(lattice_filter(lattice, jnp.ones((n, 1), features.dtype))[picked, 0] - lattice.self_weight[picked])
+    return jnp.where(exact > 0, approx / jnp.where(exact > 0, exact, 1.0), 1.0)
+
+
+def _mean_field(unary, terms, iters: int, symmetric: bool):
+    """``terms``: (``v -> K~ v``, w_m) with ``K~`` the kernel without its diagonal; symmetric:
+    ``D = K~ 1 + 1`` (the exact kernel's row sums, self weight 1)."""
     ones = jnp.ones((unary.shape[0], 1), unary.dtype)
-    norms = [jax.lax.rsqrt(f(ones)) if symmetric else ones for f in filters]
+    norms = [jax.lax.rsqrt(k(ones) + 1.0) if symmetric else ones for k, _ in terms]
 
     def step(q, _):
-        message = sum(w * (nm * f(nm * q) - nm * nm * q) for f, w, nm in zip(filters, weights, norms))
+        message = sum(w * nm * k(nm * q) for (k, w), nm in zip(terms, norms))
         return jax.nn.softmax(-unary + message, axis=-1), None
 
     q, _ = jax.lax.scan(step, jax.nn.softmax(-unary, axis=-1), None, length=iters)
     return q
 
 
-def _dense_crf(probs, image, sxy_b, srgb, w_b, sxy_g, w_g, iters: int, symmetric: bool, exact: bool, sizes=(None, None)):
+def _bilateral_keys(image, sxy_b, srgb):
+    return lattice_keys(crf_features(image, sxy_b, srgb, 1.0)[0])
+
+
+def _dense_crf(probs, image, keys, sxy_b, srgb, w_b, sxy_g, w_g, iters: int, symmetric: bool, size: int | None):
+    """One frame; ``keys``: the bilateral lattice's (permutohedral) or None (exact)."""
     h, w, num_labels = probs.shape
     unary = -jnp.log(jnp.clip(probs.reshape(-1, num_labels).astype(jnp.float32), 1e-8, None))
     f_b, f_g = crf_features(image, sxy_b, srgb, sxy_g)
-    if exact:
-        filters = [lambda v: exact_filter(f_b, v), lambda v: exact_filter(f_g, v)]
+    if keys is None:
+        terms = [(lambda v: exact_filter(f_b, v) - v, w_b), (lambda v: exact_filter(f_g, v) - v, w_g)]
         fits = jnp.asarray(True)
     else:
-        lat_b, lat_g = build_lattice(f_b, sizes[0]), build_lattice(f_g, sizes[1])
-        filters = [lambda v: lattice_filter(lat_b, v), lambda v: lattice_filter(lat_g, v)]
-        fits = lat_b.fits & lat_g.fits
-    q = _mean_field(unary, filters, (w_b, w_g), iters, symmetric)
-    return q.reshape(h, w, num_labels), fits
-
-
-def _vertex_counts(image, sxy_b, srgb, sxy_g):
-    f_b, f_g = crf_features(image, sxy_b, srgb, sxy_g)
-    return jnp.stack([vertex_count(f_b), vertex_count(f_g)])
+        lat = lattice_tables(keys, size)
+        scale = mass_scale(lat, f_b)
+        positional = positional_filter(h, w, sxy_g)
+        terms = [(lambda v: (lattice_filter(lat, v) - lat.self_weight[:, None] * v) / scale, w_b),
+                 (lambda v: positional(v) - v, w_g)]
+        fits = lat.fits
+    return _mean_field(unary, terms, iters, symmetric).reshape(h, w, num_labels), fits
 
 
 def _room(count: int) -> int:
@@ -202,10 +301,10 @@ def _room(count: int) -> int:
     return max(64, 1 << (int(count) - 1).bit_length())
 
 
-_dense_crf_jit = jax.jit(_dense_crf, static_argnums=(7, 8, 9, 10))
-_dense_crf_batch = jax.jit(jax.vmap(_dense_crf, in_axes=(0, 0) + (None,) * 9), static_argnums=(7, 8, 9, 10))
-_vertex_counts_jit = jax.jit(_vertex_counts)
-_vertex_counts_batch = jax.jit(jax.vmap(_vertex_counts, in_axes=(0, None, None, None)))
+_keys_jit = jax.jit(_bilateral_keys)
+_keys_batch = jax.jit(jax.vmap(_bilateral_keys, in_axes=(0, None, None)))
+_dense_crf_jit = jax.jit(_dense_crf, static_argnums=(8, 9, 10))
+_dense_crf_batch = jax.jit(jax.vmap(_dense_crf, in_axes=(0, 0, 0) + (None,) * 8), static_argnums=(8, 9, 10))
 
 
 def dense_crf(probs, image, *, sxy_b: float = 80.0, srgb: float = 13.0, w_b: float = 10.0, sxy_g: float = 3.0,
@@ -240,6 +339,7 @@ def _run(fn, probs, image, batched, sxy_b, srgb, w_b, sxy_g, w_g, iters, normali
         raise ValueError(f"probs must hold at least one pixel and one label, got shape {np.shape(probs)}")
     check_finite("probs", probs)
     check_finite("image", image)
+    check_range("image", image, 0.0, 1.0, " (divide 8-bit images by 255)")
     for name, value in (("sxy_b", sxy_b), ("srgb", srgb), ("sxy_g", sxy_g)):
         if not value > 0:
             raise ValueError(f"{name} must be > 0, got {value}")
@@ -253,12 +353,12 @@ def _run(fn, probs, image, batched, sxy_b, srgb, w_b, sxy_g, w_g, iters, normali
     with jax.enable_x64(True):
         image = jnp.asarray(image, jnp.float32)
         sigmas = jnp.float32(sxy_b * scale), jnp.float32(srgb), jnp.float32(sxy_g * scale)
-        sizes = (None, None)
-        if method == "permutohedral":  # size the lattices to their vertex count (two passes, both jitted)
-            counts = np.asarray((_vertex_counts_batch if batched else _vertex_counts_jit)(image, *sigmas))
-            sizes = tuple(_room(c) for c in counts.reshape(-1, 2).max(axis=0))
-        q, fits = fn(jnp.asarray(probs, jnp.float32), image, sigmas[0], sigmas[1], jnp.float32(w_b), sigmas[2],
-                     jnp.float32(w_g), int(iters), normalization == "symmetric", method == "exact", sizes)
+        keys, size = None, None
+        if method == "permutohedral":  # the bilateral lattice is built once: sorted keys, then tables of its size
+            keys = (_keys_batch if batched else _keys_jit)(image, sigmas[0], sigmas[1])
+            size = _room(int(jnp.max(keys.count)))
+        q, fits = fn(jnp.asarray(probs, jnp.float32), image, keys, sigmas[0], sigmas[1], jnp.float32(w_b), sigmas[2],
+                     jnp.float32(w_g), int(iters), normalization == "symmetric", size)
         if not bool(jnp.all(fits)):
             raise ValueError("features too far apart for the lattice's key packing: increase sxy_b / srgb or use method='exact'")
         return jnp.asarray(np.asarray(q))

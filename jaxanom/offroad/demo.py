@@ -19,9 +19,11 @@ import cv2
 import jax
 import numpy as np
 
-from jaxanom.data.offroad import GRANULARITIES, OffroadSequence
+from jaxanom._validate import check_count
+from jaxanom.data.offroad import DOMAINS, GRANULARITIES, OffroadSequence
 from jaxanom.data.patch_annotations import annotate
 from jaxanom.io import write_json_atomic, write_png_atomic
+from jaxanom.offroad.active import min_frames
 from jaxanom.offroad.encoder import AnnotatedFrames, EncoderConfig, stack_annotations
 from jaxanom.offroad.pipeline import (OffroadConfig, OffroadModel, active_round, learn, segment, segmentation_scores,
                                       sequence_risk_sweep, to_classes)
@@ -53,8 +55,10 @@ class Source:
     def __post_init__(self):
         if self.reader not in ("synthetic", "deepscene", "rugd"):
             raise ValueError(f"reader: expected 'synthetic', 'deepscene' or 'rugd', got {self.reader!r}")
-        if self.frames < 1 or self.step < 1 or self.start < 0:
-            raise ValueError(f"frames, step, start: expected >= 1, >= 1, >= 0, got {self.frames}, {self.step}, {self.start}")
+        if self.reader == "synthetic" and self.domain not in DOMAINS:
+            raise ValueError(f"domain: expected one of {sorted(DOMAINS)}, got {self.domain!r}")
+        for name, minimum in (("frames", 1), ("step", 1), ("start", 0), ("sequence", 0)):
+            check_count(name, getattr(self, name), minimum=minimum)
 
     def open(self):
         """The real reader of this source (not for ``"synthetic"``)."""
@@ -66,7 +70,7 @@ class Source:
 
 @dataclasses.dataclass(frozen=True)
 class OffroadDemoConfig:
-    """Sizes of the demo (``quick()``: a seconds-long run of the same path)."""
+    """Sizes of the demo (``quick()``: a smoke run of the same path at tiny sizes)."""
 
     pipeline: OffroadConfig = OffroadConfig(encoder=EncoderConfig.tiny(steps=150), components=tuple(range(2, 11)),
                                             gmm_inits=2, budget=6, gap=3)
@@ -81,10 +85,27 @@ class OffroadDemoConfig:
     width: int = 256
     seed: int = 0
 
+    def __post_init__(self):
+        if not isinstance(self.pipeline, OffroadConfig):
+            raise ValueError(f"pipeline: expected an OffroadConfig, got {type(self.pipeline).__name__}")
+        if not self.train or not all(isinstance(source, Source) for source in (*self.train, self.active, self.test)):
+            raise ValueError("train, active, test: expected one or more sources, a source, a source")
+        for name, minimum in (("segmented", 1), ("pictures", 0), ("anchors", 1), ("seed", 0)):
+            check_count(name, getattr(self, name), minimum=minimum)
+        for name in ("height", "width"):
+            check_count(name, getattr(self, name), minimum=self.pipeline.encoder.size)
+        if self.granularity not in GRANULARITIES:
+            raise ValueError(f"granularity: expected one of {sorted(GRANULARITIES)}, got {self.granularity!r}")
+        needed = min_frames(self.pipeline.budget, self.pipeline.gap)
+        if self.active.frames < needed:
+            raise ValueError(f"pipeline.budget, pipeline.gap: {self.pipeline.budget} hard frames {self.pipeline.gap} "
+                             f"apart need {needed} frames, the active source has {self.active.frames}")
+
     @classmethod
     def quick(cls) -> "OffroadDemoConfig":
         encoder = EncoderConfig(size=16, widths=(4, 8, 8, 8, 8), hidden=8, dim=3, negatives=4, frames_per_step=2, steps=3)
-        pipeline = OffroadConfig(encoder=encoder, neighbours=2, components=(2, 3), gmm_inits=1, budget=2, gap=1, crf_iters=1)
+        pipeline = OffroadConfig(encoder=encoder, neighbours=2, components=(2, 3), max_components=3, gmm_inits=1, budget=2,
+                                 gap=1, crf_iters=1)
         return cls(pipeline=pipeline, train=(Source("A", 0, 2, 0, 4),), active=Source("B", 0, 4), test=Source("C", 0, 3),
                    segmented=1, pictures=1, anchors=6, height=48, width=64)
 
@@ -92,7 +113,12 @@ class OffroadDemoConfig:
     def from_json(cls, path: str | Path) -> "OffroadDemoConfig":
         """A config file: JSON with any of the fields; ``pipeline`` and ``encoder`` as nested objects,
         sources as ``{"domain", "sequence", "frames", "start", "step"}``."""
-        raw = json.loads(Path(path).read_text())
+        try:
+            raw = json.loads(Path(path).read_text())
+        except (OSError, ValueError) as error:
+            raise ValueError(f"config: {path} cannot be read as JSON ({error})") from None
+        if isinstance(raw, dict) and isinstance(raw.get("config"), dict) and "test_after" in raw:
+            raw = raw["config"]  # a results.json of this demo: its configuration
         if not isinstance(raw, dict):
             raise ValueError(f"config: expected a JSON object in {path}")
         fields = {f.name for f in dataclasses.fields(cls)}
@@ -114,7 +140,7 @@ class OffroadDemoConfig:
                 if key in raw:
                     changes[key] = Source(**raw.pop(key))
             return dataclasses.replace(base, **changes, **raw)
-        except TypeError as error:  # an unknown or missing nested field
+        except (TypeError, ValueError) as error:  # an unknown, missing or out-of-range field
             raise ValueError(f"config: {error} in {path}") from None
 
 

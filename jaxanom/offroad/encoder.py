@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from jaxanom._validate import check_count, check_number
 from jaxanom.models.alexnet import PatchAlexNet
 from jaxanom.offroad.contrastive import info_nce
 from jaxanom.offroad.pairs import contrastive_batch, gather_pairs
@@ -40,6 +41,16 @@ class EncoderConfig:
     frames_per_step: int = 4
     steps: int = 5000
     lr: float = 1e-3
+
+    def __post_init__(self):
+        for name in ("size", "context", "hidden", "dim", "negatives", "frames_per_step", "steps"):
+            check_count(name, getattr(self, name))
+        if len(self.widths) != 5:
+            raise ValueError(f"widths: expected five layer widths (c1..c5), got {self.widths!r}")
+        for index, width in enumerate(self.widths):
+            check_count(f"widths[{index}]", width)
+        check_number("temperature", self.temperature, 0.0, open_low=True)
+        check_number("lr", self.lr, 0.0, open_low=True)
 
     @classmethod
     def tiny(cls, **changes) -> "EncoderConfig":

@@ -21,23 +21,26 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom.metrics.segmentation import confusion_counts
+from jaxanom._validate import check_count, check_labels, check_number
+from jaxanom.metrics.segmentation import confusion_counts, false_positive_rate, precision, recall
 from jaxanom.mixture import GaussianMixture, fit_gmm, select_components
-from jaxanom.offroad.active import select_hard_frames
-from jaxanom.offroad.crf import dense_crf
+from jaxanom.offroad.active import SELECTIONS, select_hard_frames
+from jaxanom.offroad.crf import dense_crf_batch
 from jaxanom.offroad.encoder import AnnotatedFrames, EncoderConfig, concat_frames, embed, init_encoder, train_encoder
 from jaxanom.offroad.patches import neighbour_centers, sliding_centers
-from jaxanom.offroad.risk import classify_batch, frame_risk_batch, risk_bound, training_risks, vote_batch
+from jaxanom.offroad.risk import RISKS, classify_batch, frame_risk_batch, risk_bound, training_risks, vote_batch
 
 
 @dataclasses.dataclass(frozen=True)
 class OffroadConfig:
     """Settings of the three stages (D-B1 values; ``stride`` s_p/4 segments, ``risk_stride``
-    s_p/2 sweeps). ``components``: the BIC scan range, or a fixed m with ``fixed_components``."""
+    s_p/2 sweeps). ``components``: the BIC scan range, extended one count at a time up to
+    ``max_components`` while its minimum sits at the top; or a fixed m with ``fixed_components``."""
 
     encoder: EncoderConfig = EncoderConfig.tiny()
     neighbours: int = 8
     components: tuple[int, ...] = tuple(range(2, 13))
+    max_components: int = 24
     fixed_components: int | None = None
     gmm_inits: int = 3
     delta: float = 0.95
@@ -54,10 +57,31 @@ class OffroadConfig:
     crf_iters: int = 5
 
     def __post_init__(self):
+        if not isinstance(self.encoder, EncoderConfig):
+            raise ValueError(f"encoder: expected an EncoderConfig, got {type(self.encoder).__name__}")
         if self.fixed_components is None and len(self.components) < 2:
             raise ValueError(f"components: expected at least two counts to scan, got {self.components}")
-        if not 0 < self.finetune_fraction <= 1:
-            raise ValueError(f"finetune_fraction: expected in (0, 1], got {self.finetune_fraction}")
+        for index, count in enumerate(self.components):
+            check_count(f"components[{index}]", count)
+        if self.fixed_components is not None:
+            check_count("fixed_components", self.fixed_components)
+        if self.components and max(self.components) > self.max_components:
+            raise ValueError(f"max_components: expected >= the scan's top count {max(self.components)}, "
+                             f"got {self.max_components}")
+        for name in ("max_components", "gmm_inits", "stride", "risk_stride", "budget"):
+            check_count(name, getattr(self, name))
+        for name in ("neighbours", "gap", "crf_iters"):
+            check_count(name, getattr(self, name), minimum=0)
+        check_number("delta", self.delta, 0.0, 1.0, open_low=True)
+        check_number("epsilon", self.epsilon, 0.0, 1.0)
+        check_number("trigger", self.trigger, 0.0, 1.0)
+        check_number("finetune_fraction", self.finetune_fraction, 0.0, 1.0, open_low=True)
+        if self.risk not in RISKS:
+            raise ValueError(f"risk: expected one of {RISKS}, got {self.risk!r}")
+        if self.selection not in SELECTIONS:
+            raise ValueError(f"selection: expected one of {SELECTIONS}, got {self.selection!r}")
+        if not isinstance(self.replay, bool):
+            raise ValueError(f"replay: expected true or false, got {self.replay!r}")
 
 
 @dataclasses.dataclass
@@ -88,17 +112,29 @@ def training_patches(key, data: AnnotatedFrames, config: OffroadConfig) -> tuple
 
 
 def fit_category_model(key, params, data: AnnotatedFrames, config: OffroadConfig) -> OffroadModel:
-    """GMM on P^train (m by the decisive BIC minimum, or ``fixed_components``), r_sigma, cluster -> class."""
+    """Embeds P^train and fits the category model on it (``category_model``)."""
     k_near, k_gmm = jax.random.split(key)
     centers, valid = training_patches(k_near, data, config)
     z = embed(params, data.images, centers, config.encoder)[valid]
     reference = np.repeat(data.reference.reshape(-1), 1 + config.neighbours)[valid.reshape(-1)]
-    z64 = z.astype(np.float64)
+    anchor = (np.arange(valid.size) % (1 + config.neighbours) == 0)[valid.reshape(-1)]
+    return category_model(k_gmm, params, z, anchor, reference, config)
+
+
+def category_model(key, params, z: np.ndarray, anchor: np.ndarray, reference: np.ndarray,
+                   config: OffroadConfig) -> OffroadModel:
+    """GMM and BIC on the anchors (m by the decisive BIC minimum, or ``fixed_components``; D-B8:
+    the neighbour samples are near-duplicates of their anchor and would count each anchor 1 +
+    ``neighbours`` times in BIC's N), then r_sigma and cluster -> class on all of P^train.
+    ``z (N, D)`` P^train's embeddings, ``anchor (N,)`` which are anchors, ``reference (N,)``."""
+    z64 = np.asarray(z, np.float64)
+    anchors = z64[np.asarray(anchor, bool)]
     if config.fixed_components is not None:
-        fit = fit_gmm(k_gmm, z64, config.fixed_components, n_init=config.gmm_inits)
+        fit = fit_gmm(key, anchors, config.fixed_components, n_init=config.gmm_inits)
         bics = {}
     else:
-        m, fits, bics = select_components(k_gmm, z64, config.components, n_init=config.gmm_inits)
+        m, fits, bics = select_components(key, anchors, config.components, n_init=config.gmm_inits,
+                                          max_count=config.max_components)
         fit = fits[m]
     mixture = GaussianMixture(*(np.asarray(x) for x in fit.mixture))
     raw, risks = training_risks(z64, mixture, risk=config.risk)
@@ -117,6 +153,8 @@ def raw_cluster_distance(z: np.ndarray, mixture: GaussianMixture) -> np.ndarray:
 
 def majority_class(clusters: np.ndarray, reference: np.ndarray, num_clusters: int) -> np.ndarray:
     """(m,) the most frequent reference class per cluster (lowest on ties; -1 for an empty cluster)."""
+    check_labels("clusters", clusters, num_clusters)
+    check_labels("reference", reference, np.iinfo(np.int64).max)
     out = np.full(num_clusters, -1, np.int64)
     for k in range(num_clusters):
         members = reference[clusters == k]
@@ -153,7 +191,8 @@ def sequence_risk_sweep(model: OffroadModel, images: np.ndarray, config: Offroad
 
 def segment(model: OffroadModel, images: np.ndarray, config: OffroadConfig, *, crf: bool = True) -> dict:
     """S2 on frames (B, H, W, 3) float [0, 1]: window labels, votes -> dense labels (m = unknown),
-    risk map, and with ``crf`` the CRF labels; all host arrays.
+    ``known_labels`` (argmax over the known clusters' votes: never unknown), risk map, and with
+    ``crf`` the CRF labels; all host arrays.
 
     The CRF's probabilities are the normalised votes of the m known clusters (floored at 1e-4):
     it relabels unknown regions from their surroundings and never outputs the unknown label.
@@ -167,27 +206,31 @@ def segment(model: OffroadModel, images: np.ndarray, config: OffroadConfig, *, c
                        height=height, width=width, num_labels=m + 1)
     result = {"centers": centers, "window_labels": np.asarray(out.labels), "labels": np.asarray(voted.labels),
               "votes": np.asarray(voted.votes), "risk": np.asarray(voted.risk)}
+    # the CRF's input without the CRF (argmax over the known clusters' votes; control for "unknown filled")
+    result["known_labels"] = np.where(result["labels"] == 255, 255, result["votes"][..., :m].argmax(-1)).astype(np.int32)
     if crf:
-        labels = []
-        for votes, image in zip(result["votes"][..., :m], images):  # known clusters only (decision)
-            probs = np.maximum(votes / np.maximum(votes.sum(-1, keepdims=True), 1e-12), 1e-4)
-            q = dense_crf(probs / probs.sum(-1, keepdims=True), image, iters=config.crf_iters, reference_width=512)
-            labels.append(np.asarray(q).argmax(-1))
-        result["crf_labels"] = np.stack(labels).astype(np.int32)
+        votes = result["votes"][..., :m]  # known clusters only (decision)
+        probs = np.maximum(votes / np.maximum(votes.sum(-1, keepdims=True), 1e-12), 1e-4)
+        q = dense_crf_batch(probs / probs.sum(-1, keepdims=True), images, iters=config.crf_iters, reference_width=512)
+        result["crf_labels"] = np.asarray(q).argmax(-1).astype(np.int32)
     return result
 
 
 def to_classes(labels: np.ndarray, model: OffroadModel, num_classes: int) -> np.ndarray:
     """Cluster labels (unknown = m, void 255) -> reference classes; unknown and classless clusters
     become ``num_classes`` (the always-wrong column of D-B14), void stays 255."""
+    check_labels("labels", labels, model.num_clusters + 1, void=255)
     table = np.append(np.where(model.cluster_class >= 0, model.cluster_class, num_classes), num_classes)
     safe = np.where(labels == 255, 0, labels)
     return np.where(labels == 255, 255, table[np.clip(safe, 0, model.num_clusters)]).astype(np.int32)
 
 
 def segmentation_scores(predicted: np.ndarray, truth: np.ndarray, num_classes: int) -> dict:
-    """Pixel accuracy and mIoU (D-B14): ``predicted`` in [0, num_classes] (num_classes = unknown,
+    """Pixel accuracy, mIoU and the means of per-class precision, recall and FPR over the classes
+    where each is defined (D-B14): ``predicted`` in [0, num_classes] (num_classes = unknown,
     counted wrong), ``truth`` in [0, num_classes) or 255 (ignored)."""
+    check_labels("predicted", predicted, num_classes + 1, void=255)
+    check_labels("truth", truth, num_classes, void=255)
     matrix = np.asarray(confusion_counts(jnp.asarray(np.where(predicted == 255, num_classes, predicted)),
                                          jnp.asarray(truth), num_classes + 1), np.int64)
     tp = np.diag(matrix)[:num_classes]
@@ -195,7 +238,14 @@ def segmentation_scores(predicted: np.ndarray, truth: np.ndarray, num_classes: i
     present = union > 0
     return {"pixel_accuracy": float(np.trace(matrix) / max(matrix.sum(), 1)),
             "miou": float(np.mean(tp[present] / union[present])) if present.any() else float("nan"),
+            **{name: _mean_defined(fn(matrix)[:num_classes])
+               for name, fn in (("precision", precision), ("recall", recall), ("fpr", false_positive_rate))},
             "confusion": matrix.tolist()}
+
+
+def _mean_defined(values: np.ndarray) -> float:
+    defined = values[np.isfinite(values)]
+    return float(defined.mean()) if defined.size else float("nan")
 
 
 def active_round(key, model: OffroadModel, base: AnnotatedFrames, images: np.ndarray,

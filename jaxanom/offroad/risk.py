@@ -6,7 +6,8 @@ Per patch embedding z (off-road paper, Section III-C):
 - Eq. 7: the risk. ``risk="literal"`` gives ``1 - gamma(z; c_k*)``; the default
   ``"calibrated"`` (D-B2) gives ``F_train(-log gamma(z; c_k*))``, the fraction of training
   patches whose raw risk ``-log gamma`` is at most this one, in [0, 1]. Both are increasing in
-  ``-gamma``, so with the bound taken on the same training set they give the same labels;
+  ``-gamma``; the calibrated label compares the raw risk with the raw order statistic behind
+  ``r_sigma`` (``r_sigma N``-th smallest training raw risk), so the two give the same labels;
 - Eq. 10: ``y = k*`` if ``r <= r_sigma`` else the unknown label ``phi = m``;
 - Eq. 11: ``r_sigma`` = the smallest bound leaving at most ``1 - delta`` of the training risks
   above it (``risk_bound``);
@@ -26,10 +27,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_finite, check_integer, check_rank, is_concrete
+from jaxanom._validate import check_finite, check_integer, check_labels, check_number, check_rank, is_concrete
 from jaxanom.mixture import GaussianMixture, log_gaussian
 
 VOID = 255  # label of pixels that no window covers
+RISKS = ("calibrated", "literal")  # classify's risk: calibrated on the training patches, or Eq. 9 as printed
 
 
 class Classification(NamedTuple):
@@ -58,8 +60,16 @@ def calibrate(raw: jax.Array, train_raw: jax.Array) -> jax.Array:
 
 def _classify(z, means, covariances, r_sigma, train_raw, literal: bool) -> Classification:
     cluster, raw = raw_risk(z, means, covariances)
-    risk = -jnp.expm1(-raw) if literal else calibrate(raw, train_raw)  # 1 - gamma, or F_train
-    labels = jnp.where(risk <= r_sigma, cluster, means.shape[0])
+    if literal:
+        risk = -jnp.expm1(-raw)  # 1 - gamma
+        known = risk <= r_sigma
+    else:
+        risk = calibrate(raw, train_raw)  # F_train, reported
+        # Eq. 10 on the raw risks: raw <= r_(j) with j = r_sigma N (r_sigma = j / N from risk_bound), i.e. fewer
+        # than j training risks lie strictly below; F_train <= r_sigma would also admit (r_(j), r_(j+1))
+        below = jnp.searchsorted(jnp.sort(train_raw), raw, side="left")
+        known = below < jnp.floor(r_sigma * train_raw.shape[0] + 1e-6)
+    labels = jnp.where(known, cluster, means.shape[0])
     return Classification(labels.astype(jnp.int32), risk.astype(jnp.float32), cluster)
 
 
@@ -138,7 +148,7 @@ def _check_embeddings(z, batched: bool, dim: int | None = None) -> None:
 
 
 def _check_classify_args(z, mixture, r_sigma, train_raw, risk, batched):
-    if risk not in ("calibrated", "literal"):
+    if risk not in RISKS:
         raise ValueError(f"risk must be 'calibrated' or 'literal', got {risk!r}")
     check_rank("mixture.means", mixture.means, 2, "(m, D)")
     _check_embeddings(z, batched, np.shape(mixture.means)[1])
@@ -182,7 +192,7 @@ def classify_batch(z, mixture: GaussianMixture, r_sigma, train_raw=None, *, risk
 def training_risks(z_train, mixture: GaussianMixture, *, risk: str = "calibrated") -> tuple[np.ndarray, np.ndarray]:
     """``(raw, r)`` float64 on the training patches P^train: the raw risks (pass as ``train_raw``)
     and the risks of kind ``risk`` (pass to ``risk_bound``). Host-side."""
-    if risk not in ("calibrated", "literal"):
+    if risk not in RISKS:
         raise ValueError(f"risk must be 'calibrated' or 'literal', got {risk!r}")
     _check_classify_args(z_train, mixture, 0.0, None, "literal", batched=False)
     with jax.enable_x64(True):
@@ -285,6 +295,7 @@ def _checked_frame_risk(fn, labels, num_clusters):
         raise ValueError(f"labels must hold at least one patch per frame, got shape {np.shape(labels)}")
     if int(num_clusters) < 1:
         raise ValueError(f"num_clusters must be >= 1, got {num_clusters}")
+    check_labels("labels", labels, int(num_clusters) + 1)  # 0..m-1 clusters, m unknown
     return fn(jnp.asarray(labels), int(num_clusters))
 
 
@@ -299,6 +310,7 @@ def _check_flr(flr) -> np.ndarray:
 
 def sequence_risk(flr, epsilon: float = 0.5) -> float:
     """Eqs. 14-15: ``Phi^s``, the fraction of frames whose FLR exceeds ``epsilon``."""
+    check_number("epsilon", epsilon, 0.0, 1.0)
     return float(np.mean(_check_flr(flr) > epsilon))
 
 

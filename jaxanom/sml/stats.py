@@ -140,11 +140,12 @@ def fit_stats(batches: Iterable, num_classes: int | None = None) -> ClassStats:
     return stats
 
 
-def stats_finalize(stats: ClassStats, *, missing: str = "error", policy: str = "none",
-                   min_count: float = 10_000, strength: float = 10_000) -> tuple[jax.Array, jax.Array]:
+def stats_finalize(stats: ClassStats, *, missing: str = "error", policy: str = DEFAULT_POLICY,
+                   min_count: float = 10_000, strength: float = DEFAULT_STRENGTH) -> tuple[jax.Array, jax.Array]:
     """Per-class ``(mean, std)``, float32 ``(C,)``, std from the unbiased variance (as the original code).
 
-    ``policy`` (``jaxanom.sml.policy``): ``"none"`` the original's estimate; ``"min_count"`` pools
+    ``policy`` (``jaxanom.sml.policy``; default ``"shrink"`` with ``strength`` 1e6, chosen on real
+    frames, see ``DEFAULT_POLICY``): ``"none"`` the original's estimate; ``"min_count"`` pools
     classes with fewer than ``min_count`` pixels; ``"shrink"`` shrinks every class toward the
     pooled statistics with a prior worth ``strength`` pixels. A class with fewer than 2 counted
     pixels or zero variance is *degenerate*: under ``"none"``, ``missing="error"`` raises
@@ -156,8 +157,8 @@ def stats_finalize(stats: ClassStats, *, missing: str = "error", policy: str = "
                                  strength=strength)[:2]
 
 
-def stats_finalize_report(stats: ClassStats, *, missing: str = "error", policy: str = "none",
-                          min_count: float = 10_000, strength: float = 10_000) -> FinalizedStats:
+def stats_finalize_report(stats: ClassStats, *, missing: str = "error", policy: str = DEFAULT_POLICY,
+                          min_count: float = 10_000, strength: float = DEFAULT_STRENGTH) -> FinalizedStats:
     """``stats_finalize`` with, per class, its pixel count and whether it was fitted, pooled or shrunk."""
     if missing not in ("error", "pooled"):
         raise ValueError(f'missing must be "error" or "pooled", got {missing!r}')
@@ -196,11 +197,16 @@ def load_stats(path) -> tuple[jax.Array, jax.Array, np.ndarray]:
     if not os.path.isfile(path):
         raise ValueError(f"path must be an existing .npz statistics file, got {str(path)!r}")
     try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {name: data[name] for name in data.files}
-    except (OSError, ValueError, EOFError, AttributeError, TypeError, zipfile.BadZipFile) as error:
-        # a .npy file loads as an ndarray, which is no context manager (AttributeError / TypeError)
+        loaded = np.load(path, allow_pickle=False)
+        arrays = None
+        if isinstance(loaded, np.lib.npyio.NpzFile):
+            with loaded as data:
+                arrays = {name: data[name] for name in data.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
         raise ValueError(f"path {str(path)!r} is not a readable .npz file: {type(error).__name__}: {error}") from None
+    if arrays is None:
+        raise ValueError(f"path {str(path)!r} holds a single array (an .npy file); expected an .npz file with arrays "
+                         "mean, std, counts (from save_stats / jaxanom fit-stats)")
     absent = {"mean", "std", "counts"} - set(arrays)
     if absent:
         raise ValueError(f"{str(path)!r} must hold arrays mean, std, counts; missing {sorted(absent)}")

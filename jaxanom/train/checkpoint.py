@@ -7,7 +7,9 @@ checkpoints intact.
 """
 from __future__ import annotations
 
+import errno
 import os
+import shutil
 from typing import Any
 
 import jax
@@ -59,6 +61,7 @@ class Checkpointer:
         The arrays are copied to host before it returns, so ``state`` may be donated to the next
         step; the files are written in the background.
         """
+        check_space(self.directory, state, f"checkpoint of step {step}")
         args = ocp.args.Composite(state=ocp.args.StandardSave(state),
                                   data=ocp.args.JsonSave({"iterator": data_state}))
         self._manager.save(step, args=args, force=True)
@@ -101,6 +104,20 @@ class Checkpointer:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def check_space(directory: str | os.PathLike, state: Any, what: str) -> None:
+    """OSError(ENOSPC) naming ``what`` when the disk of ``directory`` (or of its nearest existing
+    parent) has less room than ``state``'s arrays take; saving then would fail half-way, in orbax's
+    background threads, with pages of tracebacks."""
+    needed = sum(int(getattr(leaf, "nbytes", 0)) for leaf in jax.tree.leaves(state))
+    where = os.path.abspath(directory)
+    while not os.path.isdir(where) and os.path.dirname(where) != where:
+        where = os.path.dirname(where)
+    free = shutil.disk_usage(where).free
+    if free < needed:
+        raise OSError(errno.ENOSPC, f"{what} needs {needed / 2**20:.1f} MiB, the disk holds {free / 2**20:.1f} "
+                      "MiB free", os.fspath(directory))
 
 
 def restore_checkpoint(directory: str | os.PathLike, template: Any, step: int | None = None) -> tuple[Any, Any]:

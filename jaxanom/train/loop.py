@@ -27,6 +27,7 @@ from typing import Any, Iterable
 import jax
 import numpy as np
 
+from jaxanom._validate import check_count
 from jaxanom.metrics.segmentation import miou, pixel_accuracy
 from jaxanom.train.checkpoint import Checkpointer
 from jaxanom.train.optim import OptimConfig, make_optimizer
@@ -64,8 +65,8 @@ class TrainConfig:
 
     def __post_init__(self):
         for name in ("steps", "eval_every", "save_every", "keep"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name}: expected >= 1, got {getattr(self, name)}")
+            check_count(name, getattr(self, name))
+        check_count("seed", self.seed, minimum=0, maximum=2**63 - 1)
 
 
 def pad_batch(batch: dict, multiple: int, ignore: int) -> dict:
@@ -117,7 +118,7 @@ def check_batch(batch: Any, num_classes: int, ignore: int) -> None:
 
 def init_inputs(model, batch: dict) -> tuple[jax.Array, dict]:
     """The first example of ``batch`` as ``model.init`` wants it: (images, extra keyword inputs)."""
-    return model_input(np.asarray(batch["image"][:1])), {k: np.asarray(v[:1]) for k, v in model_extras(model, batch).items()}
+    return model_input(np.asarray(batch["image"][:1]), model), {k: np.asarray(v[:1]) for k, v in model_extras(model, batch).items()}
 
 
 def output_classes(model, batch: dict) -> int:

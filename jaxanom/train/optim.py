@@ -13,6 +13,8 @@ from typing import Callable
 import jax
 import optax
 
+from jaxanom._validate import check_count, check_number
+
 OPTIMIZERS = ("sgd", "adamw")
 
 
@@ -37,10 +39,11 @@ class OptimConfig:
     def __post_init__(self):
         if self.name not in OPTIMIZERS:
             raise ValueError(f"name: expected one of {OPTIMIZERS}, got {self.name!r}")
-        if self.accum_steps < 1:
-            raise ValueError(f"accum_steps: expected >= 1, got {self.accum_steps}")
-        if self.warmup_steps < 0:
-            raise ValueError(f"warmup_steps: expected >= 0, got {self.warmup_steps}")
+        check_number("lr", self.lr, 0.0, open_low=True)
+        for name in ("momentum", "weight_decay", "poly_power", "end_lr"):
+            check_number(name, getattr(self, name), 0.0)
+        check_count("accum_steps", self.accum_steps)
+        check_count("warmup_steps", self.warmup_steps, minimum=0)
         if self.clip_norm is not None and self.clip_norm <= 0:
             raise ValueError(f"clip_norm: expected None or > 0, got {self.clip_norm}")
 

@@ -8,6 +8,9 @@ annotations.
 """
 from __future__ import annotations
 
+import os
+import socket
+import time
 from typing import Sequence
 
 import jax
@@ -17,16 +20,50 @@ from jax.sharding import AxisType, Mesh, NamedSharding, PartitionSpec as P
 DATA = "data"
 
 
-def initialize_distributed() -> None:
+def initialize_distributed(timeout: int | None = None) -> None:
     """Join a multi-host run (``jax.distributed.initialize``); call before any other JAX work.
 
     The coordinator, process count and id are detected from the cluster environment
-    (TPU pods, SLURM, Open MPI, ...), as ``jax.distributed.initialize`` documents. A second call
-    is a no-op, so a command may join early and the train loop still asks.
+    (TPU pods, SLURM, Open MPI, ...), as ``jax.distributed.initialize`` documents, or read from
+    ``JAX_COORDINATOR_ADDRESS``, ``JAX_NUM_PROCESSES`` and ``JAX_PROCESS_ID``. A second call is a
+    no-op, so a command may join early and the train loop still asks. ``timeout`` (default
+    ``$JAXANOM_DISTRIBUTED_TIMEOUT`` or 300 s): how long to wait for the coordinator. Raises
+    ValueError in one line when there is no cluster to join, or the coordinator does not answer
+    (JAX itself would wait in silence, then abort the process).
     """
-    if not jax.distributed.is_initialized():
-        jax.config.update("jax_cpu_collectives_implementation", "gloo")  # CPU hosts; GPUs use NCCL
-        jax.distributed.initialize()
+    if jax.distributed.is_initialized():
+        return
+    timeout = int(os.environ.get("JAXANOM_DISTRIBUTED_TIMEOUT", 300)) if timeout is None else int(timeout)
+    address, index = os.environ.get("JAX_COORDINATOR_ADDRESS"), os.environ.get("JAX_PROCESS_ID")
+    if address and index not in (None, "0"):
+        _wait_for(address, timeout)
+    previous = jax.config.jax_cpu_collectives_implementation
+    jax.config.update("jax_cpu_collectives_implementation", "gloo")  # CPU hosts; GPUs use NCCL
+    try:
+        jax.distributed.initialize(initialization_timeout=timeout)
+    except (ValueError, RuntimeError) as error:
+        jax.config.update("jax_cpu_collectives_implementation", previous)
+        raise ValueError(f"distributed: cannot join a multi-host run ({str(error).strip().splitlines()[0]}): start one "
+                         "process per host under SLURM, Open MPI or a TPU pod, or set JAX_COORDINATOR_ADDRESS "
+                         "(host:port), JAX_NUM_PROCESSES and JAX_PROCESS_ID") from None
+
+
+def _wait_for(address: str, timeout: int) -> None:
+    """Until ``timeout`` seconds pass, try to reach the coordinator at ``host:port``; ValueError if it never answers."""
+    host, _, port = address.rpartition(":")
+    if not host or not port.isdigit():
+        raise ValueError(f"JAX_COORDINATOR_ADDRESS: expected host:port, got {address!r}")
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            socket.create_connection((host.strip("[]"), int(port)), timeout=min(5.0, timeout)).close()
+            return
+        except OSError as error:
+            if time.monotonic() >= deadline:
+                raise ValueError(f"distributed: the coordinator {address} did not answer within {timeout} s "
+                                 f"({error.strerror or error}); is process 0 running, and the address right? "
+                                 "(JAXANOM_DISTRIBUTED_TIMEOUT sets the wait)") from None
+            time.sleep(min(1.0, max(0.0, deadline - time.monotonic())))
 
 
 def make_mesh(devices: Sequence[jax.Device] | None = None) -> Mesh:

@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import optax
 
 from jaxanom import losses
+from jaxanom._validate import check_count, check_number
 from jaxanom.cudam_score import upsample_attention
 from jaxanom.data.transforms import normalize
 from jaxanom.metrics.segmentation import confusion_counts
@@ -64,6 +65,13 @@ class LossConfig:
             raise ValueError(f"compute_dtype: expected one of {tuple(COMPUTE_DTYPES)}, got {self.compute_dtype!r}")
         if self.attention_k not in ATTENTION_KS:
             raise ValueError(f"attention_k: expected one of {ATTENTION_KS}, got {self.attention_k!r}")
+        for name in ("tau", "beta", "msaam_lambda"):
+            check_number(name, getattr(self, name), 0.0)
+        for name in ("reward_prob", "sml_decay"):
+            check_number(name, getattr(self, name), 0.0, 1.0)
+        check_count("ignore", self.ignore, minimum=0)
+        for index, weight in enumerate(self.class_weights or ()):
+            check_number(f"class_weights[{index}]", weight, 0.0)
         if not 0.0 < self.sml_decay <= 1.0:
             raise ValueError(f"sml_decay: expected a decay in (0, 1], got {self.sml_decay}")
         if not 0.0 <= self.reward_prob <= 1.0:
@@ -77,7 +85,7 @@ def _cast(tree, dtype):
 def _forward(model, variables, images, cfg: LossConfig, **kwargs):
     dtype = COMPUTE_DTYPES[cfg.compute_dtype]
     variables = dict(variables, params=_cast(variables["params"], dtype))
-    return model.apply(variables, model_input(images).astype(dtype), **kwargs)
+    return model.apply(variables, model_input(images, model).astype(dtype), **kwargs)
 
 
 def model_extras(model, batch: dict) -> dict:
@@ -85,10 +93,14 @@ def model_extras(model, batch: dict) -> dict:
     return {name: batch[name] for name in getattr(model, "extra_inputs", ())}
 
 
-def model_input(images) -> jax.Array:
+def model_input(images, model=None) -> jax.Array:
     """Images as the model wants them: uint8 RGB batches are normalised here, on the device
-    (4x fewer bytes to transfer than float32); float batches are taken as already normalised."""
-    return normalize(images) if images.dtype == jnp.uint8 else images
+    (4x fewer bytes to transfer than float32), with ``model.normalize_input`` where the network
+    has its own (ESPNet's Cityscapes weights), else ImageNet's mean and std (``normalize``);
+    float batches are taken as already normalised."""
+    if images.dtype != jnp.uint8:
+        return images
+    return getattr(model, "normalize_input", normalize)(images)
 
 
 def training_anomaly_score(logits) -> jax.Array:

@@ -15,6 +15,14 @@
   concatenates the image-pooling branch first and their decoder puts ``bot_fine`` before the
   upsampled ASPP output; jaxanom concatenates in the other order, so the input channels of
   ``bot_aspp`` and ``final1.0`` are rotated on import (the same function, exactly).
+* ``espnet-cityscapes``: the ESPNet authors' Cityscapes network with the light decoder
+  (github sacmehta/ESPNet, ``pretrained/decoder/espnet_p_<p>_q_<q>.pth``; 20 classes: the 19
+  trainIds and void) -> ``jaxanom.models.espnet.ESPNet``, p and q read from the checkpoint.
+  Their ``encoder.level{2,3}_0`` (strided ESP, ``bn`` / ``act``) and ``encoder.level{2,3}.{i}``
+  (residual ESP, BN and PReLU inside ``bn.bn`` / ``bn.act``) are jaxanom's ``level{2,3}_down``
+  and ``level{2,3}_{i}``; convolutions wrapped in their ``C`` module are ``<name>.conv``;
+  ``up_l3.0``, ``up_l2.0`` and ``classifier`` are 2x2 transposed convs (``Upsample2``).
+  Images are normalised with ``jaxanom.models.espnet.normalize_espnet``.
 * ``torchvision-vgg16|vgg19``: ``features.{n}`` (conv with bias) -> ``jaxanom.models.vgg.VGG``
   with ``conv{b}_{i}``; the ``classifier`` is not used.
 """
@@ -27,11 +35,12 @@ import jax
 import numpy as np
 
 KINDS = ("torchvision-resnet18", "torchvision-resnet50", "torchvision-resnet101", "sml-deeplabv3plus",
-         "torchvision-vgg16", "torchvision-vgg19")
+         "torchvision-vgg16", "torchvision-vgg19", "espnet-cityscapes")
 SML_PRESET = "deeplabv3plus_r101_sml"
 # The jaxanom.models preset that each DeepLabV3+ kind builds.
 PRESETS = {"torchvision-resnet18": "deeplabv3plus_r18", "torchvision-resnet50": "deeplabv3plus_r50",
            "torchvision-resnet101": "deeplabv3plus_r101", "sml-deeplabv3plus": SML_PRESET}
+RUN_KINDS = (*PRESETS, "espnet-cityscapes")  # the kinds that convert to a run folder (the VGGs do not)
 _SML_HEAD = {("aspp", "conv1x1"): "aspp.features.0", ("aspp", "atrous0"): "aspp.features.1",
              ("aspp", "atrous1"): "aspp.features.2", ("aspp", "atrous2"): "aspp.features.3",
              ("aspp", "image_pool"): "aspp.img_conv", ("aspp", "project"): "bot_aspp",
@@ -48,7 +57,9 @@ def from_torch(state_dict: Mapping, kind: str, num_classes: int = 19, *, key: ja
     ``output_stride`` (8 or 16) configure the DeepLabV3+ kinds; the VGG kinds ignore them.
     ``key``: a ``jax.random`` key initialising the DeepLabV3+ head of the ``torchvision-resnet*``
     kinds (required there; the other kinds load every variable). ``model.apply(variables, images,
-    train=False)`` takes images (B, H, W, 3) normalised with ImageNet's mean and std.
+    train=False)`` takes images (B, H, W, 3) normalised with ImageNet's mean and std, except
+    ESPNet's (``model.normalize_input``). ``espnet-cityscapes`` takes its class count and p, q
+    from the checkpoint and ignores ``num_classes`` and ``output_stride``.
     Raises ValueError listing missing, unexpected and mis-shaped keys when the state dict does not
     fit ``kind`` (nothing is loaded partially).
     """
@@ -61,6 +72,11 @@ def from_torch(state_dict: Mapping, kind: str, num_classes: int = 19, *, key: ja
         raise ValueError(f"kind: expected one of {KINDS}, got {kind!r}")
     state = state_dict_arrays(state_dict)
     probe = np.zeros(_PROBE, np.float32)
+    if kind == "espnet-cityscapes":
+        model = _espnet_for(state)
+        template = jax.eval_shape(lambda x: model.init(jax.random.key(0), x, train=False), probe)
+        what = f"{kind} (ESPNet p={model.p}, q={model.q}, {model.num_classes} classes)"
+        return model, fill_variables(state, template, _espnet_name, lambda name: False, what)
     if kind.startswith("torchvision-vgg"):
         model = VGG(kind.removeprefix("torchvision-"))
         template = jax.eval_shape(lambda x: model.init(jax.random.key(0), x), probe)
@@ -80,6 +96,16 @@ def from_torch(state_dict: Mapping, kind: str, num_classes: int = 19, *, key: ja
     variables = fill_variables(state, template, _torchvision_resnet_name,
                                lambda name: name.startswith("fc."), f"{kind} (ImageNet backbone)")
     return model, variables
+
+
+def run_preset(kind: str, model) -> str | None:
+    """The ``build_model`` name of a network imported as ``kind`` (what its run folder records),
+    or None for the kinds that have no run (VGG)."""
+    if kind not in RUN_KINDS:
+        return None
+    if kind == "espnet-cityscapes":
+        return f"espnet_p{model.p}_q{model.q}"
+    return PRESETS[kind]
 
 
 def _with_initial_head(model, key: jax.Array, probe: np.ndarray) -> dict:
@@ -124,6 +150,49 @@ def _sml_name(path: tuple[str, ...]) -> str:
     module, layer = path[:-1], path[-1]
     offset = 3 if module == ("decoder1",) else 0
     return f"{_SML_HEAD[module]}.{offset + (0 if layer == 'conv' else 1)}"
+
+
+def _espnet_for(state: Mapping):
+    """The ESPNet whose p, q and classes the checkpoint's key names and classifier shape give."""
+    from jaxanom.models.espnet import ESPNet
+
+    def depth(level: int) -> int:
+        return len({key.split(".")[2] for key in state if key.startswith(f"encoder.level{level}.")})
+
+    classifier = state.get("classifier.weight")
+    if classifier is None or classifier.ndim != 4:
+        raise ValueError("state dict does not match espnet-cityscapes: expected the 2x2 transposed conv "
+                         "'classifier.weight' (C, C, 2, 2) of the light decoder, found none")
+    return ESPNet(num_classes=int(classifier.shape[1]), p=depth(2), q=depth(3))
+
+
+def _espnet_name(path: tuple[str, ...]) -> str:
+    """A Flax ESPNet module -> the authors' PyTorch name (see the module docstring)."""
+    if path[0] == "encoder":
+        stage, rest = path[1], path[2:]
+        if match := re.fullmatch(r"(level\d)_(down|\d+)", stage):
+            strided = match[2] == "down"
+            prefix = f"encoder.{match[1]}_0" if strided else f"encoder.{match[1]}.{match[2]}"
+            return _esp_name(prefix, rest[0], strided)
+        if stage in ("level1", "classifier"):
+            return f"encoder.{stage}.conv"
+        return "encoder." + stage.replace("_", ".")  # level1_bn, b1_act, ...
+    name = path[0]
+    if name == "combine_esp":
+        return _esp_name("combine_l2_l3.1", path[1], strided=False)
+    return _ESPNET_DECODER[name]
+
+
+_ESPNET_DECODER = {"br": "br", "up_l3": "up_l3.0", "level3_C": "level3_C.conv", "combine_bn": "combine_l2_l3.0.bn",
+                   "combine_act": "combine_l2_l3.0.act", "up_l2": "up_l2.0", "up_l2_bn": "up_l2.1.bn",
+                   "up_l2_act": "up_l2.1.act", "conv": "conv.conv", "conv_bn": "conv.bn", "conv_act": "conv.act",
+                   "classifier": "classifier"}
+
+
+def _esp_name(prefix: str, layer: str, strided: bool) -> str:
+    if layer in ("bn", "act"):
+        return f"{prefix}.{layer}" if strided else f"{prefix}.bn.{layer}"
+    return f"{prefix}.{layer}.conv"  # c1, d1, d2, ... wrapped in the authors' C / CDilated
 
 
 def _vgg_name(config: str):

@@ -5,7 +5,8 @@
     state = read_state_dict("model.npz")          # NumPy, no torch
 
 The result is ``{name: float32 np.ndarray}`` in PyTorch's layout (convolutions OIHW). A training
-checkpoint (a dict holding ``"state_dict"`` beside optimizer state) gives its ``state_dict``;
+checkpoint (a dict holding ``"state_dict"``, ``"model"``, ``"model_state_dict"`` or ``"net"`` beside
+optimizer state) gives that state dict;
 DataParallel's ``module.`` prefix is removed. Integer entries (BatchNorm's
 ``num_batches_tracked``) are kept as they are. A file that cannot be read raises ValueError
 naming it; a ``.pth`` file holding anything but tensors, numbers, strings and containers is refused
@@ -14,12 +15,15 @@ by ``weights_only`` and never unpickled.
 from __future__ import annotations
 
 import os
+import pickle
+import re
 from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 
 _DATA_PARALLEL = "module."
+_WRAPPERS = ("state_dict", "model", "model_state_dict", "net")  # where training scripts keep the weights
 
 
 def read_state_dict(path: str | os.PathLike) -> dict[str, np.ndarray]:
@@ -42,8 +46,10 @@ def state_dict_arrays(state: Mapping, source: object = "state_dict") -> dict[str
     """
     if not isinstance(state, Mapping):
         raise ValueError(f"{source}: expected a mapping of parameter names to tensors, got {type(state).__name__}")
-    if "state_dict" in state and isinstance(state["state_dict"], Mapping):
-        state = state["state_dict"]
+    for key in _WRAPPERS:  # a training checkpoint: {"state_dict": ..., "optimizer": ...}, {"model": ...}
+        if isinstance(state.get(key), Mapping):
+            state = state[key]
+            break
     arrays = {}
     for name, value in state.items():
         if not isinstance(name, str):
@@ -59,6 +65,9 @@ def state_dict_arrays(state: Mapping, source: object = "state_dict") -> dict[str
 
 def _to_numpy(value, where: str) -> np.ndarray:
     if hasattr(value, "detach"):  # a torch.Tensor; bfloat16 / float16 go through float32
+        if str(getattr(value, "layout", "torch.strided")) != "torch.strided":
+            raise ValueError(f"{where}: a {str(value.layout).replace('torch.', '')} tensor; expected dense tensors "
+                             "(save tensor.to_dense())")
         value = value.detach().cpu()
         value = value.float() if value.is_floating_point() else value
         value = value.numpy()
@@ -97,6 +106,22 @@ def _read_torch(file: Path) -> Mapping:
                          "'jaxanom[torch]'), or save the state dict as .npz or .safetensors elsewhere") from None
     try:
         return torch.load(file, map_location="cpu", weights_only=True)
-    except Exception as error:  # UnpicklingError (refused objects), RuntimeError / EOFError (damaged)
-        raise ValueError(f"weights file {file}: not a readable PyTorch checkpoint with weights_only=True "
-                         f"({type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''})") from None
+    except pickle.UnpicklingError as error:  # objects only unpickling (running code) builds, or damage
+        text = _plain(error)
+        found = re.search(r"Unsupported global: \S+ \S+", text)
+        if found:
+            raise ValueError(f"weights file {file}: refused: it holds Python objects besides tensors "
+                             f"({found.group(0)}), and jaxanom never runs code from a weights file; save the state "
+                             "dict alone (torch.save(model.state_dict(), path)) or as .safetensors") from None
+        detail = re.search(r"WeightsUnpickler error:\s*(\S[^\n]*)", text)
+        raise ValueError(f"weights file {file}: not a readable PyTorch checkpoint (damaged, or not a weights file: "
+                         f"{detail.group(1) if detail else 'UnpicklingError'})") from None
+    except Exception as error:  # RuntimeError / EOFError (damaged, truncated)
+        first = _plain(error).splitlines()[0] if _plain(error) else ""
+        raise ValueError(f"weights file {file}: not a readable PyTorch checkpoint ({type(error).__name__}: {first})"
+                         ) from None
+
+
+def _plain(error: Exception) -> str:
+    """An error's message without terminal colour codes."""
+    return re.sub(r"\x1b\[[0-9;]*m", "", str(error)).strip()

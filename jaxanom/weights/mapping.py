@@ -7,6 +7,11 @@ A *naming* maps the path of each Flax ``nn.Conv`` / ``nn.BatchNorm`` module (e.g
     Conv      kernel (kh, kw, I, O) <- weight (O, I, kh, kw)     bias <- bias
     BatchNorm scale <- weight, bias <- bias (params); mean <- running_mean, var <- running_var
               (batch_stats); num_batches_tracked is not used (eval maths needs only the above)
+    PReLU     slope <- weight
+
+A module with a ``kernel`` (kh, kw, A, B) takes a PyTorch weight (B, A, kh, kw): a Conv's
+(O, I, kh, kw), or a 2x2 transposed conv's (I, O, kh, kw) when its Flax kernel is (kh, kw, O, I)
+(``jaxanom.models.espnet.Upsample2``).
 
 ``in_shift[prefix] = s`` rotates a convolution's input channels (Flax channel c takes PyTorch
 channel (c + s) mod I): two concatenations of the SML network put their branches in another order
@@ -24,6 +29,7 @@ from flax import traverse_util
 
 _CONV = {"kernel": "weight", "bias": "bias"}
 _BATCH_NORM = {"scale": "weight", "bias": "bias", "mean": "running_mean", "var": "running_var"}
+_PRELU = {"slope": "weight"}
 _SHOWN = 8  # keys listed per kind of problem
 
 
@@ -38,13 +44,15 @@ def fill_variables(state: Mapping[str, np.ndarray], template: Mapping, naming: C
     in_shift = in_shift or {}
     flat = {collection: traverse_util.flatten_dict(tree) for collection, tree in template.items()}
     conv_modules = {path[:-1] for path in flat.get("params", {}) if path[-1] == "kernel"}
+    prelu_modules = {path[:-1] for path in flat.get("params", {}) if path[-1] == "slope"}
     expected = {}  # torch key -> (collection, flax path, rotation of input channels)
     for collection, tree in flat.items():
         for path in tree:
             prefix = naming(path[:-1])
             if prefix is None:
                 continue
-            leaf = (_CONV if path[:-1] in conv_modules else _BATCH_NORM)[path[-1]]
+            module = path[:-1]
+            leaf = (_CONV if module in conv_modules else _PRELU if module in prelu_modules else _BATCH_NORM)[path[-1]]
             expected[f"{prefix}.{leaf}"] = (collection, path, in_shift.get(prefix, 0))
     missing = sorted((key for key in expected if key not in state), key=_natural)
     unexpected = [key for key in state if key not in expected and not key.endswith(".num_batches_tracked")
@@ -59,8 +67,11 @@ def fill_variables(state: Mapping[str, np.ndarray], template: Mapping, naming: C
         if array.shape != torch_shape:
             misshaped.append(f"{key}: checkpoint {array.shape}, expected {torch_shape}")
             continue
-        if not np.issubdtype(array.dtype, np.floating) or not np.isfinite(array).all():
-            bad.append(key)
+        if not np.issubdtype(array.dtype, np.floating):
+            bad.append(f"{key} ({array.dtype}, expected floats)")
+            continue
+        if not np.isfinite(array).all():
+            bad.append(f"{key} ({array.size - np.count_nonzero(np.isfinite(array))} NaN/Inf)")
             continue
         if path[-1] == "kernel":
             array = array.transpose(*range(2, array.ndim), 1, 0)
@@ -85,7 +96,7 @@ def _report(what, expected, missing, unexpected, misshaped, bad) -> str:
     """One line (the command line prints errors as one line)."""
     parts = []
     for title, keys in (("missing", missing), ("unexpected", unexpected), ("mis-shaped", misshaped),
-                        ("not finite floats", bad)):
+                        ("not finite floating-point tensors", bad)):
         if keys:
             shown = "; ".join(keys[:_SHOWN]) + (f"; ... and {len(keys) - _SHOWN} more" if len(keys) > _SHOWN else "")
             parts.append(f"{title} ({len(keys)}): {shown}")

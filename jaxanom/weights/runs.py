@@ -1,7 +1,7 @@
 """Converted weights on disk, and starting a network from another one's modules.
 
-``write_run(folder, model, variables)`` makes a DeepLabV3+ run folder (``experiment.json`` and a
-step-0 checkpoint), which ``jaxanom evaluate --run`` and ``train --init-from`` read like any
+``write_run(folder, preset, model, variables)`` makes a DeepLabV3+ or ESPNet run folder
+(``experiment.json`` and a step-0 checkpoint), which ``jaxanom evaluate --run`` and ``train --init-from`` read like any
 trained run. A VGG has no run: ``write_vgg`` / ``read_vgg`` keep its variables in an .npz with
 the Flax paths as names (``params/conv1_1/kernel``) and the configuration in ``vgg.json``.
 ``take_modules(fresh, source, modules)`` starts a network from another's top-level modules.
@@ -25,19 +25,24 @@ def write_run(folder: str | os.PathLike, preset: str, model, variables: dict):
     """Write ``variables`` of ``model`` (built by ``build_model(preset, ...)``) as a step-0 run.
 
     The experiment keeps jaxanom's defaults for everything but the network (model preset,
-    attention, output stride, classes, CuDAM position). Returns the ``Experiment``.
+    classes; for a DeepLabV3+ also attention, output stride, CuDAM position). Returns the ``Experiment``.
     """
     from jaxanom.experiment import Experiment, jsonable
-    from jaxanom.train.checkpoint import Checkpointer
+    from jaxanom.models import DeepLabV3Plus
+    from jaxanom.train.checkpoint import Checkpointer, check_space
     from jaxanom.train.optim import make_optimizer
     from jaxanom.train.state import TrainState
 
-    experiment = Experiment(model=preset, attention=model.attention, cudam_position=model.cudam_position,
-                            output_stride=model.output_stride, num_classes=model.num_classes)
+    network = {"attention": None}
+    if isinstance(model, DeepLabV3Plus):
+        network = {"attention": model.attention, "cudam_position": model.cudam_position,
+                   "output_stride": model.output_stride}
+    experiment = Experiment(model=preset, num_classes=model.num_classes, **network)
     folder = Path(folder)
     write_json_atomic(folder / "experiment.json", jsonable(experiment))
     tx, _ = make_optimizer(experiment.train.optim, experiment.train.steps)
     state = TrainState.create(jax.tree.map(np.asarray, variables), tx, jax.random.key(0))
+    check_space(folder, state, "the converted run")  # before orbax starts any background writer
     with Checkpointer(folder / "checkpoints") as checkpointer:
         checkpointer.save(0, state)
         checkpointer.wait()

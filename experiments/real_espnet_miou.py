@@ -1,0 +1,72 @@
+"""mIoU of the ESPNet authors' Cityscapes weights, converted to jaxanom, on the 8 Cityscapes frames.
+
+    python -m experiments.real_espnet_miou          # writes real_espnet_miou.json / .md beside this file
+
+Each 2048x1024 frame is resized bilinearly to 1024x512 (the authors' test input) and normalised
+as the weights expect; the logits are compared with the fine labels (trainIds, 255 ignored) at
+full resolution (logits upsampled bilinearly, half-pixel centres) and at 1024x512 (labels
+resized by nearest neighbour). The prediction is the argmax over the 19 trainId channels, and
+over all 20 (channel 19, the authors' void class, is then wrong wherever the label is a class).
+mIoU averages the classes that occur or are predicted (``jaxanom.metrics.miou``), as the
+Cityscapes scripts do over their whole validation set; with 8 frames some classes are absent.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from experiments.real_common import HERE, TRAIN_IDS, espnet, logits_of, require_realdata
+from jaxanom.data.cityscapes import Cityscapes
+from jaxanom.io import write_bytes_atomic, write_json_atomic
+from jaxanom.metrics import confusion_matrix, per_class_iou, pixel_accuracy
+from jaxanom.nn.layers import resize_bilinear
+
+NAME = "real_espnet_miou"
+INPUT = (1024, 512)  # width, height
+PAPER_MIOU = 60.3  # ESPNet paper, Table 2 (Cityscapes test set, 1024x512 input)
+
+
+def main() -> dict:
+    frames = Cityscapes(require_realdata("cityscapes8"), "train")
+    _, predict = espnet()
+    matrices = {key: np.zeros((TRAIN_IDS + 1, TRAIN_IDS + 1), np.int64)
+                for key in ("full_19", "full_20", "input_19", "input_20")}
+    for frame in frames:
+        image, label = frame["image"], frame["label"]
+        logits = logits_of(predict, cv2.resize(image, INPUT, interpolation=cv2.INTER_LINEAR))
+        full = np.asarray(resize_bilinear(logits[None], *label.shape)[0])
+        small_label = cv2.resize(label, INPUT, interpolation=cv2.INTER_NEAREST)
+        for size, out, target in (("full", full, label), ("input", logits, small_label)):
+            for channels in (TRAIN_IDS, TRAIN_IDS + 1):
+                prediction = out[..., :channels].argmax(-1)
+                matrices[f"{size}_{channels}"] += np.asarray(confusion_matrix(prediction, target, TRAIN_IDS + 1))
+    results = {"frames": [frames[i]["name"] for i in range(len(frames))], "input": list(INPUT),
+               "paper_miou_test": PAPER_MIOU}
+    for key, matrix in matrices.items():
+        iou = per_class_iou(matrix)[:TRAIN_IDS]  # the 19 trainIds (void is never a label)
+        results[key] = {"miou": float(np.nanmean(iou)), "pixel_accuracy": pixel_accuracy(matrix),
+                        "per_class_iou": [None if np.isnan(v) else float(v) for v in iou],
+                        "void_predicted_pixels": int(matrix[:, TRAIN_IDS].sum())}
+    write_json_atomic(HERE / f"{NAME}.json", results)
+    write_bytes_atomic(HERE / f"{NAME}.md", markdown(results).encode())
+    return results
+
+
+def markdown(results: dict) -> str:
+    rows = [("full", "2048x1024 (logits upsampled)"), ("input", "1024x512 (labels resized)")]
+    lines = [f"# ESPNet (authors' Cityscapes weights) on {len(results['frames'])} Cityscapes train frames",
+             "", "Written by `python -m experiments.real_espnet_miou`. Input 1024x512; classes that occur or are "
+             "predicted averaged. These are training frames of the weights (optimistic); paper: 60.3% mIoU on the "
+             "Cityscapes test set (ESPNet Table 2).", "",
+             "| evaluated at | argmax over | mIoU % | pixel accuracy % | pixels predicted void |", "|---|---|---|---|---|"]
+    for key, where in rows:
+        for channels, what in ((TRAIN_IDS, "19 trainIds"), (TRAIN_IDS + 1, "20 channels")):
+            r = results[f"{key}_{channels}"]
+            lines.append(f"| {where} | {what} | {100 * r['miou']:.1f} | {100 * r['pixel_accuracy']:.1f} | "
+                         f"{r['void_predicted_pixels']} |")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    out = main()
+    print(markdown(out))
