@@ -133,7 +133,7 @@ def test_score_bad_input_is_one_line(tmp_path, capsys, problem, message):
 
 def test_train_resume_continues_its_own_run(tmp_path, capsys):
     config = tmp_path / "exp.py"
-    config.write_text("from jaxanom.demo import DemoConfig\nexperiment = DemoConfig.quick().experiment\n")
+    config.write_text("from jaxanom.app.demos.sml_cudam import DemoConfig\nexperiment = DemoConfig.quick().experiment\n")
     run = tmp_path / "run"
     assert main(["train", "--config", str(config), "--out", str(run), "--no-progress"]) == 0
     assert main(["train", "--config", str(config), "--out", str(run), "--no-progress"]) == 2
@@ -174,7 +174,7 @@ def test_fit_stats_policy_table_warning_and_evaluate_records_it(demo_dir, tmp_pa
 
 def test_train_writes_the_paper_equivalent_tau_for_its_map(tmp_path, capsys):
     config = tmp_path / "exp.py"
-    config.write_text("import dataclasses\nfrom jaxanom.demo import DemoConfig\nfrom jaxanom.train.step import LossConfig\n"
+    config.write_text("import dataclasses\nfrom jaxanom.app.demos.sml_cudam import DemoConfig\nfrom jaxanom.train.step import LossConfig\n"
                       "e = DemoConfig.quick().experiment\n"
                       "experiment = dataclasses.replace(e, train=dataclasses.replace(e.train, steps=2, save_every=2, "
                       "eval_every=2, loss=LossConfig(method='cudam')))\n")
@@ -192,7 +192,7 @@ def test_cudam_tau_flag_and_config_tau_win_over_the_default():
     import dataclasses
 
     from jaxanom.cli.train import with_cudam_tau
-    from jaxanom.demo import DemoConfig
+    from jaxanom.app.demos.sml_cudam import DemoConfig
     from jaxanom.train.step import LossConfig
 
     e = DemoConfig.quick().experiment

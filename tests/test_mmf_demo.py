@@ -9,9 +9,9 @@ import pytest
 from jaxanom.cli import main
 from jaxanom.data.image_io import read_rgb
 from jaxanom.data.synthetic import SyntheticScenes
-from jaxanom.evaluate import anomaly_results
-from jaxanom.mmf.demo import ROWS, MMFDemoConfig, scored_batches
-from jaxanom.mmf.pipeline import MMFPipeline
+from jaxanom.app.evaluate import anomaly_results
+from jaxanom.app.demos.mmf import ROWS, MMFDemoConfig, scored_batches
+from jaxanom.app.mmf_pipeline import MMFPipeline
 
 
 @pytest.fixture(scope="module")

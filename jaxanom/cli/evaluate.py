@@ -69,12 +69,12 @@ def anomaly_source(args, size: dict | None = None):
 
 
 def run(args) -> None:
-    from jaxanom import methods as scoring
+    from jaxanom.app import methods as scoring
     from jaxanom._validate import check_number
     from jaxanom.data.pipeline import evaluation_batches
-    from jaxanom.demo import conventions_table, results_table
-    from jaxanom.evaluate import anomaly_results, predictions, predictor
-    from jaxanom.experiment import build_network, load_experiment, load_variables
+    from jaxanom.app.demos.sml_cudam import conventions_table, results_table
+    from jaxanom.app.evaluate import anomaly_results, predictions, predictor
+    from jaxanom.app.experiment import build_network, load_experiment, load_variables
     from jaxanom.io import write_json_atomic
 
     track = args.track or TRACKS[args.dataset]
@@ -109,7 +109,7 @@ def run(args) -> None:
                                  "source": "given" if args.cudam_sigma is not None else "paper-equivalent"}
     write_json_atomic(out / "metrics.json", record)
     if args.pictures and not args.mmf:  # MMF's pictures: jaxanom demo mmf
-        from jaxanom.demo import write_pictures
+        from jaxanom.app.demos.sml_cudam import write_pictures
 
         write_pictures(out, predict, source, stats, args.pictures)
     print(results_table(metrics))
@@ -121,8 +121,8 @@ def mmf_batches(args):
     """``(source, batches)``: the dataset scored by the MMF pipeline in ``--mmf`` (read-only)."""
     from pathlib import Path
 
-    from jaxanom.mmf.demo import load_config, scored_batches
-    from jaxanom.mmf.pipeline import MMFPipeline
+    from jaxanom.app.demos.mmf import load_config, scored_batches
+    from jaxanom.app.mmf_pipeline import MMFPipeline
 
     folder = Path(args.mmf)
     if not (folder / "results.json").is_file():

@@ -8,7 +8,7 @@ Parts, each in ``root/<part>-<hash>/`` where the hash covers its settings and th
 it depends on (an edited config retrains only what changed; an interrupted part resumes from
 its checkpoints):
 
-1. segmenter: the library's DeepLabV3+ (``jaxanom.experiment``), without attention;
+1. segmenter: the library's DeepLabV3+ (``jaxanom.app.experiment``), without attention;
 2. RGB-D net (``models.rgbd``), on the segmenter's frames with disparity (D11);
 3. synthesizer (``mmf.synthesis``), on the segmenter's frames and their ground-truth labels:
    class means (``synthesizer="class_mean"``, the CPU default) or a SPADE generator trained as a
@@ -37,7 +37,7 @@ import numpy as np
 from jaxanom._validate import check_count, check_fits_memory, check_number
 from jaxanom.data.synthetic import SyntheticScenes
 from jaxanom.data.transforms import normalize
-from jaxanom.experiment import Experiment, build_network, jsonable, load_variables, run_training
+from jaxanom.app.experiment import Experiment, build_network, jsonable, load_variables, run_training
 from jaxanom.io import write_bytes_atomic
 from jaxanom.losses import balanced_class_weights
 from jaxanom.mmf.perceptual import anomaly_map_batch, perceptual_difference_batch

@@ -25,7 +25,7 @@ from jaxanom.data.patch_annotations import annotate
 from jaxanom.io import write_json_atomic, write_png_atomic
 from jaxanom.offroad.active import min_frames
 from jaxanom.offroad.encoder import AnnotatedFrames, EncoderConfig, stack_annotations
-from jaxanom.offroad.pipeline import (OffroadConfig, OffroadModel, active_round, learn, segment, segmentation_scores,
+from jaxanom.app.offroad_pipeline import (OffroadConfig, OffroadModel, active_round, learn, segment, segmentation_scores,
                                       sequence_risk_sweep, to_classes)
 from jaxanom.offroad.risk import mean_frame_risk, scene_coverage
 
@@ -295,20 +295,3 @@ def results_table(results: dict) -> str:
                      f"{100 * t['votes']['pixel_accuracy']:.1f} | {100 * t['votes']['miou']:.1f} | "
                      f"{100 * t['crf']['pixel_accuracy']:.1f} | {100 * t['crf']['miou']:.1f} |")
     return "\n".join(lines)
-
-
-def run_from_args(args) -> None:
-    """``jaxanom demo offroad [--quick] [--steps N] [--config FILE] [--out DIR]``."""
-    from jaxanom.cli.common import CommandError, out_folder
-
-    if args.config and args.quick:
-        raise CommandError("--config and --quick: give one of them")
-    if args.config and not Path(args.config).is_file():
-        raise CommandError(f"--config {args.config}: no such file")
-    config = OffroadDemoConfig.from_json(args.config) if args.config else (
-        OffroadDemoConfig.quick() if args.quick else OffroadDemoConfig())
-    if args.steps is not None:
-        encoder = dataclasses.replace(config.pipeline.encoder, steps=args.steps)
-        config = dataclasses.replace(config, pipeline=dataclasses.replace(config.pipeline, encoder=encoder))
-    out = "jaxanom-demo-offroad" if args.out == "jaxanom-demo" else args.out
-    run_offroad_demo(out_folder(out, args.overwrite), config, progress=not args.no_progress)

@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom import methods as scoring
+from jaxanom.app import methods as scoring
 from jaxanom.cudam_score import paper_sigma, upsample_attention
 from jaxanom.metrics import AnomalyMetricAccumulator, anomaly_metrics, confusion_matrix, miou, per_class_iou
 from jaxanom.metrics import pixel_accuracy, pr_curve, restrict_to_roi, roc_curve

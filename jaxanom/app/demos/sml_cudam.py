@@ -12,13 +12,13 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from jaxanom import methods as scoring
+from jaxanom.app import methods as scoring
 from jaxanom import sml
 from jaxanom._validate import check_count, check_number
 from jaxanom.cudam_score import PAPER_TEST_POSITIONS, PAPER_TRAIN_POSITIONS, equivalent_weight
 from jaxanom.data.synthetic import ANOMALY_SPLITS
-from jaxanom.evaluate import anomaly_results, class_statistics, predictions, predictor, segmentation_results
-from jaxanom.experiment import Experiment, build_network, frames, run_training
+from jaxanom.app.evaluate import anomaly_results, class_statistics, predictions, predictor, segmentation_results
+from jaxanom.app.experiment import Experiment, build_network, frames, run_training
 from jaxanom.io import write_json_atomic, write_png_atomic
 from jaxanom.train.loop import TrainConfig
 from jaxanom.train.optim import OptimConfig

@@ -17,10 +17,10 @@ import numpy as np
 
 from jaxanom._validate import check_count
 from jaxanom.data.synthetic import ANOMALY_SPLITS, SyntheticScenes
-from jaxanom.evaluate import anomaly_results
-from jaxanom.experiment import Experiment
+from jaxanom.app.evaluate import anomaly_results
+from jaxanom.app.experiment import Experiment
 from jaxanom.io import write_bytes_atomic, write_json_atomic, write_png_atomic
-from jaxanom.mmf.pipeline import MMFConfig, MMFPipeline
+from jaxanom.app.mmf_pipeline import MMFConfig, MMFPipeline
 
 # Table 2's rows: (method, assistant maps, post-processor)
 ROWS = (("entropy", "-", "-"), ("resynthesis", "no", "no"), ("resynthesis_post", "no", "yes"),
@@ -155,23 +155,3 @@ def load_config(path: str | Path) -> MMFDemoConfig:
         return MMFDemoConfig.from_dict(values.get("config", values) if isinstance(values, dict) else values)
     except ValueError as error:
         raise ValueError(f"{path}: {error}") from None
-
-
-def run_cli(args) -> None:
-    """``jaxanom demo mmf [--quick | --config FILE] [--steps N] [--out DIR] [--overwrite]`` (N: segmenter steps)."""
-    from jaxanom.cli.common import CommandError, out_folder
-
-    if args.quick and args.config:
-        raise CommandError("--quick, --config: give one of them")
-    try:
-        config = load_config(args.config) if args.config else MMFDemoConfig.quick() if args.quick else MMFDemoConfig()
-    except ValueError as error:
-        raise CommandError(f"--config {error}") from None
-    if args.steps is not None:
-        seg = config.pipeline.segmenter
-        seg = dataclasses.replace(seg, train=dataclasses.replace(seg.train, steps=args.steps))
-        config = dataclasses.replace(config, pipeline=dataclasses.replace(config.pipeline, segmenter=seg))
-    if getattr(args, "synthesizer", None):
-        pipeline = dataclasses.replace(config.pipeline, synthesizer=args.synthesizer)
-        config = dataclasses.replace(config, pipeline=pipeline)
-    run_mmf_demo(out_folder(args.out, args.overwrite), config, progress=not args.no_progress)
