@@ -32,7 +32,7 @@ import numpy as np
 
 from jaxanom._validate import check_finite, check_rank, check_real, dtype_of
 from jaxanom.io import write_bytes_atomic
-from jaxanom.sml.policy import FinalizedStats, check_policy, finalize
+from jaxanom.sml.policy import DEFAULT_POLICY, DEFAULT_STRENGTH, FinalizedStats, check_policy, finalize
 
 
 class ClassStats(NamedTuple):
