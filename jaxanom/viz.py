@@ -63,7 +63,7 @@ def colorize(labels, palette: Sequence[Sequence[int]], *, void_colour=(0, 0, 0))
     return table[index]
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)  # holds arrays: compared by identity
 class Panel:
     """One titled picture of a figure.
 
