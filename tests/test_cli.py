@@ -6,6 +6,7 @@ import pytest
 from sklearn.metrics import average_precision_score, roc_auc_score
 
 from jaxanom.cli import main
+from jaxanom.data.image_io import read_rgb
 
 
 
@@ -25,6 +26,8 @@ def test_quick_demo_writes_its_results(demo_dir):
     assert 0.0 <= results["segmentation"]["miou"] <= 1.0
     for name in ("roc.png", "pr.png", "frame_0.png", "sml_stats.npz", "run/experiment.json"):
         assert (demo_dir / name).is_file(), name
+    picture = read_rgb(demo_dir / "frame_0.png")  # 2 rows of 3 panels, 64 x 96 frames x 3
+    assert picture.shape[1] >= 3 * 288 and picture.shape[0] >= 2 * 192, picture.shape
     assert list((demo_dir / "run" / "checkpoints").iterdir())
 
 
@@ -46,7 +49,7 @@ def test_fit_stats_and_evaluate_from_the_demo_run(demo_dir, tmp_path, capsys):
                  "--out", str(out), "--pictures", "1"]) == 0
     metrics = json.loads((out / "metrics.json").read_text())["metrics"]
     assert set(metrics) == {"msp", "sml_post", "cudam"}
-    assert (out / "frame_0.png").is_file()
+    assert read_rgb(out / "frame_0.png").shape[1] >= 3 * 288
     assert "| sml_post |" in capsys.readouterr().out
 
 

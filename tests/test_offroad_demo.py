@@ -6,6 +6,7 @@ import pytest
 
 from jaxanom.cli import main
 from jaxanom.app.demos.offroad import OffroadDemoConfig
+from jaxanom.data.image_io import read_rgb
 
 
 @pytest.fixture(scope="module")
@@ -23,8 +24,10 @@ def test_quick_offroad_demo_writes_results_pictures_and_hard_frames(demo_dir):
         for name in ("votes", "crf"):
             assert 0 <= results[tag][name]["pixel_accuracy"] <= 1
         assert 0 <= results[tag]["mflr"] <= 1 and 0 <= results[tag]["coverage"] <= 1
-    for name in ("frame_0_before.png", "frame_0_after.png", "hard_frames.png"):
-        assert (demo_dir / name).is_file(), name
+    for name in ("frame_0_before.png", "frame_0_after.png"):  # 2 rows of 3 panels, 48 x 64 frames x 4
+        picture = read_rgb(demo_dir / name)
+        assert picture.shape[1] >= 3 * 256 and picture.shape[0] >= 2 * 192, (name, picture.shape)
+    assert read_rgb(demo_dir / "hard_frames.png").shape[1] >= 2 * 256  # the two chosen frames side by side
 
 
 def test_a_config_file_round_trips_to_the_same_config(tmp_path):

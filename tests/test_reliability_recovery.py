@@ -1,6 +1,5 @@
 """Recovery after a kill, and runs never replaced half-way (issue 22, sections 1 and 2)."""
 import errno
-import json
 import os
 import signal
 import socket

@@ -3,8 +3,8 @@
 Trains (or loads from ``out/runs``) every part of ``MMFPipeline``, scores an anomaly split with
 disparity inside the road ROI with entropy (the baseline), the plain resynthesis net with and
 without the post-processor, and MMF with and without it; writes ``results.json``, ``table.md``
-and pictures ``frame_<i>.png``: image | resynthesis | A (Eq. 4) | dissimilarity a |
-superpixels | final score (Eq. 6).
+and pictures ``frame_<i>.png``: image | anomaly label | resynthesis | A (Eq. 4) |
+dissimilarity a | superpixels | final score (Eq. 6).
 """
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from jaxanom._validate import check_count
 from jaxanom.data.synthetic import ANOMALY_SPLITS, SyntheticScenes
 from jaxanom.app.evaluate import anomaly_results
 from jaxanom.app.experiment import Experiment
-from jaxanom.io import write_bytes_atomic, write_json_atomic, write_png_atomic
+from jaxanom.io import write_bytes_atomic, write_json_atomic
 from jaxanom.app.mmf_pipeline import MMFConfig, MMFPipeline
 
 # Table 2's rows: (method, assistant maps, post-processor)
@@ -107,18 +107,23 @@ def _boundaries(image: np.ndarray, labels: np.ndarray) -> np.ndarray:
 
 
 def write_pictures(out_dir: Path, kept: list) -> None:
-    """frame_<i>.png: image | resynthesis | A | a | superpixels | final score."""
+    """frame_<i>.png: image | anomaly label | resynthesis | A | a | superpixels | final score;
+    titled, with a legend and colour bars."""
     from jaxanom.mmf.postprocess import superpixel_score
-    from jaxanom.viz import heatmap
+    from jaxanom.viz import Panel, anomaly_label_panel, write_panels
 
     for index, (frame, maps) in enumerate(kept):
         road = maps["road"]
         k = int(maps["superpixels"].max()) + 1
         final = superpixel_score(maps["mmf"], road, maps["superpixels"], k)
-        panels = [frame["image"], np.round(maps["resynthesis"] * 255).astype(np.uint8),
-                  heatmap(maps["anomaly"], vmin=0, vmax=1), heatmap(maps["mmf"], vmin=0, vmax=1),
-                  _boundaries(frame["image"], maps["superpixels"]), heatmap(np.asarray(final), vmin=0, vmax=1)]
-        write_png_atomic(out_dir / f"frame_{index}.png", np.concatenate(panels, axis=1))
+        panels = [Panel("image", frame["image"]),
+                  anomaly_label_panel(frame["label"]),
+                  Panel("resynthesis r", np.round(maps["resynthesis"] * 255).astype(np.uint8)),
+                  Panel("assistant map A (Eq. 4)", maps["anomaly"], vmin=0, vmax=1, label="A"),
+                  Panel("dissimilarity a (MMF)", maps["mmf"], vmin=0, vmax=1, label="a"),
+                  Panel("SLIC superpixels", _boundaries(frame["image"], maps["superpixels"])),
+                  Panel("final score (Eq. 6, road ROI)", np.asarray(final), vmin=0, vmax=1, label="score")]
+        write_panels(out_dir / f"frame_{index}.png", panels, columns=4)
 
 
 def run_mmf_demo(out_dir: str | Path, config: MMFDemoConfig = MMFDemoConfig(), *, progress: bool = True,

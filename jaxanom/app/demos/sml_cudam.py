@@ -19,7 +19,7 @@ from jaxanom.cudam_score import PAPER_TEST_POSITIONS, PAPER_TRAIN_POSITIONS, equ
 from jaxanom.data.synthetic import ANOMALY_SPLITS
 from jaxanom.app.evaluate import anomaly_results, class_statistics, predictions, predictor, segmentation_results
 from jaxanom.app.experiment import Experiment, build_network, frames, run_training
-from jaxanom.io import write_json_atomic, write_png_atomic
+from jaxanom.io import write_json_atomic
 from jaxanom.train.loop import TrainConfig
 from jaxanom.train.optim import OptimConfig
 from jaxanom.train.step import LossConfig
@@ -147,21 +147,21 @@ def conventions_table(metrics: dict) -> str:
 
 def write_pictures(out_dir: Path, predict, source, stats, count: int) -> None:
     """``frame_<i>.png`` for the first ``count`` frames of ``source``: image | prediction |
-    anomaly label (red 1, blue void) | SML + post-processing score (MSP without ``stats``) |
-    CuDAM attention overlay (with an attention model)."""
-    from jaxanom.data.cityscapes_labels import colorize
-    from jaxanom.viz import heatmap, overlay, panel_row
+    anomaly label | SML + post-processing score (MSP without ``stats``) | CuDAM attention (with an
+    attention model); titled, with class legends and colour bars."""
+    from jaxanom.data.cityscapes_labels import CLASS_COLORS, CLASS_NAMES
+    from jaxanom.viz import Panel, anomaly_label_panel, label_panel, write_panels
 
     for index in range(min(count, len(source))):
         frame = source[index]
         out = predict(frame["image"][None])
         score = scoring.score_batch("sml_post" if stats else "msp", out["logits"], stats=stats)[0]
-        label = frame["label"]
-        truth = np.stack([np.where(label == 1, 255, 0), np.zeros_like(label), np.where(label == 255, 128, 0)], -1)
-        panels = [frame["image"], colorize(np.asarray(out["logits"][0].argmax(-1))),
-                  truth.astype(np.uint8), heatmap(np.asarray(score))]
-        titles = ["image", "prediction", "label (red anomaly, blue void)", "score: SML + post" if stats else "score: MSP"]
+        panels = [Panel("image", frame["image"]),
+                  label_panel("prediction", np.asarray(out["logits"][0].argmax(-1)), CLASS_NAMES, CLASS_COLORS),
+                  anomaly_label_panel(frame["label"]),
+                  Panel("score: SML + post-processing" if stats else "score: MSP", np.asarray(score),
+                        label="anomaly score")]
         if "attention_up" in out:
-            panels.append(overlay(frame["image"], heatmap(np.asarray(out["attention_up"][0])), alpha=0.6))
-            titles.append("CuDAM attention")
-        write_png_atomic(out_dir / f"frame_{index}.png", panel_row(panels, titles))
+            panels.append(Panel("CuDAM attention (Eq. 1)", np.asarray(out["attention_up"][0]), cmap="viridis",
+                                label="attention"))
+        write_panels(out_dir / f"frame_{index}.png", panels)
