@@ -22,7 +22,8 @@ from experiments.common import (HERE, RUNS, Finding, Scale, _batches, _thin, bes
 from jaxanom import sml
 from jaxanom.app.evaluate import anomaly_results, class_statistics, predictions, predictor, segmentation_results
 from jaxanom.app.experiment import frames
-from jaxanom.app.demos.mmf import MMFDemoConfig, evaluation_frames, scored_batches
+from jaxanom.app.demos.mmf import MMFDemoConfig, evaluation_frames
+from jaxanom.app.mmf_pipeline import scored_batches
 from jaxanom.app.mmf_pipeline import MMFConfig, MMFPipeline
 from jaxanom.superpixels import scaled_step
 

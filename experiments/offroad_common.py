@@ -24,7 +24,6 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 import jax
-import numpy as np
 
 from experiments.common import Finding, Scale, _cell, aggregate, seed_scales
 from jaxanom.io import write_bytes_atomic, write_json_atomic

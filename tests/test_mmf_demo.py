@@ -10,7 +10,8 @@ from jaxanom.cli import main
 from jaxanom.data.image_io import read_rgb
 from jaxanom.data.synthetic import SyntheticScenes
 from jaxanom.app.evaluate import anomaly_results
-from jaxanom.app.demos.mmf import ROWS, MMFDemoConfig, scored_batches
+from jaxanom.app.demos.mmf import ROWS, MMFDemoConfig
+from jaxanom.app.mmf_pipeline import scored_batches
 from jaxanom.app.mmf_pipeline import MMFPipeline
 
 

@@ -34,7 +34,7 @@ def run(args) -> None:
     import numpy as np
 
     from jaxanom.app import methods as scoring
-    from jaxanom.app.demos.sml_cudam import results_table
+    from jaxanom.app.reports import results_table
     from jaxanom.io import NpyWriter, write_json_atomic
     from jaxanom.metrics import AnomalyMetricAccumulator
 

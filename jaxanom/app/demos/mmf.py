@@ -17,10 +17,10 @@ import numpy as np
 
 from jaxanom._validate import check_count
 from jaxanom.data.synthetic import ANOMALY_SPLITS, SyntheticScenes
-from jaxanom.app.evaluate import anomaly_results
+from jaxanom.app.evaluate import anomaly_results, dataset_reader
 from jaxanom.app.experiment import Experiment
 from jaxanom.io import write_bytes_atomic, write_json_atomic
-from jaxanom.app.mmf_pipeline import MMFConfig, MMFPipeline
+from jaxanom.app.mmf_pipeline import MMFConfig, MMFPipeline, scored_batches
 
 # Table 2's rows: (method, assistant maps, post-processor)
 ROWS = (("entropy", "-", "-"), ("resynthesis", "no", "no"), ("resynthesis_post", "no", "yes"),
@@ -67,24 +67,6 @@ def evaluation_frames(config: MMFDemoConfig) -> SyntheticScenes:
     seg = config.pipeline.segmenter
     return SyntheticScenes(config.anomaly_split, config.anomaly_frames, seg.train.seed + 2, height=seg.height,
                            width=seg.width, disparity=True, roi=True)
-
-
-def scored_batches(pipe: MMFPipeline, source, batch_size: int, keep: int = 0, kept: list | None = None):
-    """Batches ``{"logits", "label", "roi"?, "mmf_maps"}`` for ``evaluate.anomaly_results``; the
-    first ``keep`` frames' maps are appended to ``kept`` (for pictures)."""
-    for start in range(0, len(source), batch_size):
-        frames = [source[i] for i in range(start, min(start + batch_size, len(source)))]
-        maps = pipe.maps(frames)
-        if kept is not None:
-            for i, frame in enumerate(frames[:max(0, keep - start)]):
-                kept.append((frame, {k: v[i] for k, v in maps.items() if k != "num_segments"}))
-        batch = {"logits": maps["logits"], "label": np.stack([f["label"] for f in frames]),
-                 "mmf_maps": {"mmf": maps["mmf"], "resynthesis": maps["resynthesis_score"],
-                              "num_segments": maps["num_segments"],
-                              **{k: v for k, v in maps.items() if k.startswith("superpixels")}}}
-        if "roi" in frames[0]:  # the road region of interest, where the dataset has one
-            batch["roi"] = np.stack([f["roi"] for f in frames])
-        yield batch
 
 
 def table(metrics: dict) -> str:
@@ -160,3 +142,19 @@ def load_config(path: str | Path) -> MMFDemoConfig:
         return MMFDemoConfig.from_dict(values.get("config", values) if isinstance(values, dict) else values)
     except ValueError as error:
         raise ValueError(f"{path}: {error}") from None
+
+
+def mmf_scored_batches(folder: str, dataset: str, path: str, *, frames: int | None = None, depth: str | None = None):
+    """``(source, batches)``: ``dataset`` scored by the MMF pipeline of ``folder`` (written by
+    ``jaxanom demo mmf``), read-only; a dataset without disparity is refused."""
+    folder = Path(folder)
+    if not (folder / "results.json").is_file():
+        raise ValueError(f"--mmf {folder}: expected a folder written by `jaxanom demo mmf` (with results.json)")
+    config = load_config(folder / "results.json").pipeline
+    if dataset not in ("synthetic", "lost-and-found", "smiyc") or (dataset == "smiyc" and not depth):
+        raise ValueError(f"--mmf: the {dataset} dataset has no disparity; use synthetic, lost-and-found or "
+                         "smiyc with --depth")
+    seg = config.segmenter
+    source = dataset_reader(dataset, path, frames=frames, depth=depth,
+                            size={"height": seg.height, "width": seg.width, "disparity": True, "roi": True})
+    return source, scored_batches(MMFPipeline.load(config, folder / "runs"), source, batch_size=1)
