@@ -30,12 +30,12 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from jaxanom import methods as scoring
+from jaxanom.app import methods as scoring
 from jaxanom import sml
 from jaxanom.cudam_score import (PAPER_TEST_POSITIONS, PAPER_TRAIN_POSITIONS, cudam_score, equivalent_weight,
                                  paper_sigma, paper_tau)
-from jaxanom.evaluate import class_statistics, predictions, predictor, segmentation_results
-from jaxanom.experiment import Experiment, build_network, frames, jsonable, run_training
+from jaxanom.app.evaluate import class_statistics, predictions, predictor, segmentation_results
+from jaxanom.app.experiment import Experiment, build_network, frames, jsonable, run_training
 from jaxanom.io import write_bytes_atomic, write_json_atomic
 from jaxanom.metrics import AnomalyMetricAccumulator, pr_curve, roc_curve
 from jaxanom.train.loop import TrainConfig

@@ -2,7 +2,7 @@
 resynthesis net, + assistant maps [A, D] and the RGB-D semantics, + the superpixel post-processor
 of Eq. 6, both) against softmax entropy, and Table 1's structure with the uncertainty scores the
 library has (MSP, max logit, SML) on the segmenter of the same pipeline and the same frames.
-Every part is trained by ``jaxanom.mmf.pipeline`` (segmenter, RGB-D net, class-mean synthesizer,
+Every part is trained by ``jaxanom.app.mmf_pipeline`` (segmenter, RGB-D net, class-mean synthesizer,
 two dissimilarity nets with void clutter as anomaly) with a smaller budget than ``jaxanom demo
 mmf`` so that three seeds fit in about 30 minutes on 2 shared CPU cores; see ``PRESET``. AP here
 is Eq. 7's envelope (VOC all-point) AP, not the step sum of the other tables; FPR95 and AUROC as
@@ -20,10 +20,11 @@ from typing import Callable
 from experiments.common import (HERE, RUNS, Finding, Scale, _batches, _thin, best, improves, not_better,
                                 over_seeds, write_table)
 from jaxanom import sml
-from jaxanom.evaluate import anomaly_results, class_statistics, predictions, predictor, segmentation_results
-from jaxanom.experiment import frames
-from jaxanom.mmf.demo import MMFDemoConfig, evaluation_frames, scored_batches
-from jaxanom.mmf.pipeline import MMFConfig, MMFPipeline
+from jaxanom.app.evaluate import anomaly_results, class_statistics, predictions, predictor, segmentation_results
+from jaxanom.app.experiment import frames
+from jaxanom.app.demos.mmf import MMFDemoConfig, evaluation_frames
+from jaxanom.app.mmf_pipeline import scored_batches
+from jaxanom.app.mmf_pipeline import MMFConfig, MMFPipeline
 from jaxanom.superpixels import scaled_step
 
 NAME = "mmf_table2"

@@ -24,13 +24,12 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 import jax
-import numpy as np
 
 from experiments.common import Finding, Scale, _cell, aggregate, seed_scales
 from jaxanom.io import write_bytes_atomic, write_json_atomic
-from jaxanom.offroad.demo import OffroadDemoConfig, annotated, source_frames
+from jaxanom.app.demos.offroad import OffroadDemoConfig, annotated, source_frames
 from jaxanom.offroad.encoder import AnnotatedFrames
-from jaxanom.offroad.pipeline import OffroadModel, learn
+from jaxanom.app.offroad_pipeline import OffroadModel, learn
 
 
 @dataclasses.dataclass(frozen=True)

@@ -24,9 +24,9 @@ import numpy as np
 from experiments.common import HERE, RUNS, Finding, Scale
 from experiments.offroad_common import OffroadSizes, beats, chain, model_on_a, run_seeds
 from jaxanom.offroad.active import random_frames, select_hard_frames, uniform_frames
-from jaxanom.offroad.demo import Source, annotated, as_float, num_classes, source_frames
+from jaxanom.app.demos.offroad import Source, annotated, as_float, num_classes, source_frames
 from jaxanom.offroad.encoder import concat_frames
-from jaxanom.offroad.pipeline import (active_round, segment, segmentation_scores, sequence_risk_sweep, to_classes,
+from jaxanom.app.offroad_pipeline import (active_round, segment, segmentation_scores, sequence_risk_sweep, to_classes,
                                       update_model)
 from jaxanom.offroad.risk import mean_frame_risk, scene_coverage
 

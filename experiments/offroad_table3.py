@@ -28,9 +28,9 @@ from experiments.common import HERE, RUNS, Finding, Scale
 from experiments.offroad_common import OffroadSizes, beats, model_on_a, run_seeds
 from jaxanom.data.offroad import GRANULARITIES
 from jaxanom.offroad.active import select_hard_frames
-from jaxanom.offroad.demo import Source, annotated, as_float, source_frames
+from jaxanom.app.demos.offroad import Source, annotated, as_float, source_frames
 from jaxanom.offroad.encoder import AnnotatedFrames, concat_frames
-from jaxanom.offroad.pipeline import (fine_tune, fit_category_model, segment, segmentation_scores,
+from jaxanom.app.offroad_pipeline import (fine_tune, fit_category_model, segment, segmentation_scores,
                                       sequence_risk_sweep, to_classes)
 
 NAME = "offroad_table3"

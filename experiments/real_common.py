@@ -36,8 +36,8 @@ def require_realdata(*parts: str) -> Path:
 
 def espnet():
     """``(model, predict)``: the authors' Cityscapes ESPNet and its jitted forward pass on uint8
-    RGB batches (``jaxanom.evaluate.predictor``: normalised as the weights expect)."""
-    from jaxanom.evaluate import predictor
+    RGB batches (``jaxanom.app.evaluate.predictor``: normalised as the weights expect)."""
+    from jaxanom.app.evaluate import predictor
     from jaxanom.weights import from_torch, read_state_dict
 
     model, variables = from_torch(read_state_dict(require_realdata("espnet", CHECKPOINT.name)), "espnet-cityscapes")

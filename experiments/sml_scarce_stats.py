@@ -15,10 +15,10 @@ import numpy as np
 
 from experiments.common import (HERE, RUNS, Finding, Scale, _batches, _thin, anomaly_source, improves, over_seeds,
                                 plain, trained, write_table)
-from jaxanom import methods as scoring
+from jaxanom.app import methods as scoring
 from jaxanom import sml
-from jaxanom.evaluate import class_statistics, predictions, predictor, segmentation_results
-from jaxanom.experiment import frames
+from jaxanom.app.evaluate import class_statistics, predictions, predictor, segmentation_results
+from jaxanom.app.experiment import frames
 from jaxanom.metrics import AnomalyMetricAccumulator, pr_curve, roc_curve
 
 NAME = "sml_scarce_stats"

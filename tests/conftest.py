@@ -5,11 +5,15 @@ import tempfile
 from pathlib import Path
 
 # The suite is bound by XLA compile time. A persistent compilation cache for this session (an
-# empty folder each run) lets tests that build the same computation, in this process or in the
-# subprocesses they start, compile it once. Set before JAX reads its configuration.
+# empty folder each run) lets tests that build the same computation, in this process, in the
+# subprocesses they start or in the other pytest-xdist workers (they inherit this environment
+# from the controller, which loads this file first), compile it once. A size limit turns on
+# JAX's file lock around each entry, so one worker never reads another's half-written entry.
+# Set before JAX reads its configuration.
 _XLA_CACHE = None if "JAX_COMPILATION_CACHE_DIR" in os.environ else tempfile.mkdtemp(prefix="jaxanom-tests-xla-")
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", _XLA_CACHE or "")
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
+os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(8 << 30))
 
 import jax  # noqa: E402
 import pytest  # noqa: E402

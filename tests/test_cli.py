@@ -6,6 +6,7 @@ import pytest
 from sklearn.metrics import average_precision_score, roc_auc_score
 
 from jaxanom.cli import main
+from jaxanom.data.image_io import read_rgb
 
 
 
@@ -25,6 +26,8 @@ def test_quick_demo_writes_its_results(demo_dir):
     assert 0.0 <= results["segmentation"]["miou"] <= 1.0
     for name in ("roc.png", "pr.png", "frame_0.png", "sml_stats.npz", "run/experiment.json"):
         assert (demo_dir / name).is_file(), name
+    picture = read_rgb(demo_dir / "frame_0.png")  # 2 rows of 3 panels, 64 x 96 frames x 3
+    assert picture.shape[1] >= 3 * 288 and picture.shape[0] >= 2 * 192, picture.shape
     assert list((demo_dir / "run" / "checkpoints").iterdir())
 
 
@@ -46,7 +49,7 @@ def test_fit_stats_and_evaluate_from_the_demo_run(demo_dir, tmp_path, capsys):
                  "--out", str(out), "--pictures", "1"]) == 0
     metrics = json.loads((out / "metrics.json").read_text())["metrics"]
     assert set(metrics) == {"msp", "sml_post", "cudam"}
-    assert (out / "frame_0.png").is_file()
+    assert read_rgb(out / "frame_0.png").shape[1] >= 3 * 288
     assert "| sml_post |" in capsys.readouterr().out
 
 
@@ -133,7 +136,7 @@ def test_score_bad_input_is_one_line(tmp_path, capsys, problem, message):
 
 def test_train_resume_continues_its_own_run(tmp_path, capsys):
     config = tmp_path / "exp.py"
-    config.write_text("from jaxanom.demo import DemoConfig\nexperiment = DemoConfig.quick().experiment\n")
+    config.write_text("from jaxanom.app.demos.sml_cudam import DemoConfig\nexperiment = DemoConfig.quick().experiment\n")
     run = tmp_path / "run"
     assert main(["train", "--config", str(config), "--out", str(run), "--no-progress"]) == 0
     assert main(["train", "--config", str(config), "--out", str(run), "--no-progress"]) == 2
@@ -174,7 +177,7 @@ def test_fit_stats_policy_table_warning_and_evaluate_records_it(demo_dir, tmp_pa
 
 def test_train_writes_the_paper_equivalent_tau_for_its_map(tmp_path, capsys):
     config = tmp_path / "exp.py"
-    config.write_text("import dataclasses\nfrom jaxanom.demo import DemoConfig\nfrom jaxanom.train.step import LossConfig\n"
+    config.write_text("import dataclasses\nfrom jaxanom.app.demos.sml_cudam import DemoConfig\nfrom jaxanom.train.step import LossConfig\n"
                       "e = DemoConfig.quick().experiment\n"
                       "experiment = dataclasses.replace(e, train=dataclasses.replace(e.train, steps=2, save_every=2, "
                       "eval_every=2, loss=LossConfig(method='cudam')))\n")
@@ -192,7 +195,7 @@ def test_cudam_tau_flag_and_config_tau_win_over_the_default():
     import dataclasses
 
     from jaxanom.cli.train import with_cudam_tau
-    from jaxanom.demo import DemoConfig
+    from jaxanom.app.demos.sml_cudam import DemoConfig
     from jaxanom.train.step import LossConfig
 
     e = DemoConfig.quick().experiment

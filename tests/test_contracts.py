@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from jaxanom import methods, scores, sml
+from jaxanom import scores, sml
+from jaxanom.app import methods
 from jaxanom.cudam_score import cudam_score, upsample_attention
 
 B, H, W, C = 2, 9, 11, 5

@@ -14,10 +14,10 @@ import sys
 import jax
 import numpy as np
 
-from jaxanom.experiment import load_variables
+from jaxanom.app.experiment import load_variables
 
 CONFIG = """
-from jaxanom.experiment import Experiment
+from jaxanom.app.experiment import Experiment
 from jaxanom.train.loop import TrainConfig
 experiment = Experiment(train_frames=8, height=32, width=64, crop=(32, 64), batch_size=4,
                         train=TrainConfig(run_dir="", steps=3, save_every=2, eval_every=100))

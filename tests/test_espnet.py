@@ -8,8 +8,8 @@ import torch
 
 from conftest import REALDATA
 from jaxanom.cli import main
-from jaxanom.evaluate import predictor
-from jaxanom.experiment import Experiment, build_network, load_variables
+from jaxanom.app.evaluate import predictor
+from jaxanom.app.experiment import Experiment, build_network, load_variables
 from jaxanom.models import build_model, count_params
 from jaxanom.models.espnet import ESPNet, normalize_espnet
 from jaxanom.weights import from_torch, read_state_dict

@@ -7,7 +7,7 @@ import pytest
 from sklearn.metrics import average_precision_score, roc_auc_score
 
 from conftest import REALDATA
-from jaxanom.evaluate import anomaly_results
+from jaxanom.app.evaluate import anomaly_results
 from test_metrics_components import one_predicted_component_over_two_objects, small_object_under_a_prediction
 from test_predict import tiny_run  # noqa: F401  (the fixture)
 

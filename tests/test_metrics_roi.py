@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from sklearn.metrics import average_precision_score
 
-from jaxanom.evaluate import anomaly_results
+from jaxanom.app.evaluate import anomaly_results
 from jaxanom.metrics import restrict_to_roi
 
 

@@ -9,9 +9,10 @@ import pytest
 from jaxanom.cli import main
 from jaxanom.data.image_io import read_rgb
 from jaxanom.data.synthetic import SyntheticScenes
-from jaxanom.evaluate import anomaly_results
-from jaxanom.mmf.demo import ROWS, MMFDemoConfig, scored_batches
-from jaxanom.mmf.pipeline import MMFPipeline
+from jaxanom.app.evaluate import anomaly_results
+from jaxanom.app.demos.mmf import ROWS, MMFDemoConfig
+from jaxanom.app.mmf_pipeline import scored_batches
+from jaxanom.app.mmf_pipeline import MMFPipeline
 
 
 @pytest.fixture(scope="module")
@@ -28,7 +29,7 @@ def test_quick_mmf_demo_writes_the_ablation_and_pictures(demo_dir):
         assert 0 <= m["ap"] <= 1 and 0 <= m["fpr_at_tpr"] <= 1
     assert "| mmf | yes | yes |" in (demo_dir / "table.md").read_text()
     picture = read_rgb(demo_dir / "frame_0.png")
-    assert picture.shape[1] == 6 * picture.shape[0] * 2  # six 32 x 64 panels side by side
+    assert picture.shape[1] >= 4 * 256 and picture.shape[0] >= 2 * 128  # 2 rows of 4 panels, 32 x 64 frames x 4
     parts = sorted(p.name.split("-")[0] for p in (demo_dir / "runs").iterdir())
     assert parts == ["dissimilarity", "dissimilarity", "rgbd", "segmenter", "synthesizer"]
 

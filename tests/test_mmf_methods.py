@@ -1,11 +1,11 @@
-"""MMF rows of jaxanom.methods (mmf, mmf_raw, resynthesis, resynthesis_post) and the pipeline's batches."""
+"""MMF rows of jaxanom.app.methods (mmf, mmf_raw, resynthesis, resynthesis_post) and the pipeline's batches."""
 import jax
 import numpy as np
 import pytest
 from test_mmf_postprocess import dense_eq6
 
-from jaxanom import methods
-from jaxanom.mmf.pipeline import training_stream
+from jaxanom.app import methods
+from jaxanom.app.mmf_pipeline import training_stream
 from jaxanom.mmf.postprocess import superpixel_score_batch
 
 
@@ -43,7 +43,7 @@ def test_post_rows_read_their_own_segmentation():
 
 def test_dissimilarity_inputs_are_the_anomaly_map_and_the_distance():
     # MMF.md D9: u = [A, D] (A = U ⊙ L), not [U, D]
-    from jaxanom.mmf.pipeline import MMFPipeline
+    from jaxanom.app.mmf_pipeline import MMFPipeline
 
     rng = np.random.default_rng(2)
     frames = [{"image": rng.integers(0, 256, (8, 16, 3), dtype=np.uint8), "void": rng.random((8, 16)) < 0.1}
@@ -81,7 +81,7 @@ def test_segment_follows_the_config(slic_input, connectivity):
 @pytest.mark.parametrize("field,value,message", [("slic_step", 0, "slic_step"), ("slic_step", 2.5, "slic_step"),
                                                  ("slic_input", "rgb", "slic_input")])
 def test_config_rejects_bad_slic_settings(field, value, message):
-    from jaxanom.mmf.pipeline import MMFConfig
+    from jaxanom.app.mmf_pipeline import MMFConfig
 
     with pytest.raises(ValueError, match=message):
         MMFConfig(**{field: value})
@@ -110,7 +110,7 @@ def test_training_stream_is_deterministic_and_flips_every_entry_together():
 
 
 def test_dissimilarity_training_is_class_weighted(tmp_path):
-    from jaxanom.mmf.pipeline import MMFConfig, _dissimilarity_train_config
+    from jaxanom.app.mmf_pipeline import MMFConfig, _dissimilarity_train_config
 
     labels = np.zeros((2, 10, 10), np.int32)
     labels[0, :2, :2] = 1  # 4 of 200 pixels

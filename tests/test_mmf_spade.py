@@ -15,7 +15,7 @@ from jaxanom.data.synthetic import SyntheticScenes
 from jaxanom.mmf.gan import (feature_matching_loss, generator_loss, hinge_discriminator_loss, hinge_generator_loss,
                              l1_loss)
 from jaxanom.mmf.gan_train import GANConfig, init_gan_state, train_gan, trained_generator
-from jaxanom.mmf.pipeline import MMFConfig, _gan_config, build_synthesizer, load_synthesizer
+from jaxanom.app.mmf_pipeline import MMFConfig, _gan_config, build_synthesizer, load_synthesizer
 from jaxanom.mmf.synthesis import ClassMeanSynthesizer, SPADESynthesizer, resynthesize
 from jaxanom.models.patch_discriminator import MultiscaleDiscriminator
 from jaxanom.models.spade_generator import SPADEGenerator
@@ -205,7 +205,7 @@ def test_pipeline_trains_and_caches_the_spade_synthesizer(tmp_path):
 
 
 def test_demo_flag_selects_the_synthesizer(monkeypatch, tmp_path):
-    import jaxanom.mmf.demo as demo
+    import jaxanom.app.demos.mmf as demo
     from jaxanom.cli import main
 
     seen = []

@@ -11,8 +11,8 @@ import pytest
 from experiments import mmf_table2 as exp
 from experiments.__main__ import EXPERIMENTS, write_results
 from experiments.common import Scale
-from jaxanom.experiment import build_network
-from jaxanom.mmf import pipeline
+from jaxanom.app.experiment import build_network
+from jaxanom.app import mmf_pipeline as pipeline
 from jaxanom.train.step import model_input
 
 

@@ -5,7 +5,8 @@ import json
 import pytest
 
 from jaxanom.cli import main
-from jaxanom.offroad.demo import OffroadDemoConfig
+from jaxanom.app.demos.offroad import OffroadDemoConfig
+from jaxanom.data.image_io import read_rgb
 
 
 @pytest.fixture(scope="module")
@@ -23,8 +24,10 @@ def test_quick_offroad_demo_writes_results_pictures_and_hard_frames(demo_dir):
         for name in ("votes", "crf"):
             assert 0 <= results[tag][name]["pixel_accuracy"] <= 1
         assert 0 <= results[tag]["mflr"] <= 1 and 0 <= results[tag]["coverage"] <= 1
-    for name in ("frame_0_before.png", "frame_0_after.png", "hard_frames.png"):
-        assert (demo_dir / name).is_file(), name
+    for name in ("frame_0_before.png", "frame_0_after.png"):  # 2 rows of 3 panels, 48 x 64 frames x 4
+        picture = read_rgb(demo_dir / name)
+        assert picture.shape[1] >= 3 * 256 and picture.shape[0] >= 2 * 192, (name, picture.shape)
+    assert read_rgb(demo_dir / "hard_frames.png").shape[1] >= 2 * 256  # the two chosen frames side by side
 
 
 def test_a_config_file_round_trips_to_the_same_config(tmp_path):
@@ -59,7 +62,7 @@ def test_a_deepscene_source_gives_resized_frames_and_five_classes(tmp_path):
     import cv2
     import numpy as np
 
-    from jaxanom.offroad.demo import Source, num_classes, source_frames
+    from jaxanom.app.demos.offroad import Source, num_classes, source_frames
 
     for i in range(3):
         for folder, name, value in (("rgb", f"b{i}-1_Clipped.jpg", (90, 90, 90)), ("GT_color", f"b{i}-1_mask.png", (0, 255, 0))):

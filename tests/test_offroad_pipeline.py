@@ -9,7 +9,7 @@ from jaxanom.data.offroad import generate_frame
 from jaxanom.data.patch_annotations import annotate
 from jaxanom.mixture import GaussianMixture
 from jaxanom.offroad.encoder import EncoderConfig, stack_annotations
-from jaxanom.offroad.pipeline import (OffroadConfig, OffroadModel, active_round, learn, majority_class, segment,
+from jaxanom.app.offroad_pipeline import (OffroadConfig, OffroadModel, active_round, learn, majority_class, segment,
                                       segmentation_scores, sequence_risk_sweep, to_classes)
 
 H, W = 48, 64
@@ -89,7 +89,7 @@ def four_cluster_patches(seed, per=30, dim=4, neighbours=8, spread=0.05):
 @pytest.mark.parametrize("seed", [1, 2])
 def test_bic_on_anchors_recovers_four_separated_clusters(seed):
     from jaxanom.mixture import select_components
-    from jaxanom.offroad.pipeline import category_model
+    from jaxanom.app.offroad_pipeline import category_model
 
     # issue 20: BIC on anchors + 8 near-duplicates each chose 9 here (N counted 9 times)
     z, reference, anchor = four_cluster_patches(seed)

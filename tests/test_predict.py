@@ -17,7 +17,7 @@ import pytest
 from conftest import REALDATA
 from jaxanom.cli import main
 from jaxanom.models import build_model
-from jaxanom.weights import write_run
+from jaxanom.app.runs import write_run
 
 SIZE = (48, 96)  # the network's working size in these tests
 
@@ -60,8 +60,8 @@ def snapshot(run: Path) -> dict:
 def reference_msp(run: Path, path: Path) -> np.ndarray:
     """MSP at the image's size: the run's logits at SIZE (jaxanom's predictor), softmax in NumPy,
     bilinear resizing with OpenCV (half-pixel centres), as float16."""
-    from jaxanom.evaluate import predictor
-    from jaxanom.experiment import build_network, load_variables
+    from jaxanom.app.evaluate import predictor
+    from jaxanom.app.experiment import build_network, load_variables
 
     experiment, variables = load_variables(run)
     image = cv2.imread(str(path), cv2.IMREAD_COLOR)[..., ::-1]
@@ -229,7 +229,7 @@ def test_inputs_and_outputs_are_checked(tiny_run, tmp_path, capsys):
 
 
 def test_float16_overflow_is_refused(tmp_path):
-    from jaxanom.predict import PredictSettings, write_frame
+    from jaxanom.app.predict import PredictSettings, write_frame
 
     frame = {"name": "f", "image": np.zeros((2, 3, 3), np.uint8)}
     with pytest.raises(ValueError, match="float16"):
@@ -239,7 +239,8 @@ def test_float16_overflow_is_refused(tmp_path):
 
 
 def test_superpixel_methods_are_eq6_on_the_normalised_uncertainty():
-    from jaxanom import methods, superpixels
+    from jaxanom import superpixels
+    from jaxanom.app import methods
     from jaxanom.mmf.postprocess import superpixel_score
 
     rng = np.random.default_rng(0)
@@ -279,7 +280,7 @@ def test_statistics_of_another_network_are_refused(tiny_run, tmp_path, capsys):
 def test_size_check_names_sizes_the_network_refuses():
     import flax.linen as nn
 
-    from jaxanom.predict import size_check
+    from jaxanom.app.predict import size_check
 
     class Strided(nn.Module):  # logits at half resolution; refuses sizes that are not multiples of 8
         @nn.compact

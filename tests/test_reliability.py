@@ -12,7 +12,7 @@ from jaxanom import sml
 from jaxanom.cli import common
 from jaxanom.cli import main
 from jaxanom.data.image_io import read_label, read_rgb
-from jaxanom.experiment import Experiment, frames
+from jaxanom.app.experiment import Experiment, frames
 from jaxanom import io as atomic_io
 from jaxanom.metrics import anomaly_metrics
 
@@ -244,7 +244,7 @@ def test_nan_statistics_are_blamed_on_nan_input():
 
 def test_demo_frame_pictures_have_panel_titles(tmp_path):
     from jaxanom.data import SyntheticScenes
-    from jaxanom.demo import write_pictures
+    from jaxanom.app.reports import write_pictures
 
     source = SyntheticScenes("anomaly", 1, 0, height=32, width=48)
     logits = np.random.default_rng(3).normal(size=(1, 32, 48, 19)).astype(np.float32)

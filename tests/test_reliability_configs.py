@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from jaxanom.cli import main
-from jaxanom.offroad.demo import OffroadDemoConfig
+from jaxanom.app.demos.offroad import OffroadDemoConfig
 
 
 class Custom:
@@ -56,8 +56,8 @@ def test_demo_mmf_config_is_checked_before_any_training(tmp_path, capsys, config
 
 
 def test_a_segmenter_with_a_nan_learning_rate_is_refused(tmp_path, capsys):
-    from jaxanom.experiment import jsonable
-    from jaxanom.mmf.pipeline import MMFConfig
+    from jaxanom.app.experiment import jsonable
+    from jaxanom.app.mmf_pipeline import MMFConfig
 
     segmenter = jsonable(MMFConfig.quick().segmenter)
     segmenter["train"]["optim"]["lr"] = math.nan
@@ -173,7 +173,7 @@ def test_convert_weights_unwraps_a_model_checkpoint_and_names_integer_tensors():
 
 
 def test_a_junk_synthesizer_file_is_named_without_pickle_advice(tmp_path):
-    from jaxanom.mmf.pipeline import MMFConfig, _run_dir, load_synthesizer
+    from jaxanom.app.mmf_pipeline import MMFConfig, _run_dir, load_synthesizer
 
     config = MMFConfig.quick()
     junk = _run_dir(config, tmp_path, "synthesizer").with_suffix(".npz")
@@ -202,7 +202,7 @@ def test_fit_stats_out_must_name_an_npz_file(tmp_path, capsys, out, fragment):
 @pytest.mark.parametrize("methods, fragment", [("bogus", "methods: expected names from"),
                                                ("sml", "need SML class statistics")])
 def test_evaluate_checks_its_methods_before_reading_the_network(tmp_path, capsys, methods, fragment):
-    from jaxanom.experiment import Experiment, jsonable
+    from jaxanom.app.experiment import Experiment, jsonable
 
     (tmp_path / "run").mkdir()  # a run without checkpoints: reading its network would fail
     (tmp_path / "run" / "experiment.json").write_text(json.dumps(jsonable(Experiment())))

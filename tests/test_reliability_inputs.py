@@ -7,7 +7,7 @@ from jaxanom import sml
 from jaxanom.metrics.segmentation import miou
 from jaxanom.mixture import fit_gmm, log_gaussian
 from jaxanom.offroad.crf import dense_crf
-from jaxanom.offroad.pipeline import OffroadModel, majority_class, segmentation_scores, to_classes
+from jaxanom.app.offroad_pipeline import OffroadModel, majority_class, segmentation_scores, to_classes
 from jaxanom.offroad.risk import frame_risk, frame_risk_batch, scene_coverage, sequence_risk
 from jaxanom.superpixels import num_superpixels
 

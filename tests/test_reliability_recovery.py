@@ -1,6 +1,5 @@
 """Recovery after a kill, and runs never replaced half-way (issue 22, sections 1 and 2)."""
 import errno
-import json
 import os
 import signal
 import socket
@@ -165,7 +164,7 @@ def test_convert_weights_writes_the_run_it_staged(tmp_path, monkeypatch):
 def test_convert_weights_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path, capsys, monkeypatch):
     import shutil
 
-    import jaxanom.weights
+    import jaxanom.app.runs
 
     weights = _tiny_conversion(tmp_path, monkeypatch)
     real = shutil.disk_usage
@@ -180,7 +179,7 @@ def test_convert_weights_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path,
         (Path(folder) / "checkpoints" / "0" / "part").write_bytes(b"x" * 100)
         raise OSError(errno.ENOSPC, "No space left on device", str(folder))
 
-    monkeypatch.setattr(jaxanom.weights, "write_run", half_written)
+    monkeypatch.setattr(jaxanom.app.runs, "write_run", half_written)
     (tmp_path / "b").mkdir()
     _one_line(capsys, main(["convert-weights", "--from", "torchvision-resnet18", str(weights), str(tmp_path / "b")]),
               "No space left on device", "nothing was left behind")
@@ -189,15 +188,15 @@ def test_convert_weights_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path,
 
 
 def test_a_diverging_run_is_one_line_naming_the_last_good_step_and_what_to_change(tmp_path, capsys, monkeypatch):
-    import jaxanom.experiment
+    import jaxanom.app.experiment
     from jaxanom.train.loop import NonFiniteLossError
 
     def diverging(experiment, run_dir, **kwargs):  # what the loop raises (tests/test_train_loop.py)
-        jaxanom.experiment.write_json_atomic(Path(run_dir) / "experiment.json", jaxanom.experiment.jsonable(experiment))
+        jaxanom.app.experiment.write_json_atomic(Path(run_dir) / "experiment.json", jaxanom.app.experiment.jsonable(experiment))
         raise NonFiniteLossError("loss nan, gradient norm nan at step 2: training stopped; last good checkpoint: "
                                  f"step 1 in {run_dir}/checkpoints")
 
-    monkeypatch.setattr(jaxanom.experiment, "run_training", diverging)
+    monkeypatch.setattr(jaxanom.app.experiment, "run_training", diverging)
     run = tmp_path / "run"
     _one_line(capsys, main(["train", "--out", str(run), "--attention", "none", "--no-progress"]),
               "the run diverged", "last good checkpoint: step 1", "lower learning rate (optim.lr, now 0.01)")

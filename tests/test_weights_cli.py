@@ -8,9 +8,10 @@ import pytest
 import torch
 
 from jaxanom.cli import main
-from jaxanom.experiment import initial_variables, load_experiment, load_variables
+from jaxanom.app.experiment import initial_variables, load_experiment, load_variables
 from jaxanom.models import build_model
-from jaxanom.weights import from_torch, read_vgg, take_modules, write_run
+from jaxanom.app.runs import write_run
+from jaxanom.weights import from_torch, read_vgg, take_modules
 from torch_reference import randomize, torchvision_models
 
 

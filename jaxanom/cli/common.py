@@ -50,7 +50,7 @@ def add_common(parser, progress: bool, overwrite: bool = True) -> None:
 
 def add_scoring(parser) -> None:
     """Flags of the commands that score anomalies: statistics, methods, metric conventions, --out."""
-    from jaxanom.methods import METHODS
+    from jaxanom.app.methods import METHODS
     from jaxanom.metrics.anomaly import AP_CONVENTIONS
 
     parser.add_argument("--stats", help="SML statistics .npz (from fit-stats); needed by the sml* and cudam methods")

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from jaxanom.cli.common import CommandError, add_common, nonnegative_int, out_folder
 from jaxanom.train.checkpoint import _first_line
-from jaxanom.weights.runs import VGG_CONFIG, VGG_FILE
+from jaxanom.weights.store import VGG_CONFIG, VGG_FILE
 
 
 def add_parser(commands) -> None:
@@ -40,7 +40,8 @@ def add_parser(commands) -> None:
 def run(args) -> None:
     import jax
 
-    from jaxanom.weights import RUN_KINDS, from_torch, read_state_dict, run_preset, write_run, write_vgg
+    from jaxanom.app.runs import write_run
+    from jaxanom.weights import RUN_KINDS, from_torch, read_state_dict, run_preset, write_vgg
 
     out = out_folder(args.out, args.overwrite)
     held = [name for name in ("experiment.json", "checkpoints") if (out / name).exists()]

@@ -49,32 +49,14 @@ def add_parser(commands) -> None:
     parser.set_defaults(handler=run)
 
 
-def anomaly_source(args, size: dict | None = None):
-    """The dataset reader that ``--dataset``, ``--path`` and ``--base`` name; ``size``: keyword
-    arguments of the synthetic scenes (MMF: its size, disparity and road ROI)."""
-    from jaxanom import data
-
-    if args.dataset == "synthetic":
-        return data.SyntheticScenes(args.path, args.frames, seed=1, **(size or {}))
-    if args.dataset == "road-anomaly":
-        return data.RoadAnomaly(args.path)
-    if args.dataset == "smiyc":
-        return data.SegmentMeIfYouCan(args.path, depth_root=args.depth)
-    if args.dataset == "lost-and-found":
-        return data.LostAndFound(args.path)
-    if not args.base:
-        raise CommandError(f"--base: the {args.dataset} dataset needs the root of its base images")
-    reader = data.FishyscapesLostAndFound if args.dataset == "fishyscapes-laf" else data.FishyscapesStatic
-    return reader(args.path, args.base)
-
-
 def run(args) -> None:
-    from jaxanom import methods as scoring
+    from jaxanom.app import methods as scoring
     from jaxanom._validate import check_number
     from jaxanom.data.pipeline import evaluation_batches
-    from jaxanom.demo import conventions_table, results_table
-    from jaxanom.evaluate import anomaly_results, predictions, predictor
-    from jaxanom.experiment import build_network, load_experiment, load_variables
+    from jaxanom.app.reports import conventions_table, results_table
+    from jaxanom.app.demos.mmf import mmf_scored_batches
+    from jaxanom.app.evaluate import anomaly_results, dataset_reader, predictions, predictor
+    from jaxanom.app.experiment import build_network, load_experiment, load_variables
     from jaxanom.io import write_json_atomic
 
     track = args.track or TRACKS[args.dataset]
@@ -87,11 +69,11 @@ def run(args) -> None:
     if args.mmf:  # every check before the first frame is read or scored
         names = scoring.check_methods((args.methods or MMF_DEFAULT_METHODS).split(","), have_stats=stats is not None,
                                       have_attention=False, have_mmf=True)
-        source, batches = mmf_batches(args)
+        source, batches = mmf_scored_batches(args.mmf, args.dataset, args.path, frames=args.frames, depth=args.depth)
     else:
         names = scoring.check_methods((args.methods or DEFAULT_METHODS).split(","), have_stats=stats is not None,
                                       have_attention=load_experiment(args.run).attention == "cudam")
-        source = anomaly_source(args)
+        source = dataset_reader(args.dataset, args.path, base=args.base, frames=args.frames, depth=args.depth)
         experiment, variables = load_variables(args.run)
         predict = predictor(build_network(experiment), variables)
         batches = predictions(predict, evaluation_batches(source, batch_size=1))
@@ -109,31 +91,12 @@ def run(args) -> None:
                                  "source": "given" if args.cudam_sigma is not None else "paper-equivalent"}
     write_json_atomic(out / "metrics.json", record)
     if args.pictures and not args.mmf:  # MMF's pictures: jaxanom demo mmf
-        from jaxanom.demo import write_pictures
+        from jaxanom.app.reports import write_pictures
 
         write_pictures(out, predict, source, stats, args.pictures)
     print(results_table(metrics))
     if args.all_conventions:
         print("\n" + conventions_table(metrics))
-
-
-def mmf_batches(args):
-    """``(source, batches)``: the dataset scored by the MMF pipeline in ``--mmf`` (read-only)."""
-    from pathlib import Path
-
-    from jaxanom.mmf.demo import load_config, scored_batches
-    from jaxanom.mmf.pipeline import MMFPipeline
-
-    folder = Path(args.mmf)
-    if not (folder / "results.json").is_file():
-        raise CommandError(f"--mmf {folder}: expected a folder written by `jaxanom demo mmf` (with results.json)")
-    config = load_config(folder / "results.json").pipeline
-    if args.dataset not in ("synthetic", "lost-and-found", "smiyc") or (args.dataset == "smiyc" and not args.depth):
-        raise CommandError(f"--mmf: the {args.dataset} dataset has no disparity; use synthetic, lost-and-found or "
-                           "smiyc with --depth")
-    seg = config.segmenter
-    source = anomaly_source(args, {"height": seg.height, "width": seg.width, "disparity": True, "roi": True})
-    return source, scored_batches(MMFPipeline.load(config, folder / "runs"), source, batch_size=1)
 
 
 def statistics_record(path: str) -> dict:

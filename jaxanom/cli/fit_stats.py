@@ -55,8 +55,8 @@ def stats_table(final) -> str:
 def run(args) -> None:
     from jaxanom import sml
     from jaxanom.data.pipeline import evaluation_batches
-    from jaxanom.evaluate import class_statistics, predictor
-    from jaxanom.experiment import build_network, frames, load_variables
+    from jaxanom.app.evaluate import class_statistics, predictor
+    from jaxanom.app.experiment import build_network, frames, load_variables
     from jaxanom.sml.policy import check_policy
 
     out = Path(args.out)

@@ -5,7 +5,7 @@ from jaxanom.cli.common import DEFAULT_METHODS, CommandError, add_common, load_s
 
 
 def add_parser(commands) -> None:
-    from jaxanom.predict import FORMATS, SMIYC_DATASETS
+    from jaxanom.app.predict import FORMATS, SMIYC_DATASETS
 
     parser = commands.add_parser(
         "predict", help="anomaly maps of images (files, folders, globs) with a trained or converted run",
@@ -46,11 +46,11 @@ def _size(text: str | None) -> tuple[int, int] | None:
 def run(args) -> None:
     from pathlib import Path
 
-    from jaxanom import methods as scoring
-    from jaxanom.evaluate import predictor
-    from jaxanom.experiment import build_network, load_experiment, load_variables
+    from jaxanom.app import methods as scoring
+    from jaxanom.app.evaluate import predictor
+    from jaxanom.app.experiment import build_network, load_experiment, load_variables
     from jaxanom.io import write_json_atomic
-    from jaxanom.predict import (PredictSettings, Scorer, check_resumable, inside, list_images, logits_shape,
+    from jaxanom.app.predict import (PredictSettings, Scorer, check_resumable, inside, list_images, logits_shape,
                                  predict_images, settings_record, size_check)
 
     settings = PredictSettings(methods=tuple((args.methods or DEFAULT_METHODS).split(",")),

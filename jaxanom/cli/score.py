@@ -33,8 +33,8 @@ def run(args) -> None:
 
     import numpy as np
 
-    from jaxanom import methods as scoring
-    from jaxanom.demo import results_table
+    from jaxanom.app import methods as scoring
+    from jaxanom.app.reports import results_table
     from jaxanom.io import NpyWriter, write_json_atomic
     from jaxanom.metrics import AnomalyMetricAccumulator
 

@@ -11,7 +11,7 @@ from jaxanom.cli.common import CLAIM, CommandError, add_common, claim, nonnegati
 def add_parser(commands) -> None:
     parser = commands.add_parser("train", help="train a network (config file or flags); --resume continues",
                                  description="Train a DeepLabV3+ (optionally with CuDAM or MSAAM). A config file is "
-                                 "a Python file that defines `experiment`, a jaxanom.experiment.Experiment; flags "
+                                 "a Python file that defines `experiment`, a jaxanom.app.experiment.Experiment; flags "
                                  "override its fields.")
     parser.add_argument("--out", required=True, help="run folder (checkpoints, logs, experiment.json); "
                         "must be new or empty unless --resume")
@@ -47,7 +47,7 @@ def add_parser(commands) -> None:
 def run(args) -> None:
     import jax
 
-    from jaxanom.experiment import load_experiment, run_training
+    from jaxanom.app.experiment import load_experiment, run_training
 
     if args.distributed:  # before any JAX work: loading the data or the model may touch devices
         from jaxanom.train.sharding import initialize_distributed
@@ -86,7 +86,7 @@ def run(args) -> None:
 
 def load_config(path: str):
     """The ``experiment`` that a config file defines."""
-    from jaxanom.experiment import Experiment
+    from jaxanom.app.experiment import Experiment
 
     if not Path(path).is_file():
         raise CommandError(f"--config {path}: no such file")
@@ -105,7 +105,7 @@ def load_config(path: str):
 
 def _base_experiment(init_from: str | None):
     """The default experiment, with the network of ``init_from``'s run when given."""
-    from jaxanom.experiment import Experiment, load_experiment
+    from jaxanom.app.experiment import Experiment, load_experiment
 
     if init_from is None:
         return Experiment()
@@ -117,7 +117,7 @@ def _override(experiment, args):
     fields = {"model": args.model, "data": args.data, "data_root": args.data_root, "batch_size": args.batch_size,
               "cudam_position": args.cudam_position, "cudam_gate": args.cudam_gate}
     if args.init_from is not None:
-        from jaxanom.experiment import load_experiment
+        from jaxanom.app.experiment import load_experiment
 
         load_experiment(args.init_from)  # ValueError unless it is a run folder
         fields["init_from"] = str(Path(args.init_from).resolve())
@@ -138,7 +138,7 @@ def with_cudam_tau(experiment, tau: float | None):
     """``experiment`` with the reward weight ``tau``, or, when None and the loss has the library's
     default (the paper's 5e4, tuned for 180 x 180 maps), the paper-equivalent tau for its map size."""
     from jaxanom.cudam_score import paper_tau
-    from jaxanom.experiment import attention_positions
+    from jaxanom.app.experiment import attention_positions
     from jaxanom.train.step import LossConfig
 
     if experiment.attention != "cudam":

@@ -5,7 +5,7 @@
 
 ``images``: float32 (B, H, W, 3), H and W multiples of 8, normalised with
 ``normalize_espnet`` (the authors' BGR mean / std, then / 255); uint8
-batches given to ``jaxanom.evaluate.predictor`` or the training step are normalised that way
+batches given to ``jaxanom.app.evaluate.predictor`` or the training step are normalised that way
 (``ESPNet.normalize_input``). ``out["logits"]``: float32 (B, H, W, num_classes).
 
 Architecture (paper Sec. 3 and Fig. 4d; layer names follow the authors' checkpoint, see

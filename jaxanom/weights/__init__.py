@@ -8,13 +8,13 @@
 
 ``read_state_dict`` never unpickles arbitrary objects (``torch.load(weights_only=True)``);
 ``from_torch`` loads everything or raises a ValueError listing missing, unexpected and
-mis-shaped keys. ``write_run`` (``jaxanom convert-weights``) stores a DeepLabV3+ or an ESPNet
+mis-shaped keys. ``jaxanom.app.runs.write_run`` (``jaxanom convert-weights``) stores a DeepLabV3+ or an ESPNet
 (``from_torch(state, "espnet-cityscapes")``, the ESPNet authors' Cityscapes weights) as a run folder
 that ``evaluate --run`` and ``train --init-from`` read; ``write_vgg`` / ``read_vgg`` store a VGG.
 """
 from jaxanom.weights.architectures import KINDS, PRESETS, RUN_KINDS, SML_PRESET, from_torch, run_preset
 from jaxanom.weights.files import read_state_dict, state_dict_arrays
-from jaxanom.weights.runs import read_vgg, take_modules, write_run, write_vgg
+from jaxanom.weights.store import read_vgg, take_modules, write_vgg
 
 __all__ = ["KINDS", "PRESETS", "RUN_KINDS", "SML_PRESET", "from_torch", "read_state_dict", "read_vgg", "run_preset",
-           "state_dict_arrays", "take_modules", "write_run", "write_vgg"]
+           "state_dict_arrays", "take_modules", "write_vgg"]

@@ -5,8 +5,9 @@ sequence of the shifted domain B (active learning) and on the test sequence C; S
 active-learning round on B (hard frames by Eq. 16, simulated annotations, fine-tuning, refit);
 then mFLR / scene coverage on B and C, pixel accuracy and mIoU on C (LV3 classes through the
 cluster -> class map, unknown counted wrong) with and without the CRF are compared before and
-after the round. Writes ``results.json``, ``frame_<i>_{before,after}.png`` (frame | window
-labels | voted labels | risk map | CRF labels) and ``hard_frames.png``.
+after the round. Writes ``results.json``, ``frame_<i>_{before,after}.png`` (frame | ground truth | window
+labels | voted labels | risk map | CRF labels, titled, with a class legend and a colour bar) and
+``hard_frames.png`` (the frames chosen by Eq. 16 with their frame risk).
 """
 from __future__ import annotations
 
@@ -22,10 +23,10 @@ import numpy as np
 from jaxanom._validate import check_count
 from jaxanom.data.offroad import DOMAINS, GRANULARITIES, OffroadSequence
 from jaxanom.data.patch_annotations import annotate
-from jaxanom.io import write_json_atomic, write_png_atomic
+from jaxanom.io import write_json_atomic
 from jaxanom.offroad.active import min_frames
 from jaxanom.offroad.encoder import AnnotatedFrames, EncoderConfig, stack_annotations
-from jaxanom.offroad.pipeline import (OffroadConfig, OffroadModel, active_round, learn, segment, segmentation_scores,
+from jaxanom.app.offroad_pipeline import (OffroadConfig, OffroadModel, active_round, learn, segment, segmentation_scores,
                                       sequence_risk_sweep, to_classes)
 from jaxanom.offroad.risk import mean_frame_risk, scene_coverage
 
@@ -159,12 +160,19 @@ def source_frames(source: Source, config: OffroadDemoConfig) -> list[dict]:
     return [seq[i] for i in range(0, len(seq), source.step)]
 
 
-def num_classes(config: OffroadDemoConfig) -> int:
+def class_names(config: OffroadDemoConfig) -> tuple[str, ...]:
     """Reference classes of the evaluation: the granularity's, DeepScene's 5 or RUGD's colour map."""
+    from jaxanom.data.deepscene import DEEPSCENE_CLASSES
+
     source = config.train[0]
     if source.reader == "synthetic":
-        return len(GRANULARITIES[config.granularity][0])
-    return 5 if source.reader == "deepscene" else len(source.open().class_names)
+        return tuple(GRANULARITIES[config.granularity][0])
+    return DEEPSCENE_CLASSES if source.reader == "deepscene" else tuple(source.open().class_names)
+
+
+def num_classes(config: OffroadDemoConfig) -> int:
+    """The number of ``class_names(config)``."""
+    return len(class_names(config))
 
 
 def annotated(frames: list[dict], config: OffroadDemoConfig, salt: int) -> AnnotatedFrames:
@@ -180,18 +188,17 @@ def as_float(frames: list[dict]) -> np.ndarray:
     return np.stack([f["image"] for f in frames]).astype(np.float32) / 255.0
 
 
-def _colour(labels: np.ndarray, count: int) -> np.ndarray:
-    """Class ids -> RGB (the LV3-like palette, cycled beyond 10 classes); ``count`` (unknown) and void black."""
-    palette = np.array([_PALETTE[i % len(_PALETTE)] for i in range(count)] + [(0, 0, 0)] * (256 - count), np.uint8)
-    return palette[np.clip(labels, 0, 255)]
+def _palette(count: int) -> list[tuple[int, int, int]]:
+    """The LV3-like palette, cycled beyond 10 classes."""
+    return [_PALETTE[i % len(_PALETTE)] for i in range(count)]
 
 
-def _window_panel(seg: dict, index: int, model: OffroadModel, classes: int, shape, stride: int) -> np.ndarray:
-    """Each window's label painted as a stride x stride square at its centre (black: unknown)."""
-    panel = np.full((*shape, 3), 255, np.uint8)
-    colours = _colour(to_classes(seg["window_labels"][index], model, classes), classes)
-    for (r, c), colour in zip(seg["centers"], colours):
-        panel[max(r - stride // 2, 0):r + (stride + 1) // 2, max(c - stride // 2, 0):c + (stride + 1) // 2] = colour
+def _window_labels(seg: dict, index: int, model: OffroadModel, classes: int, shape, stride: int) -> np.ndarray:
+    """Each window's class painted as a stride x stride square at its centre (255 elsewhere)."""
+    panel = np.full(shape, 255, np.int64)
+    labels = to_classes(seg["window_labels"][index], model, classes)
+    for (r, c), label in zip(seg["centers"], labels):
+        panel[max(r - stride // 2, 0):r + (stride + 1) // 2, max(c - stride // 2, 0):c + (stride + 1) // 2] = label
     return panel
 
 
@@ -211,17 +218,32 @@ def _evaluate(model: OffroadModel, test: list[dict], config: OffroadDemoConfig, 
 
 def _write_pictures(out_dir: Path, tag: str, model: OffroadModel, test: list[dict], detail: dict,
                     config: OffroadDemoConfig) -> None:
-    from jaxanom.viz import heatmap
+    from jaxanom.viz import Panel, label_panel, write_panels
 
-    classes = num_classes(config)
+    names = class_names(config)
+    classes, palette = len(names), _palette(len(names))
     seg = detail["segments"]
+
+    def labels(title, ids, void=("void", (255, 255, 255))):  # ids in [0, classes], classes = unknown
+        return label_panel(title, ids, names + ("unknown",), palette + [(0, 0, 0)], void=void)
+
     for j in range(min(config.pictures, len(detail["picked"]))):
         frame = test[detail["picked"][j]]
-        panels = [frame["image"], _window_panel(seg, j, model, classes, frame["label"].shape, config.pipeline.stride),
-                  _colour(to_classes(seg["labels"][j], model, classes), classes),
-                  heatmap(seg["risk"][j], vmin=0.0, vmax=1.0),
-                  _colour(to_classes(seg["crf_labels"][j], model, classes), classes)]
-        write_png_atomic(out_dir / f"frame_{j}_{tag}.png", np.concatenate(panels, axis=1))
+        windows = _window_labels(seg, j, model, classes, frame["label"].shape, config.pipeline.stride)
+        panels = [Panel(f"test frame {detail['picked'][j]} ({tag} the round)", frame["image"]),
+                  labels("ground truth", frame["label"]),
+                  labels("window labels (S2)", windows, void=("no window", (255, 255, 255))),
+                  labels("voted labels", to_classes(seg["labels"][j], model, classes)),
+                  Panel("risk map", seg["risk"][j], vmin=0.0, vmax=1.0, label="risk"),
+                  labels("CRF labels", to_classes(seg["crf_labels"][j], model, classes))]
+        write_panels(out_dir / f"frame_{j}_{tag}.png", panels)
+
+
+def _write_hard_frames(out_dir: Path, active: list[dict], chosen: list[int], flr: np.ndarray) -> None:
+    from jaxanom.viz import Panel, write_panels
+
+    write_panels(out_dir / "hard_frames.png",
+                 [Panel(f"frame {i}: frame risk {float(flr[i]):.3f}", active[i]["image"]) for i in chosen], columns=4)
 
 
 def run_offroad_demo(out_dir: str | Path, config: OffroadDemoConfig = OffroadDemoConfig(), *, progress: bool = True,
@@ -258,7 +280,7 @@ def run_offroad_demo(out_dir: str | Path, config: OffroadDemoConfig = OffroadDem
                           force=True, progress=bar("active"))
     after_model = round_["model"]
     chosen = round_["chosen"].tolist()
-    write_png_atomic(out_dir / "hard_frames.png", np.concatenate([active[i]["image"] for i in chosen], axis=1))
+    _write_hard_frames(out_dir, active, chosen, round_["flr"])
     flr_active_after = sequence_risk_sweep(after_model, as_float(active), pipe, progress=bar("active risk"))
 
     log("[4/4] evaluating after the round")
@@ -295,20 +317,3 @@ def results_table(results: dict) -> str:
                      f"{100 * t['votes']['pixel_accuracy']:.1f} | {100 * t['votes']['miou']:.1f} | "
                      f"{100 * t['crf']['pixel_accuracy']:.1f} | {100 * t['crf']['miou']:.1f} |")
     return "\n".join(lines)
-
-
-def run_from_args(args) -> None:
-    """``jaxanom demo offroad [--quick] [--steps N] [--config FILE] [--out DIR]``."""
-    from jaxanom.cli.common import CommandError, out_folder
-
-    if args.config and args.quick:
-        raise CommandError("--config and --quick: give one of them")
-    if args.config and not Path(args.config).is_file():
-        raise CommandError(f"--config {args.config}: no such file")
-    config = OffroadDemoConfig.from_json(args.config) if args.config else (
-        OffroadDemoConfig.quick() if args.quick else OffroadDemoConfig())
-    if args.steps is not None:
-        encoder = dataclasses.replace(config.pipeline.encoder, steps=args.steps)
-        config = dataclasses.replace(config, pipeline=dataclasses.replace(config.pipeline, encoder=encoder))
-    out = "jaxanom-demo-offroad" if args.out == "jaxanom-demo" else args.out
-    run_offroad_demo(out_folder(out, args.overwrite), config, progress=not args.no_progress)

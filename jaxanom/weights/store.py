@@ -1,10 +1,9 @@
-"""Converted weights on disk, and starting a network from another one's modules.
+"""VGG weights on disk, and starting a network from another one's modules.
 
-``write_run(folder, preset, model, variables)`` makes a DeepLabV3+ or ESPNet run folder
-(``experiment.json`` and a step-0 checkpoint), which ``jaxanom evaluate --run`` and ``train --init-from`` read like any
-trained run. A VGG has no run: ``write_vgg`` / ``read_vgg`` keep its variables in an .npz with
-the Flax paths as names (``params/conv1_1/kernel``) and the configuration in ``vgg.json``.
+A VGG has no run folder: ``write_vgg`` / ``read_vgg`` keep its variables in an .npz with the Flax
+paths as names (``params/conv1_1/kernel``) and the configuration in ``vgg.json``.
 ``take_modules(fresh, source, modules)`` starts a network from another's top-level modules.
+(Run folders of converted DeepLabV3+ / ESPNet weights: ``jaxanom.app.runs.write_run``.)
 """
 from __future__ import annotations
 
@@ -12,41 +11,12 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-import jax
 import numpy as np
 from flax import traverse_util
 
 from jaxanom.io import write_bytes_atomic, write_json_atomic
 
 VGG_FILE, VGG_CONFIG = "vgg.npz", "vgg.json"
-
-
-def write_run(folder: str | os.PathLike, preset: str, model, variables: dict):
-    """Write ``variables`` of ``model`` (built by ``build_model(preset, ...)``) as a step-0 run.
-
-    The experiment keeps jaxanom's defaults for everything but the network (model preset,
-    classes; for a DeepLabV3+ also attention, output stride, CuDAM position). Returns the ``Experiment``.
-    """
-    from jaxanom.experiment import Experiment, jsonable
-    from jaxanom.models import DeepLabV3Plus
-    from jaxanom.train.checkpoint import Checkpointer, check_space
-    from jaxanom.train.optim import make_optimizer
-    from jaxanom.train.state import TrainState
-
-    network = {"attention": None}
-    if isinstance(model, DeepLabV3Plus):
-        network = {"attention": model.attention, "cudam_position": model.cudam_position,
-                   "output_stride": model.output_stride}
-    experiment = Experiment(model=preset, num_classes=model.num_classes, **network)
-    folder = Path(folder)
-    write_json_atomic(folder / "experiment.json", jsonable(experiment))
-    tx, _ = make_optimizer(experiment.train.optim, experiment.train.steps)
-    state = TrainState.create(jax.tree.map(np.asarray, variables), tx, jax.random.key(0))
-    check_space(folder, state, "the converted run")  # before orbax starts any background writer
-    with Checkpointer(folder / "checkpoints") as checkpointer:
-        checkpointer.save(0, state)
-        checkpointer.wait()
-    return experiment
 
 
 def write_vgg(folder: str | os.PathLike, model, variables: dict) -> None:

@@ -3,8 +3,8 @@
 Trains (or loads from ``out/runs``) every part of ``MMFPipeline``, scores an anomaly split with
 disparity inside the road ROI with entropy (the baseline), the plain resynthesis net with and
 without the post-processor, and MMF with and without it; writes ``results.json``, ``table.md``
-and pictures ``frame_<i>.png``: image | resynthesis | A (Eq. 4) | dissimilarity a |
-superpixels | final score (Eq. 6).
+and pictures ``frame_<i>.png``: image | anomaly label | resynthesis | A (Eq. 4) |
+dissimilarity a | superpixels | final score (Eq. 6).
 """
 from __future__ import annotations
 
@@ -17,10 +17,10 @@ import numpy as np
 
 from jaxanom._validate import check_count
 from jaxanom.data.synthetic import ANOMALY_SPLITS, SyntheticScenes
-from jaxanom.evaluate import anomaly_results
-from jaxanom.experiment import Experiment
-from jaxanom.io import write_bytes_atomic, write_json_atomic, write_png_atomic
-from jaxanom.mmf.pipeline import MMFConfig, MMFPipeline
+from jaxanom.app.evaluate import anomaly_results, dataset_reader
+from jaxanom.app.experiment import Experiment
+from jaxanom.io import write_bytes_atomic, write_json_atomic
+from jaxanom.app.mmf_pipeline import MMFConfig, MMFPipeline, scored_batches
 
 # Table 2's rows: (method, assistant maps, post-processor)
 ROWS = (("entropy", "-", "-"), ("resynthesis", "no", "no"), ("resynthesis_post", "no", "yes"),
@@ -69,24 +69,6 @@ def evaluation_frames(config: MMFDemoConfig) -> SyntheticScenes:
                            width=seg.width, disparity=True, roi=True)
 
 
-def scored_batches(pipe: MMFPipeline, source, batch_size: int, keep: int = 0, kept: list | None = None):
-    """Batches ``{"logits", "label", "roi"?, "mmf_maps"}`` for ``evaluate.anomaly_results``; the
-    first ``keep`` frames' maps are appended to ``kept`` (for pictures)."""
-    for start in range(0, len(source), batch_size):
-        frames = [source[i] for i in range(start, min(start + batch_size, len(source)))]
-        maps = pipe.maps(frames)
-        if kept is not None:
-            for i, frame in enumerate(frames[:max(0, keep - start)]):
-                kept.append((frame, {k: v[i] for k, v in maps.items() if k != "num_segments"}))
-        batch = {"logits": maps["logits"], "label": np.stack([f["label"] for f in frames]),
-                 "mmf_maps": {"mmf": maps["mmf"], "resynthesis": maps["resynthesis_score"],
-                              "num_segments": maps["num_segments"],
-                              **{k: v for k, v in maps.items() if k.startswith("superpixels")}}}
-        if "roi" in frames[0]:  # the road region of interest, where the dataset has one
-            batch["roi"] = np.stack([f["roi"] for f in frames])
-        yield batch
-
-
 def table(metrics: dict) -> str:
     """Table 2 style: AP (envelope, Eq. 7) and FPR at 95 % TPR in percent, in the ROI."""
     lines = ["| method | assistant maps | post-processor | AP | FPR95 |", "|---|---|---|---|---|"]
@@ -107,18 +89,23 @@ def _boundaries(image: np.ndarray, labels: np.ndarray) -> np.ndarray:
 
 
 def write_pictures(out_dir: Path, kept: list) -> None:
-    """frame_<i>.png: image | resynthesis | A | a | superpixels | final score."""
+    """frame_<i>.png: image | anomaly label | resynthesis | A | a | superpixels | final score;
+    titled, with a legend and colour bars."""
     from jaxanom.mmf.postprocess import superpixel_score
-    from jaxanom.viz import heatmap
+    from jaxanom.viz import Panel, anomaly_label_panel, write_panels
 
     for index, (frame, maps) in enumerate(kept):
         road = maps["road"]
         k = int(maps["superpixels"].max()) + 1
         final = superpixel_score(maps["mmf"], road, maps["superpixels"], k)
-        panels = [frame["image"], np.round(maps["resynthesis"] * 255).astype(np.uint8),
-                  heatmap(maps["anomaly"], vmin=0, vmax=1), heatmap(maps["mmf"], vmin=0, vmax=1),
-                  _boundaries(frame["image"], maps["superpixels"]), heatmap(np.asarray(final), vmin=0, vmax=1)]
-        write_png_atomic(out_dir / f"frame_{index}.png", np.concatenate(panels, axis=1))
+        panels = [Panel("image", frame["image"]),
+                  anomaly_label_panel(frame["label"]),
+                  Panel("resynthesis r", np.round(maps["resynthesis"] * 255).astype(np.uint8)),
+                  Panel("assistant map A (Eq. 4)", maps["anomaly"], vmin=0, vmax=1, label="A"),
+                  Panel("dissimilarity a (MMF)", maps["mmf"], vmin=0, vmax=1, label="a"),
+                  Panel("SLIC superpixels", _boundaries(frame["image"], maps["superpixels"])),
+                  Panel("final score (Eq. 6, road ROI)", np.asarray(final), vmin=0, vmax=1, label="score")]
+        write_panels(out_dir / f"frame_{index}.png", panels, columns=4)
 
 
 def run_mmf_demo(out_dir: str | Path, config: MMFDemoConfig = MMFDemoConfig(), *, progress: bool = True,
@@ -157,21 +144,17 @@ def load_config(path: str | Path) -> MMFDemoConfig:
         raise ValueError(f"{path}: {error}") from None
 
 
-def run_cli(args) -> None:
-    """``jaxanom demo mmf [--quick | --config FILE] [--steps N] [--out DIR] [--overwrite]`` (N: segmenter steps)."""
-    from jaxanom.cli.common import CommandError, out_folder
-
-    if args.quick and args.config:
-        raise CommandError("--quick, --config: give one of them")
-    try:
-        config = load_config(args.config) if args.config else MMFDemoConfig.quick() if args.quick else MMFDemoConfig()
-    except ValueError as error:
-        raise CommandError(f"--config {error}") from None
-    if args.steps is not None:
-        seg = config.pipeline.segmenter
-        seg = dataclasses.replace(seg, train=dataclasses.replace(seg.train, steps=args.steps))
-        config = dataclasses.replace(config, pipeline=dataclasses.replace(config.pipeline, segmenter=seg))
-    if getattr(args, "synthesizer", None):
-        pipeline = dataclasses.replace(config.pipeline, synthesizer=args.synthesizer)
-        config = dataclasses.replace(config, pipeline=pipeline)
-    run_mmf_demo(out_folder(args.out, args.overwrite), config, progress=not args.no_progress)
+def mmf_scored_batches(folder: str, dataset: str, path: str, *, frames: int | None = None, depth: str | None = None):
+    """``(source, batches)``: ``dataset`` scored by the MMF pipeline of ``folder`` (written by
+    ``jaxanom demo mmf``), read-only; a dataset without disparity is refused."""
+    folder = Path(folder)
+    if not (folder / "results.json").is_file():
+        raise ValueError(f"--mmf {folder}: expected a folder written by `jaxanom demo mmf` (with results.json)")
+    config = load_config(folder / "results.json").pipeline
+    if dataset not in ("synthetic", "lost-and-found", "smiyc") or (dataset == "smiyc" and not depth):
+        raise ValueError(f"--mmf: the {dataset} dataset has no disparity; use synthetic, lost-and-found or "
+                         "smiyc with --depth")
+    seg = config.segmenter
+    source = dataset_reader(dataset, path, frames=frames, depth=depth,
+                            size={"height": seg.height, "width": seg.width, "disparity": True, "roi": True})
+    return source, scored_batches(MMFPipeline.load(config, folder / "runs"), source, batch_size=1)

@@ -3,7 +3,7 @@
 ``predict_images(paths, out, predict, settings)`` streams the images through a network (any
 run that ``jaxanom evaluate --run`` loads): each image is decoded, resized to the network's
 working size (bilinear; or kept at its own size), batched on the device, scored with each
-method (``jaxanom.methods``) at the working size, and each map is resized back (bilinear) to
+method (``jaxanom.app.methods``) at the working size, and each map is resized back (bilinear) to
 the image's native size and written in every requested format:
 
 - ``npy``:   ``<out>/npy/<method>/<frame>.npy``, float16 (H, W);
@@ -43,7 +43,7 @@ FLOAT16_MAX = float(np.finfo(np.float16).max)
 class PredictSettings:
     """What ``predict_images`` computes and writes.
 
-    ``methods``: names from ``jaxanom.methods.METHODS`` (not the MMF pipeline rows);
+    ``methods``: names from ``jaxanom.app.methods.METHODS`` (not the MMF pipeline rows);
     ``formats``: from ``FORMATS``; ``size``: the working (H, W) the network sees, or None for
     each image's own size; ``batch_size``: images per device batch; ``dataset``: the SMIYC
     dataset name (format ``smiyc``); ``slic_step``: SLIC grid step of the ``*_superpixel``
@@ -60,7 +60,7 @@ class PredictSettings:
     cudam_sigma: float | None = None
 
     def __post_init__(self):
-        from jaxanom.methods import METHODS, NEEDS_MMF
+        from jaxanom.app.methods import METHODS, NEEDS_MMF
 
         bad = [m for m in self.methods if m not in METHODS or m in NEEDS_MMF]
         if bad or not self.methods:
@@ -204,7 +204,7 @@ class Scorer:
 
     def __call__(self, batch: list[dict]) -> dict:
         """Device arrays ``{method: (B, h, w)}`` for the frames of ``batch`` (padded to the batch size)."""
-        from jaxanom import methods as scoring
+        from jaxanom.app import methods as scoring
         from jaxanom.cudam_score import paper_sigma
 
         images = np.stack([f["input"] for f in batch])

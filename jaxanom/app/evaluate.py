@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom import methods as scoring
+from jaxanom.app import methods as scoring
 from jaxanom.cudam_score import paper_sigma, upsample_attention
 from jaxanom.metrics import AnomalyMetricAccumulator, anomaly_metrics, confusion_matrix, miou, per_class_iou
 from jaxanom.metrics import pixel_accuracy, pr_curve, restrict_to_roi, roc_curve
@@ -170,3 +170,25 @@ def segmentation_results(outputs: Iterable[dict], num_classes: int, ignore: int 
         total += np.asarray(confusion_matrix(prediction, batch["label"], num_classes, ignore), np.int64)
     return {"miou": miou(total), "pixel_accuracy": pixel_accuracy(total),
             "per_class_iou": per_class_iou(total).tolist()}
+
+
+def dataset_reader(dataset: str, path: str, *, base: str | None = None, frames: int | None = None,
+                   depth: str | None = None, size: dict | None = None):
+    """The reader of ``dataset`` (a key of ``jaxanom evaluate``'s ``DATASETS``) at ``path``; ``base``:
+    the base images of the Fishyscapes sets; ``frames``: count of synthetic frames; ``depth``:
+    SMIYC disparity folder; ``size``: keyword arguments of the synthetic scenes (MMF: its size,
+    disparity and road ROI)."""
+    from jaxanom import data
+
+    if dataset == "synthetic":
+        return data.SyntheticScenes(path, frames, seed=1, **(size or {}))
+    if dataset == "road-anomaly":
+        return data.RoadAnomaly(path)
+    if dataset == "smiyc":
+        return data.SegmentMeIfYouCan(path, depth_root=depth)
+    if dataset == "lost-and-found":
+        return data.LostAndFound(path)
+    if not base:
+        raise ValueError(f"--base: the {dataset} dataset needs the root of its base images")
+    reader = data.FishyscapesLostAndFound if dataset == "fishyscapes-laf" else data.FishyscapesStatic
+    return reader(path, base)

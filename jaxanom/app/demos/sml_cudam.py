@@ -12,14 +12,14 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from jaxanom import methods as scoring
 from jaxanom import sml
 from jaxanom._validate import check_count, check_number
 from jaxanom.cudam_score import PAPER_TEST_POSITIONS, PAPER_TRAIN_POSITIONS, equivalent_weight
 from jaxanom.data.synthetic import ANOMALY_SPLITS
-from jaxanom.evaluate import anomaly_results, class_statistics, predictions, predictor, segmentation_results
-from jaxanom.experiment import Experiment, build_network, frames, run_training
-from jaxanom.io import write_json_atomic, write_png_atomic
+from jaxanom.app.evaluate import anomaly_results, class_statistics, predictions, predictor, segmentation_results
+from jaxanom.app.experiment import Experiment, build_network, frames, run_training
+from jaxanom.app.reports import results_table, write_pictures
+from jaxanom.io import write_json_atomic
 from jaxanom.train.loop import TrainConfig
 from jaxanom.train.optim import OptimConfig
 from jaxanom.train.step import LossConfig
@@ -112,56 +112,3 @@ def run_demo(out_dir: str | Path, config: DemoConfig = DemoConfig(), *, progress
     log(results_table(metrics, segmentation))
     log(f"results in {out_dir}/ (results.json, roc.png, pr.png, frame_*.png)")
     return results
-
-
-def results_table(metrics: dict, segmentation: dict | None = None) -> str:
-    """A markdown table of AP / AUROC / FPR@95 per method (percent), with SegmentMeIfYouCan's
-    component metrics (mean sIoU, mean PPV, mean F1) where ``metrics`` hold them."""
-    components = all("components" in m for m in metrics.values())
-    extra = " sIoU | PPV | mean F1 |" if components else ""
-    lines = ["| method | AP | AUROC | FPR@95 |" + extra, "|---|---|---|---|" + "---|" * (3 * components)]
-    percent = lambda x: "n/a" if x is None else f"{100 * x:.2f}"  # noqa: E731
-    for name, m in metrics.items():
-        row = f"| {name} | {100 * m['ap']:.2f} | {100 * m['auroc']:.2f} | {100 * m['fpr_at_tpr']:.2f} |"
-        if components:
-            c = m["components"]
-            row += f" {percent(c['mean_siou'])} | {percent(c['mean_ppv'])} | {percent(c['f1_mean'])} |"
-        lines.append(row)
-    if segmentation is not None:
-        lines.append(f"\nsegmentation mIoU on in-distribution frames: {100 * segmentation['miou']:.2f}")
-    return "\n".join(lines)
-
-
-def conventions_table(metrics: dict) -> str:
-    """A markdown table of AP and FPR@95 (percent) per method under every convention the library
-    has (``metrics[name]["ap_conventions"]`` / ``["fpr_conventions"]``), side by side."""
-    from jaxanom.metrics.anomaly import AP_CONVENTIONS, FPR_CONVENTIONS
-
-    header = [f"AP {c}" for c in AP_CONVENTIONS] + [f"FPR@95 {c}" for c in FPR_CONVENTIONS]
-    lines = ["| method | " + " | ".join(header) + " |", "|---|" + "---|" * len(header)]
-    for name, m in metrics.items():
-        values = [m["ap_conventions"][c] for c in AP_CONVENTIONS] + [m["fpr_conventions"][c] for c in FPR_CONVENTIONS]
-        lines.append(f"| {name} | " + " | ".join(f"{100 * v:.2f}" for v in values) + " |")
-    return "\n".join(lines)
-
-
-def write_pictures(out_dir: Path, predict, source, stats, count: int) -> None:
-    """``frame_<i>.png`` for the first ``count`` frames of ``source``: image | prediction |
-    anomaly label (red 1, blue void) | SML + post-processing score (MSP without ``stats``) |
-    CuDAM attention overlay (with an attention model)."""
-    from jaxanom.data.cityscapes_labels import colorize
-    from jaxanom.viz import heatmap, overlay, panel_row
-
-    for index in range(min(count, len(source))):
-        frame = source[index]
-        out = predict(frame["image"][None])
-        score = scoring.score_batch("sml_post" if stats else "msp", out["logits"], stats=stats)[0]
-        label = frame["label"]
-        truth = np.stack([np.where(label == 1, 255, 0), np.zeros_like(label), np.where(label == 255, 128, 0)], -1)
-        panels = [frame["image"], colorize(np.asarray(out["logits"][0].argmax(-1))),
-                  truth.astype(np.uint8), heatmap(np.asarray(score))]
-        titles = ["image", "prediction", "label (red anomaly, blue void)", "score: SML + post" if stats else "score: MSP"]
-        if "attention_up" in out:
-            panels.append(overlay(frame["image"], heatmap(np.asarray(out["attention_up"][0])), alpha=0.6))
-            titles.append("CuDAM attention")
-        write_png_atomic(out_dir / f"frame_{index}.png", panel_row(panels, titles))

@@ -13,7 +13,7 @@
 - ``mmf_raw``, ``resynthesis``: MMF's dissimilarity map a (with / without the assistant maps
   A, D and the RGB-D semantics); ``mmf``, ``resynthesis_post``: the same through MMF's
   superpixel post-processor (Eq. 6), with the road probability from the logits. They read
-  ``mmf_maps`` (``jaxanom.mmf.pipeline.MMFPipeline.maps`` computes it);
+  ``mmf_maps`` (``jaxanom.app.mmf_pipeline.MMFPipeline.maps`` computes it);
 - ``entropy_superpixel``, ``softmax_distance_superpixel``: MMF's post-processor (Eq. 6) on the
   segmenter's own uncertainty (Eqs. 1-2, normalised by log2 C / in [0, 1]), with SLIC
   superpixels (Algorithm 1) of the image at the logits' resolution and the road probability
@@ -72,7 +72,7 @@ def check_methods(names, *, have_stats: bool, have_attention: bool, have_mmf: bo
     if not have_attention and (missing := [n for n in names if n in NEEDS_ATTENTION]):
         raise ValueError(f"methods {missing} need an attention map; the model has no CuDAM module")
     if not have_mmf and (missing := [n for n in names if n in NEEDS_MMF]):
-        raise ValueError(f"methods {missing} need MMF's maps (a trained jaxanom.mmf.pipeline); none were given")
+        raise ValueError(f"methods {missing} need MMF's maps (a trained jaxanom.app.mmf_pipeline); none were given")
     if not have_image and (missing := [n for n in names if n in NEEDS_IMAGE]):
         raise ValueError(f"methods {missing} need the images (for SLIC superpixels); none were given")
     return names

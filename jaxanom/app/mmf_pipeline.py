@@ -8,7 +8,7 @@ Parts, each in ``root/<part>-<hash>/`` where the hash covers its settings and th
 it depends on (an edited config retrains only what changed; an interrupted part resumes from
 its checkpoints):
 
-1. segmenter: the library's DeepLabV3+ (``jaxanom.experiment``), without attention;
+1. segmenter: the library's DeepLabV3+ (``jaxanom.app.experiment``), without attention;
 2. RGB-D net (``models.rgbd``), on the segmenter's frames with disparity (D11);
 3. synthesizer (``mmf.synthesis``), on the segmenter's frames and their ground-truth labels:
    class means (``synthesizer="class_mean"``, the CPU default) or a SPADE generator trained as a
@@ -37,7 +37,7 @@ import numpy as np
 from jaxanom._validate import check_count, check_fits_memory, check_number
 from jaxanom.data.synthetic import SyntheticScenes
 from jaxanom.data.transforms import normalize
-from jaxanom.experiment import Experiment, build_network, jsonable, load_variables, run_training
+from jaxanom.app.experiment import Experiment, build_network, jsonable, load_variables, run_training
 from jaxanom.io import write_bytes_atomic
 from jaxanom.losses import balanced_class_weights
 from jaxanom.mmf.perceptual import anomaly_map_batch, perceptual_difference_batch
@@ -447,3 +447,21 @@ def _maps(seg_model, rgbd_model, generator, seg_vars, rgbd_vars, synth_arrays, i
             "prediction": prediction, "prediction_depth": jnp.argmax(depth_logits, -1).astype(jnp.int32),
             "resynthesis": resynthesis, "resynthesis_normalized": r, "perceptual": perceptual,
             "anomaly": anomaly_map_batch(maps["entropy"], perceptual)}
+
+
+def scored_batches(pipe: MMFPipeline, source, batch_size: int, keep: int = 0, kept: list | None = None):
+    """Batches ``{"logits", "label", "roi"?, "mmf_maps"}`` for ``evaluate.anomaly_results``; the
+    first ``keep`` frames' maps are appended to ``kept`` (for pictures)."""
+    for start in range(0, len(source), batch_size):
+        frames = [source[i] for i in range(start, min(start + batch_size, len(source)))]
+        maps = pipe.maps(frames)
+        if kept is not None:
+            for i, frame in enumerate(frames[:max(0, keep - start)]):
+                kept.append((frame, {k: v[i] for k, v in maps.items() if k != "num_segments"}))
+        batch = {"logits": maps["logits"], "label": np.stack([f["label"] for f in frames]),
+                 "mmf_maps": {"mmf": maps["mmf"], "resynthesis": maps["resynthesis_score"],
+                              "num_segments": maps["num_segments"],
+                              **{k: v for k, v in maps.items() if k.startswith("superpixels")}}}
+        if "roi" in frames[0]:  # the road region of interest, where the dataset has one
+            batch["roi"] = np.stack([f["roi"] for f in frames])
+        yield batch

@@ -1,0 +1,41 @@
+"""Run folders of converted weights: ``write_run(folder, preset, model, variables)`` makes a DeepLabV3+
+or ESPNet run folder (``experiment.json`` and a step-0 checkpoint), which ``jaxanom evaluate --run``,
+``predict --run`` and ``train --init-from`` read like any trained run.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from jaxanom.io import write_json_atomic
+
+
+def write_run(folder: str | os.PathLike, preset: str, model, variables: dict):
+    """Write ``variables`` of ``model`` (built by ``build_model(preset, ...)``) as a step-0 run.
+
+    The experiment keeps jaxanom's defaults for everything but the network (model preset,
+    classes; for a DeepLabV3+ also attention, output stride, CuDAM position). Returns the ``Experiment``.
+    """
+    from jaxanom.app.experiment import Experiment, jsonable
+    from jaxanom.models import DeepLabV3Plus
+    from jaxanom.train.checkpoint import Checkpointer, check_space
+    from jaxanom.train.optim import make_optimizer
+    from jaxanom.train.state import TrainState
+
+    network = {"attention": None}
+    if isinstance(model, DeepLabV3Plus):
+        network = {"attention": model.attention, "cudam_position": model.cudam_position,
+                   "output_stride": model.output_stride}
+    experiment = Experiment(model=preset, num_classes=model.num_classes, **network)
+    folder = Path(folder)
+    write_json_atomic(folder / "experiment.json", jsonable(experiment))
+    tx, _ = make_optimizer(experiment.train.optim, experiment.train.steps)
+    state = TrainState.create(jax.tree.map(np.asarray, variables), tx, jax.random.key(0))
+    check_space(folder, state, "the converted run")  # before orbax starts any background writer
+    with Checkpointer(folder / "checkpoints") as checkpointer:
+        checkpointer.save(0, state)
+        checkpointer.wait()
+    return experiment

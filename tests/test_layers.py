@@ -1,0 +1,110 @@
+"""The three layers of DESIGN.md, read from the source: library <- application (``jaxanom.app``) <- ``jaxanom.cli``.
+
+Every ``import`` counts, also those inside functions: a lazy upward import is still an upward
+dependency. Library modules import neither ``jaxanom.app`` nor ``jaxanom.cli``; application
+modules do not import ``jaxanom.cli``; and no group of modules imports itself in a cycle.
+"""
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "jaxanom"
+
+
+def module_name(path: Path, root: Path) -> str:
+    parts = path.relative_to(root.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imported(path: Path, modules: set[str]) -> set[str]:
+    """The jaxanom modules ``path`` imports (``from jaxanom import sml`` names ``jaxanom.sml``)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            found |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            for alias in node.names:
+                submodule = f"{node.module}.{alias.name}"
+                found.add(submodule if submodule in modules else node.module)
+    return {name for name in found if name in modules}
+
+
+def import_graph(root: Path = PACKAGE) -> dict[str, set[str]]:
+    files = {module_name(path, root): path for path in root.rglob("*.py")}
+    return {name: imported(path, set(files)) - {name} for name, path in files.items()}
+
+
+def layer(name: str) -> int:
+    """0 library, 1 application, 2 command line."""
+    return 2 if name.startswith("jaxanom.cli") else 1 if name.startswith("jaxanom.app") else 0
+
+
+def upward_imports(graph: dict[str, set[str]]) -> list[str]:
+    return sorted(f"{a} -> {b}" for a, deps in graph.items() for b in deps if layer(b) > layer(a))
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan)."""
+    edges = graph
+    index, low, stack, on_stack, found = {}, {}, [], set(), []
+
+    def visit(node):
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for nxt in edges[node]:
+            if nxt not in index:
+                visit(nxt)
+                low[node] = min(low[node], low[nxt])
+            elif nxt in on_stack:
+                low[node] = min(low[node], index[nxt])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                component.append(member)
+                if member == node:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for node in sorted(edges):
+        if node not in index:
+            visit(node)
+    return found
+
+
+def test_no_layer_imports_a_layer_above_it():
+    assert upward_imports(import_graph()) == []
+
+
+def test_no_import_cycles():
+    assert cycles(import_graph()) == []
+
+
+def test_the_application_layer_exists_and_the_cli_only_dispatches_to_it():
+    graph = import_graph()
+    assert any(layer(name) == 1 for name in graph)
+    assert any(layer(b) == 1 for a, deps in graph.items() if layer(a) == 2 for b in deps)
+
+
+@pytest.fixture
+def fake_package(tmp_path):
+    """A package tree named jaxanom with one upward import and one cycle, to show the checks can fail."""
+    root = tmp_path / "jaxanom"
+    for name, text in {"__init__.py": "", "scores.py": "from jaxanom.app import demo\n",
+                       "app/__init__.py": "", "app/demo.py": "import jaxanom.cli.main\n",
+                       "cli/__init__.py": "", "cli/main.py": "from jaxanom import scores\n",
+                       "a.py": "def f():\n    from jaxanom import b\n", "b.py": "import jaxanom.a\n"}.items():
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
+        (root / name).write_text(text)
+    return root
+
+
+def test_checks_find_an_upward_import_and_a_cycle(fake_package):
+    graph = import_graph(fake_package)
+    assert upward_imports(graph) == ["jaxanom.app.demo -> jaxanom.cli.main", "jaxanom.scores -> jaxanom.app.demo"]
+    assert cycles(graph) == [["jaxanom.a", "jaxanom.b"],
+                             ["jaxanom.app.demo", "jaxanom.cli.main", "jaxanom.scores"]]
