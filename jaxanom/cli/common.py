@@ -40,6 +40,16 @@ def nonnegative_int(text: str) -> int:
     return value
 
 
+def size_hw(text: str | None, flag: str = "--size") -> tuple[int, int] | None:
+    """``(H, W)`` from ``HxW`` (e.g. ``512x1024``), or None for None."""
+    if text is None:
+        return None
+    parts = text.lower().split("x")
+    if len(parts) != 2 or not all(p.isdigit() and int(p) > 0 for p in parts):
+        raise CommandError(f"{flag}: expected HEIGHTxWIDTH with positive integers (e.g. 512x1024), got {text!r}")
+    return int(parts[0]), int(parts[1])
+
+
 def add_common(parser, progress: bool, overwrite: bool = True) -> None:
     """``--overwrite`` and ``--no-progress`` where a command has them."""
     if overwrite:

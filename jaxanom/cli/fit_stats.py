@@ -5,7 +5,7 @@ import os
 import sys
 from pathlib import Path
 
-from jaxanom.cli.common import CLAIM, CommandError, add_common, claim, positive_int
+from jaxanom.cli.common import CLAIM, CommandError, add_common, claim, positive_int, size_hw
 from jaxanom.sml.policy import DEFAULT_POLICY, DEFAULT_STRENGTH, POLICIES
 
 _LIBRARY_ADVICE = 'pass missing="pooled" or a policy ("min_count", "shrink")'  # sml.policy.finalize's
@@ -20,6 +20,10 @@ def add_parser(commands) -> None:
     parser.add_argument("--run", required=True, help="training run folder")
     parser.add_argument("--frames", type=positive_int, default=200,
                         help="training frames to use, at most the run's (default: %(default)s)")
+    parser.add_argument("--cityscapes", metavar="DIR",
+                        help="fit on the train split of this Cityscapes folder (official layout) instead of the run's "
+                        "training data, e.g. for a network from convert-weights")
+    parser.add_argument("--size", help="HxW the frames are resized to first, e.g. 512x1024 (default: as read)")
     parser.add_argument("--out", required=True, help="output .npz file")
     parser.add_argument("--missing", choices=["error", "pooled"], default="error",
                         help="policy none: classes never predicted fail, or use the pooled statistics "
@@ -57,6 +61,8 @@ def run(args) -> None:
     from jaxanom.data.pipeline import evaluation_batches
     from jaxanom.app.evaluate import class_statistics, predictor
     from jaxanom.app.experiment import build_network, frames, load_variables
+    from jaxanom.data import Cityscapes
+    from jaxanom.data.frames import FirstFrames, Resized
     from jaxanom.sml.policy import check_policy
 
     out = Path(args.out)
@@ -72,8 +78,14 @@ def run(args) -> None:
         check_policy(args.policy, args.min_count, args.strength)
     except ValueError as error:
         raise CommandError(f"--policy, --min-count, --strength: {error}") from None
+    size = size_hw(args.size)
     experiment, variables = load_variables(args.run)
-    source = frames(experiment, "train", args.frames)
+    if args.cityscapes:
+        source = FirstFrames(Cityscapes(args.cityscapes, "train"), args.frames)
+    else:
+        source = frames(experiment, "train", args.frames)
+    if size is not None:
+        source = Resized(source, *size)
     out.parent.mkdir(parents=True, exist_ok=True)
     claim(out.parent / f"{out.name}{CLAIM}", f"--out {out}")
     batches = evaluation_batches(source, batch_size=experiment.batch_size)

@@ -1,7 +1,7 @@
 """``jaxanom predict``: anomaly maps of image files (npy, png, SegmentMeIfYouCan's hdf5 tree)."""
 from __future__ import annotations
 
-from jaxanom.cli.common import DEFAULT_METHODS, CommandError, add_common, load_stats, out_folder, positive_int
+from jaxanom.cli.common import DEFAULT_METHODS, CommandError, add_common, load_stats, out_folder, positive_int, size_hw
 
 
 def add_parser(commands) -> None:
@@ -34,15 +34,6 @@ def add_parser(commands) -> None:
     parser.set_defaults(handler=run)
 
 
-def _size(text: str | None) -> tuple[int, int] | None:
-    if text is None:
-        return None
-    parts = text.lower().split("x")
-    if len(parts) != 2 or not all(p.isdigit() and int(p) > 0 for p in parts):
-        raise CommandError(f"--size: expected HEIGHTxWIDTH with positive integers (e.g. 512x1024), got {text!r}")
-    return int(parts[0]), int(parts[1])
-
-
 def run(args) -> None:
     from pathlib import Path
 
@@ -54,7 +45,7 @@ def run(args) -> None:
                                  predict_images, settings_record, size_check)
 
     settings = PredictSettings(methods=tuple((args.methods or DEFAULT_METHODS).split(",")),
-                               formats=tuple(args.format.split(",")), size=_size(args.size),
+                               formats=tuple(args.format.split(",")), size=size_hw(args.size),
                                batch_size=args.batch_size, dataset=args.dataset, slic_step=args.slic_step,
                                cudam_sigma=args.cudam_sigma)
     if "smiyc" in settings.formats:

@@ -60,3 +60,26 @@ class FirstFrames:
         if not 0 <= index < self.count:
             raise IndexError(f"index {index} out of range for {self.count} frames")
         return self.source[index]
+
+
+class Resized:
+    """The frames of a random-access source resized to ``height`` x ``width``: the image bilinearly
+    (OpenCV's ``INTER_LINEAR``), the label (if any) by nearest neighbour, so its values stay in their set."""
+
+    def __init__(self, source, height: int, width: int):
+        if height < 1 or width < 1:
+            raise ValueError(f"height, width: expected >= 1, got {height} x {width}")
+        self.source, self.size = source, (int(width), int(height))
+
+    def __len__(self) -> int:
+        return len(self.source)
+
+    def __getitem__(self, index: int) -> dict[str, Any]:
+        import cv2
+
+        frame = dict(self.source[index])
+        frame["image"] = cv2.resize(frame["image"], self.size, interpolation=cv2.INTER_LINEAR)
+        if "label" in frame:
+            frame["label"] = cv2.resize(frame["label"], self.size, interpolation=cv2.INTER_NEAREST)
+        return frame
+
