@@ -242,20 +242,22 @@ def test_nan_statistics_are_blamed_on_nan_input():
         sml.fit_stats([logits])
 
 
-def test_demo_frame_pictures_have_panel_titles(tmp_path):
-    from jaxanom.data import SyntheticScenes
+def test_demo_frame_pictures_have_panel_titles(tmp_path, monkeypatch):
+    from jaxanom import viz
     from jaxanom.app.reports import write_pictures
+    from jaxanom.data import SyntheticScenes
 
+    drawn = []
+    real = viz.write_panels
+    monkeypatch.setattr(viz, "write_panels", lambda path, panels, **kw: (drawn.append(panels), real(path, panels, **kw)))
     source = SyntheticScenes("anomaly", 1, 0, height=32, width=48)
     logits = np.random.default_rng(3).normal(size=(1, 32, 48, 19)).astype(np.float32)
     predict = lambda image: {"logits": jnp.asarray(logits), "attention_up": jnp.ones((1, 32, 48)) / 1536}  # noqa: E731
     write_pictures(tmp_path, predict, source, None, 1)
+    (panels,) = drawn
+    assert len(panels) == 5 and all(panel.title for panel in panels)  # image, prediction, label, score, attention
     picture = cv2.imread(str(tmp_path / "frame_0.png"))
-    assert picture.shape[1] == 5 * 48 and picture.shape[0] > 32  # five panels under a title strip
-    strip = picture[: picture.shape[0] - 32]
-    for panel in range(5):  # each panel's title: dark text on white
-        header = strip[:, panel * 48:(panel + 1) * 48]
-        assert (header.min(axis=-1) < 100).any() and (header.min(axis=-1) == 255).mean() > 0.5
+    assert picture.shape[1] >= 512 and picture.shape[0] >= 256  # 32 x 48 frames enlarged to a readable size
 
 
 def test_refused_writes_are_one_line(tmp_path, capsys, monkeypatch):
