@@ -137,8 +137,9 @@ def main(log=print) -> dict:
         scores, labels, times = track_scores(predict, root, log)
         table, replicates = with_intervals(scores, labels, draws(len(labels)))
         del scores
-        results[track] = {"frames": len(labels), "methods": table, "findings": findings(replicates),
-                          "seconds": timing(times)}
+        share = float(np.mean(np.concatenate(labels) == 1))  # a random score's AP
+        results[track] = {"frames": len(labels), "anomaly_share": share, "methods": table,
+                          "findings": findings(replicates), "seconds": timing(times)}
         write_json_atomic(HERE / f"{NAME}.json", results)
     write_bytes_atomic(HERE / f"{NAME}.md", markdown(results).encode())
     return results
@@ -171,6 +172,7 @@ def markdown(results: dict) -> str:
             continue
         r = results[track]
         lines += [f"## {track} ({r['frames']} frames)", "",
+                  f"Anomalous share of the scored pixels (the AP of a random score): {100 * r['anomaly_share']:.2f}%.", "",
                   "| score | AP (envelope) | FPR95 | AP (step) | paper (Obstacle Track) |", "|---|---|---|---|---|"]
         for name in ROWS:
             m = r["methods"][name]
