@@ -69,16 +69,18 @@ def frame_histograms(scores: list[np.ndarray], labels: list[np.ndarray], edges: 
 
 
 def binned_metrics(histograms: np.ndarray, tpr: float = 0.95) -> dict[str, np.ndarray]:
-    """AP (step: sum_k dR_k Prec_k) and FPR at the first threshold with TPR >= ``tpr`` of pooled
-    histograms (..., bins, 2), thresholds from the highest bin down; pixels of a bin tie."""
+    """AP (step: sum_k dR_k Prec_k), envelope AP (MMF Eq. 7: sum_k dR_k max_{j >= k} Prec_j) and
+    FPR at the first threshold with TPR >= ``tpr`` of pooled histograms (..., bins, 2), thresholds
+    from the highest bin down; pixels of a bin tie."""
     neg, pos = histograms[..., ::-1, 0].astype(np.float64), histograms[..., ::-1, 1].astype(np.float64)
     tp, fp = np.cumsum(pos, -1), np.cumsum(neg, -1)
     p, n = tp[..., -1:], fp[..., -1:]
     precision = tp / np.maximum(tp + fp, 1.0)
-    ap = (pos / p * precision).sum(-1)
+    envelope = np.maximum.accumulate(precision[..., ::-1], -1)[..., ::-1]  # an empty bin repeats an earlier point
+    ap, ap_envelope = (pos / p * precision).sum(-1), (pos / p * envelope).sum(-1)
     first = np.argmax(tp / p >= tpr, axis=-1)
     fpr = np.take_along_axis(fp, first[..., None], -1)[..., 0] / n[..., 0]
-    return {"ap": ap, "fpr_at_tpr": fpr}
+    return {"ap": ap, "ap_envelope": ap_envelope, "fpr_at_tpr": fpr}
 
 
 def draws(num_frames: int, replicates: int = REPLICATES, seed: int = 0) -> np.ndarray:
@@ -130,11 +132,11 @@ def score_frames(predict, root: Path, score_maps, log=print) -> tuple[dict[str, 
 
 
 def exact_metrics(scores: list[np.ndarray], labels: list[np.ndarray]) -> dict[str, float]:
-    """Pooled AP (step) and FPR at 95% TPR ("first") over the frames, exactly."""
+    """Pooled AP (step and envelope) and FPR at 95% TPR ("first") over the frames, exactly."""
     from jaxanom.metrics import anomaly_metrics
 
-    m = anomaly_metrics(np.concatenate(scores), np.concatenate(labels))
-    return {"ap": m["ap"], "fpr_at_tpr": m["fpr_at_tpr"]}
+    m = anomaly_metrics(np.concatenate(scores), np.concatenate(labels), conventions=True)
+    return {"ap": m["ap"], "ap_envelope": m["ap_conventions"]["envelope"], "fpr_at_tpr": m["fpr_at_tpr"]}
 
 
 def with_intervals(scores: dict[str, list[np.ndarray]], labels: list[np.ndarray], multiplicities: np.ndarray

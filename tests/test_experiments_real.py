@@ -3,7 +3,7 @@ binned metrics with one bin per distinct score are the exact ones, ties included
 replicate is the metric of the frames repeated by their multiplicities."""
 import numpy as np
 import pytest
-from sklearn.metrics import average_precision_score, roc_curve
+from sklearn.metrics import average_precision_score, precision_recall_curve, roc_curve
 
 from experiments.real_common import binned_metrics, bootstrap, draws, frame_histograms, interval
 
@@ -36,6 +36,34 @@ def test_one_bin_per_distinct_score_gives_the_exact_metrics(frames):
     got = binned_metrics(histograms.sum(0))
     np.testing.assert_allclose([got["ap"], got["fpr_at_tpr"]], want, rtol=1e-12)
     assert histograms.sum() == keep.sum()
+
+
+def envelope_ap(scores: np.ndarray, labels: np.ndarray) -> float:
+    """VOC all-point AP (MMF Eq. 7) from scikit-learn's PR points: precision replaced by its
+    maximum at equal or higher recall, summed over the recall steps from recall 0."""
+    precision, recall, _ = precision_recall_curve(labels, scores)
+    precision, recall = precision[:-1][::-1], recall[:-1][::-1]  # thresholds high to low, without (1, 0)
+    best = np.array([precision[k:].max() for k in range(len(precision))])
+    return float(np.sum(np.diff(recall, prepend=0.0) * best))
+
+
+def test_binned_envelope_ap_with_one_bin_per_score_is_eq7(frames):
+    scores, labels = (list(x) for x in zip(*frames))
+    histograms = frame_histograms(scores, labels, np.arange(-3, 20) + 0.5)  # empty bins at both ends too
+    keep = np.concatenate(labels) != 255
+    got = binned_metrics(histograms.sum(0))
+    want = envelope_ap(np.concatenate(scores)[keep], np.concatenate(labels)[keep])
+    assert got["ap_envelope"] == pytest.approx(want, rel=1e-12)
+    hand = binned_metrics(frame_histograms([np.array([3.0, 2.0, 1.0])], [np.array([0, 1, 1], np.uint8)],
+                                           np.array([1.5, 2.5]))[0])  # precision 0, 1/2, 2/3 at recall 0, 1/2, 1
+    assert (hand["ap"], hand["ap_envelope"]) == pytest.approx((0.5 / 2 + (2 / 3) / 2, 2 / 3), rel=1e-12)
+    multiplicities = draws(len(frames), replicates=4, seed=2)
+    for r, m in enumerate(multiplicities):
+        s = np.concatenate([np.repeat(scores[f][None], k, 0).ravel() for f, k in enumerate(m)])
+        l = np.concatenate([np.repeat(labels[f][None], k, 0).ravel() for f, k in enumerate(m)])
+        if (l == 1).any():
+            assert bootstrap(histograms, m[None])["ap_envelope"][0] == pytest.approx(
+                envelope_ap(s[l != 255], l[l != 255]), rel=1e-12)
 
 
 def test_a_replicate_pools_frames_by_their_multiplicities(frames):
