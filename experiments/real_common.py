@@ -113,10 +113,22 @@ def anomaly_tracks() -> dict[str, Path]:
     return {"RoadAnomaly21": require_realdata("RoadAnomaly21"), "RoadObstacle21": require_realdata("RoadObstacle21")}
 
 
-def score_frames(predict, root: Path, score_maps, log=print) -> tuple[dict[str, list[np.ndarray]], list[np.ndarray]]:
-    """Every frame of a SegmentMeIfYouCan track through the network at its own size;
-    ``score_maps(logits (H, W, C)) -> {name: (H, W) scores}``. Returns the non-void pixels only:
-    ``(scores[name][frame] float32 (n,), labels[frame] uint8 (n,) in {0, 1})``."""
+def resized(image: np.ndarray, width: int) -> np.ndarray:
+    """``image`` resized (area) to ``width`` columns and the height keeping its aspect, a multiple of 8."""
+    import cv2
+
+    height = int(round(image.shape[0] * width / image.shape[1] / 8)) * 8
+    return cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
+
+
+def score_frames(predict, root: Path, score_maps, log=print, *,
+                 width: int | None = None) -> tuple[dict[str, list[np.ndarray]], list[np.ndarray]]:
+    """Every frame of a SegmentMeIfYouCan track through the network, at its own size or ``resized`` to
+    ``width`` (then each map is resized back bilinearly); ``score_maps(logits (H, W, C)) -> {name: (H, W)
+    scores}``. Returns the non-void pixels only: ``(scores[name][frame] float32 (n,), labels[frame]
+    uint8 (n,) in {0, 1})``."""
+    import cv2
+
     from jaxanom.data.smiyc import SegmentMeIfYouCan
 
     frames = SegmentMeIfYouCan(root)
@@ -125,8 +137,12 @@ def score_frames(predict, root: Path, score_maps, log=print) -> tuple[dict[str, 
         frame = frames[i]
         keep = frame["label"] != 255
         labels.append(frame["label"][keep])
-        for name, value in score_maps(logits_of(predict, frame["image"])).items():
-            scores.setdefault(name, []).append(np.asarray(value, np.float32)[keep])
+        image = frame["image"] if width is None else resized(frame["image"], width)
+        for name, value in score_maps(logits_of(predict, image)).items():
+            value = np.asarray(value, np.float32)
+            if width is not None:
+                value = cv2.resize(value, frame["label"].shape[::-1], interpolation=cv2.INTER_LINEAR)
+            scores.setdefault(name, []).append(value[keep])
         log(f"  {root.name} {i + 1}/{len(frames)} {frame['name']}")
     return scores, labels
 

@@ -29,8 +29,8 @@ import cv2
 import numpy as np
 
 from experiments.real_common import (HERE, REPLICATES, anomaly_tracks, difference, draws, espnet, logits_of,
-                                     with_intervals)
-from experiments.real_sml import resized
+                                     resized, with_intervals)
+from experiments.real_sml import WIDTH
 from jaxanom import scores as S
 from jaxanom.data.smiyc import SegmentMeIfYouCan
 from jaxanom.io import write_bytes_atomic, write_json_atomic
@@ -98,7 +98,7 @@ def track_scores(predict, root, log=print):
         frame = frames[i]
         keep = frame["label"] != 255
         labels.append(frame["label"][keep])
-        maps, seconds = frame_maps(logits_of(predict, resized(frame["image"])), frame["image"])
+        maps, seconds = frame_maps(logits_of(predict, resized(frame["image"], WIDTH)), frame["image"])
         for name, value in maps.items():
             scores.setdefault(name, []).append(value[keep])
         times.append(seconds)

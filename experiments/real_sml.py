@@ -26,11 +26,10 @@ import cv2
 import numpy as np
 
 from experiments.real_common import (HERE, REPLICATES, anomaly_tracks, difference, draws, espnet, logits_of,
-                                     require_realdata, with_intervals)
+                                     require_realdata, score_frames, with_intervals)
 from jaxanom import scores as S
 from jaxanom import sml
 from jaxanom.data.cityscapes import Cityscapes
-from jaxanom.data.smiyc import SegmentMeIfYouCan
 from jaxanom.io import write_bytes_atomic, write_json_atomic
 
 NAME = "real_sml"
@@ -42,11 +41,6 @@ BASES = {"MSP": S.msp, "max logit": S.max_logit, "entropy": S.entropy, "energy":
 POST = " + post"  # boundary suppression + dilated smoothing
 PAPER = "none"  # the policy of the paper (its per-class estimate)
 MARGIN = 0.001  # a difference counts when its 95% interval excludes [-0.1, 0.1] points (negligible otherwise)
-
-
-def resized(image: np.ndarray) -> np.ndarray:
-    height = int(round(image.shape[0] * WIDTH / image.shape[1] / 8)) * 8
-    return cv2.resize(image, (WIDTH, height), interpolation=cv2.INTER_AREA)
 
 
 def fit_statistics(predict) -> tuple[dict, dict]:
@@ -72,21 +66,6 @@ def score_maps(logits: np.ndarray, finals: dict) -> dict[str, np.ndarray]:
         maps[f"SML ({policy}) + suppression"] = -sml.postprocess(standardized, prediction, smooth=False)
         maps[f"SML ({policy}) + smoothing"] = -sml.postprocess(standardized, prediction, suppress=False)
     return maps
-
-
-def track_scores(predict, root, finals, log=print):
-    frames = SegmentMeIfYouCan(root)
-    scores, labels = {}, []
-    for i in range(len(frames)):
-        frame = frames[i]
-        keep = frame["label"] != 255
-        labels.append(frame["label"][keep])
-        size = frame["label"].shape[::-1]
-        for name, value in score_maps(logits_of(predict, resized(frame["image"])), finals).items():
-            full = cv2.resize(np.asarray(value, np.float32), size, interpolation=cv2.INTER_LINEAR)
-            scores.setdefault(name, []).append(full[keep])
-        log(f"  {root.name} {i + 1}/{len(frames)}")
-    return scores, labels
 
 
 def findings(replicates: dict, policy: str) -> list[dict]:
@@ -136,7 +115,7 @@ def main(log=print) -> dict:
                "statistics": {p: {"mean": np.asarray(m).tolist(), "std": np.asarray(s).tolist()}
                               for p, (m, s) in finals.items()}}
     for track, root in anomaly_tracks().items():
-        scores, labels = track_scores(predict, root, finals, log)
+        scores, labels = score_frames(predict, root, lambda logits: score_maps(logits, finals), log, width=WIDTH)
         table, replicates = with_intervals(scores, labels, draws(len(labels)))
         del scores
         results[track] = {"frames": len(labels), "methods": table,
