@@ -16,7 +16,7 @@ def test_matched_constants_keep_the_papers_per_pixel_magnitude():
     assert attention_positions(720, 720) == 180 * 180
     assert attention_positions(1024, 2048) == 256 * 512
     assert attention_positions(129, 257) == 33 * 65  # ceil at both stride-2 stages
-    assert matched_tau(Scale()) == pytest.approx(5e4 * (32 * 64) / (180 * 180))
+    assert matched_tau(Scale(height=128, width=256)) == pytest.approx(5e4 * (32 * 64) / (180 * 180))
     assert matched_tau(Scale(height=720, width=720)) == pytest.approx(5e4)
     assert matched_sigma(1024, 2048) == pytest.approx(2e4)
     assert matched_sigma(128, 256) == pytest.approx(2e4 / 64)

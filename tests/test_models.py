@@ -221,6 +221,17 @@ def test_tiny_parameter_counts_match_hand_formulas():
     assert count_params(tiny(attention="msaam")) == backbone + head + msaam
 
 
+def test_small_preset_is_resnet18_at_a_quarter_width_with_a_64_channel_head():
+    w, aspp, low, dec, c = 16, 64, 24, 64, NUM_CLASSES
+    stages = [(w, w), (w, 2 * w), (2 * w, 4 * w), (4 * w, 8 * w)]
+    backbone = conv_bn(3, w, 7) + sum(basic_block(cin, cout) + basic_block(cout, cout) for cin, cout in stages)
+    c4 = 8 * w
+    head = (conv_bn(c4, aspp, 1) + 3 * conv_bn(c4, aspp, 3) + conv_bn(c4, aspp, 1)
+            + conv_bn(5 * aspp, aspp, 1) + conv_bn(w, low, 1)
+            + conv_bn(aspp + low, dec, 3) + conv_bn(dec, dec, 3) + dec * c + c)
+    assert count_params(build_model("deeplabv3plus_small", num_classes=c)) == backbone + head
+
+
 def test_deep_stem_shapes_and_parameter_count():
     spec = RESNETS["resnet_tiny"]
     deep = ResNetSpec(spec.stage_sizes, spec.bottleneck, spec.width, deep_stem=True)
@@ -281,7 +292,7 @@ def test_bad_images_raise(shape, dtype):
 
 def test_registry_names_and_unknown_name():
     assert {"deeplabv3plus_r18", "deeplabv3plus_r50", "deeplabv3plus_r101",
-            "deeplabv3plus_tiny"} <= set(model_names())
+            "deeplabv3plus_tiny", "deeplabv3plus_small"} <= set(model_names())
     model = build_model("deeplabv3plus_r101", num_classes=19, attention="cudam")
     assert (model.backbone, model.output_stride, model.attention) == ("resnet101", 8, "cudam")
     with pytest.raises(ValueError, match="name"):

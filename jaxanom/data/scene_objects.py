@@ -54,9 +54,21 @@ def vehicle(rng, cls):
         parts += [(cls, body, _rect(-w / 2, 0.3, w / 2, 0.62 * h)),
                   (cls, body, [(-0.45 * w, 0.62 * h), (0.45 * w, 0.62 * h), (0.33 * w, h), (-0.33 * w, h)]),
                   (cls, dark, [(-0.38 * w, 0.66 * h), (0.38 * w, 0.66 * h), (0.3 * w, 0.95 * h), (-0.3 * w, 0.95 * h)])]
-    else:
+    elif cls == TRUCK:  # a closed box, no rear window
         parts += [(cls, body, _rect(-w / 2, 0.35, w / 2, h)),
-                  (cls, dark, _rect(-0.42 * w, 0.6 * h, 0.42 * w, 0.85 * h))]
+                  (cls, dark, _rect(-0.45 * w, 0.35, 0.45 * w, 0.5))]
+    elif cls == BUS:  # a wide rear window and a lit destination board
+        board = np.clip(np.array([240, 160, 40]) + rng.uniform(-30, 15, 3), 0, 255)
+        parts += [(cls, body, _rect(-w / 2, 0.35, w / 2, h)),
+                  (cls, dark, _rect(-0.42 * w, 0.55 * h, 0.42 * w, 0.85 * h)),
+                  (cls, board, _rect(-0.3 * w, 0.88 * h, 0.3 * w, 0.96 * h))]
+    else:  # a tram front: pale skirt stripe, two windscreens, a pantograph on the roof
+        pale = np.clip(np.array([210, 210, 200]) + rng.uniform(-30, 30, 3), 0, 255)
+        parts += [(cls, body, _rect(-w / 2, 0.35, w / 2, h)),
+                  (cls, pale, _rect(-w / 2, 0.35, w / 2, 0.25 * h)),
+                  (cls, dark, _rect(-0.45 * w, 0.5 * h, -0.03 * w, 0.88 * h)),
+                  (cls, dark, _rect(0.03 * w, 0.5 * h, 0.45 * w, 0.88 * h)),
+                  (cls, dark, [(-0.3 * w, h), (0.3 * w, h), (0.1 * w, 1.12 * h), (-0.1 * w, 1.12 * h)])]
     lamp = np.clip(np.array([200, 30, 30]) + rng.uniform(-30, 30, 3), 0, 255)
     parts += [(cls, lamp, _rect(-0.48 * w, 0.45, -0.36 * w, 0.55)), (cls, lamp, _rect(0.36 * w, 0.45, 0.48 * w, 0.55))]
     return parts, w
@@ -96,18 +108,18 @@ def pole(rng, with_item):
     h = rng.uniform(3.5, 7.0)
     parts = [(POLE, tone(rng, POLE), _rect(-0.08, 0, 0.08, h))]
     if with_item == SIGN:
-        c, size = tone(rng, SIGN, 30), rng.uniform(0.5, 0.9)
+        c, size = tone(rng, SIGN, 30), rng.uniform(0.8, 1.4)
         shape = rng.integers(3)
         poly = (_rect(-size / 2, h - size, size / 2, h) if shape == 0 else
                 _ellipse(0, h - size / 2, size / 2, size / 2) if shape == 1 else
                 [(-size / 2, h), (size / 2, h), (0, h - size)])
         parts.append((SIGN, c, poly))
     elif with_item == LIGHT:
-        parts.append((LIGHT, tone(rng, LIGHT, 30, 0.5), _rect(-0.18, h - 1.0, 0.18, h)))
+        parts.append((LIGHT, tone(rng, LIGHT, 30, 0.5), _rect(-0.3, h - 1.4, 0.3, h)))
         lit = rng.integers(3)
         for k, lamp in enumerate([(230, 40, 30), (240, 190, 40), (40, 220, 90)]):
             color = np.array(lamp, np.float32) * (1.0 if k == lit else 0.35)
-            parts.append((LIGHT, color, _ellipse(0, h - 0.18 - 0.3 * k, 0.1, 0.1, n=8)))
+            parts.append((LIGHT, color, _ellipse(0, h - 0.25 - 0.45 * k, 0.17, 0.17, n=8)))
     return parts
 
 

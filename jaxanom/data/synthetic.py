@@ -58,6 +58,9 @@ _TEXTURE = np.array([0.06, 0.06, 0.09, 0.08, 0.10, 0.05, 0.05, 0.04, 0.28, 0.16,
                      0.09, 0.05, 0.06, 0.05, 0.05, 0.07, 0.07, 0.18, 0.12], dtype=np.float32)
 _GROUND, _SIDE, _FRONTAL, _SKY = range(4)  # depth models of a surface
 _Z_NEAR = 0.3  # metres: polygons are clipped to z >= _Z_NEAR before projection
+# Vehicle classes drawn with equal chance per slot, cars three times: the rare Cityscapes classes
+# (two-wheelers, buses, trains) need enough pixels to be learnable at 64 x 128.
+VEHICLE_MIX = (CAR, CAR, CAR, TRUCK, BUS, TRAIN, MOTORCYCLE, BICYCLE)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -154,7 +157,7 @@ class _Street:
     @classmethod
     def sample(cls, rng: np.random.Generator) -> "_Street":
         road, walk = rng.uniform(3.0, 8.0, 2), rng.uniform(1.5, 4.0, 2)
-        strip = rng.uniform(0, 3.0, 2) * (rng.random(2) < 0.5)
+        strip = rng.uniform(1.0, 4.0, 2) * (rng.random(2) < 0.7)
         return cls(*road, *walk, *strip)
 
 
@@ -186,12 +189,12 @@ def _draw_roadside(painter: _Painter, rng: np.random.Generator, s: _Street) -> N
                 top = rng.uniform(1.0, 2.5)
                 if kind == WALL:
                     painter.side(WALL, tone(rng, WALL, 30), x, z, z + length, 0, top)
-                else:  # two rails and posts every 2.5 m
-                    color = tone(rng, FENCE, 30)
-                    painter.side(FENCE, color, x, z, z + length, top - 0.12, top)
-                    painter.side(FENCE, color, x, z, z + length, 0.35 * top, 0.35 * top + 0.1)
+                else:  # a mesh panel with a top rail and posts every 2.5 m
+                    mesh, color = tone(rng, FENCE, 30, 0.85), tone(rng, FENCE, 30)
+                    painter.side(FENCE, mesh, x, z, z + length, 0, top)
+                    painter.side(FENCE, color, x, z, z + length, top - 0.15, top)
                     for zp in np.arange(z, z + length, 2.5):
-                        painter.side(FENCE, color, x, zp, zp + 0.12, 0, top)
+                        painter.side(FENCE, color, x, zp, zp + 0.15, 0, top)
             elif kind == VEGETATION:
                 painter.side(VEGETATION, tone(rng, VEGETATION, 30), x, z, z + length, 0, rng.uniform(3, 12))
             else:
@@ -203,8 +206,8 @@ def _draw_roadside(painter: _Painter, rng: np.random.Generator, s: _Street) -> N
             z += length + rng.uniform(0, 6) * (rng.random() < 0.3)
 
 
-def _place_anomalies(rng: np.random.Generator, s: _Street, split: str, focal: float) -> list[tuple]:
-    """1-3 anomalies ``(z, x, width, parts)`` standing on the road."""
+def _place_anomalies(rng: np.random.Generator, s: _Street, split: str, camera: _Camera) -> list[tuple]:
+    """1-3 anomalies ``(z, x, width, parts)`` standing on the road, inside the field of view."""
     anomalies = []
     for _ in range(rng.integers(1, 4)):
         regime = split if split != "anomaly" else rng.choice(["anomaly_small", "anomaly_large"])
@@ -212,32 +215,41 @@ def _place_anomalies(rng: np.random.Generator, s: _Street, split: str, focal: fl
             z, size = rng.uniform(25, 80), rng.uniform(0.25, 0.8)
         else:
             z, size = rng.uniform(5, 20), rng.uniform(0.6, 1.8)
-        z = min(z, focal * size / 4.0)  # at least ~4 pixels tall
+        z = min(z, camera.f * size / 4.0)  # at least ~4 pixels tall
         parts, w = anomaly_object(rng, size)
-        x = rng.uniform(-s.road_l + w / 2 + 0.3, s.road_r - w / 2 - 0.3)
+        seen = (-camera.cx * z / camera.f + w / 2, (camera.width - camera.cx) * z / camera.f - w / 2)
+        low, high = max(-s.road_l + w / 2 + 0.3, seen[0]), min(s.road_r - w / 2 - 0.3, seen[1])
+        x = rng.uniform(low, high) if low < high else (low + high) / 2
         anomalies.append((z, x, w, parts))
     return anomalies
+
+
+def _hides(z: float, x: float, w: float, z_behind: float, x_behind: float, w_behind: float) -> bool:
+    """Whether an object (depth ``z``, lateral position ``x``, width ``w``, metres) may hide one
+    standing behind it: nearer (or within 1 m) and overlapping it in viewing angle, 0.3 m to spare."""
+    half, half_behind = (w / 2 + 0.3) / z, (w_behind / 2 + 0.3) / z_behind
+    return z < z_behind + 1.0 and abs(x / z - x_behind / z_behind) < half + half_behind
 
 
 def _place_things(rng: np.random.Generator, s: _Street, anomalies: list[tuple]) -> list[tuple]:
     """Vehicles, pedestrians, poles and trees ``(z, x, width, parts)``; no vehicle hides an anomaly."""
     things = []
     for _ in range(rng.integers(0, 9)):  # vehicles in lanes or parked at the kerb
-        cls = rng.choice([CAR] * 8 + [TRUCK, BUS, TRAIN, MOTORCYCLE, BICYCLE])
-        z = rng.uniform(6, 90)
+        cls = rng.choice(VEHICLE_MIX)
+        z = rng.uniform(5, 60)
         parts, w = (two_wheeler(rng, cls), 1.3) if cls in (MOTORCYCLE, BICYCLE) else vehicle(rng, cls)
         x = rng.uniform(-s.road_l + w / 2, s.road_r - w / 2)
-        if not any(z < za + 1.0 and abs(x - xa) < (w + wa) / 2 + 0.5 for za, xa, wa, _ in anomalies):
+        if not any(_hides(z, x, w, za, xa, wa) for za, xa, wa, _ in anomalies):
             things.append((z, x, w, parts))
     for _ in range(rng.integers(0, 9)):  # pedestrians on the sidewalks
         left = rng.random() < 0.5
         x = -s.road_l - rng.uniform(0.3, s.walk_l) if left else s.road_r + rng.uniform(0.3, s.walk_r)
-        things.append((rng.uniform(4, 60), x, 0.5, person(rng)))
+        things.append((rng.uniform(4, 40), x, 0.5, person(rng)))
     for sign, kerb, walk in ((-1, s.road_l, s.walk_l), (1, s.road_r, s.walk_r)):
-        for z in np.arange(rng.uniform(3, 15), 120, rng.uniform(12, 30)):  # poles near the kerb
+        for z in np.arange(rng.uniform(3, 12), 70, rng.uniform(10, 25)):  # poles near the kerb
             things.append((z, sign * (kerb + 0.4), 0.2, pole(rng, rng.choice([POLE, SIGN, LIGHT]))))
         for _ in range(rng.integers(0, 5)):  # trees on the sidewalk's outer side
-            things.append((rng.uniform(5, 100), sign * (kerb + walk - 0.3), 2.0, tree(rng)))
+            things.append((rng.uniform(5, 70), sign * (kerb + walk - 0.3), 2.0, tree(rng)))
     return things
 
 
@@ -256,7 +268,7 @@ def _layout(painter: _Painter, rng: np.random.Generator, split: str, clutter_rng
     street = _Street.sample(rng)
     _draw_ground(painter, rng, street)
     _draw_roadside(painter, rng, street)
-    anomalies = _place_anomalies(rng, street, split, painter.cam.f) if split in ANOMALY_SPLITS else []
+    anomalies = _place_anomalies(rng, street, split, painter.cam) if split in ANOMALY_SPLITS else []
     objects = anomalies + _place_things(rng, street, anomalies)
     if void_objects and split not in ANOMALY_SPLITS:
         objects += _place_clutter(clutter_rng, street, void_objects)

@@ -31,6 +31,12 @@ _PRESETS: dict[str, dict[str, Any]] = {
         "low_level_channels": 8,
         "decoder_channels": 16,
     },
+    "deeplabv3plus_small": {
+        "backbone": "resnet18_quarter",
+        "aspp_channels": 64,
+        "low_level_channels": 24,
+        "decoder_channels": 64,
+    },
 }
 
 # ESPNet with p residual ESP modules in stage 2 and q in stage 3 (the authors' espnet_p_<p>_q_<q>).

@@ -41,6 +41,8 @@ RESNETS: dict[str, ResNetSpec] = {
     "resnet101_deep_stem": ResNetSpec((3, 4, 23, 3), bottleneck=True, deep_stem=True, stem_width=128),
     # For tests and demos: one basic block per stage, 8 channels in the first stage.
     "resnet_tiny": ResNetSpec((1, 1, 1, 1), bottleneck=False, width=8),
+    # For the CPU experiments: ResNet-18's depth at a quarter of its width.
+    "resnet18_quarter": ResNetSpec((2, 2, 2, 2), bottleneck=False, width=16),
 }
 
 
