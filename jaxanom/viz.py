@@ -69,7 +69,8 @@ class Panel:
 
     ``image``: RGB uint8 (H, W, 3), drawn as it is (with ``legend``: ``(name, (r, g, b))`` pairs
     shown under it), or a score map (H, W) drawn through ``cmap`` over [``vmin``, ``vmax``]
-    (default: its finite range, as ``heatmap``) with a colour bar named ``label``.
+    (default: its finite range, as ``heatmap``) with a colour bar named ``label``, laid over
+    ``base`` (RGB uint8 (H, W, 3)) with opacity ``alpha`` when one is given.
     """
 
     title: str
@@ -79,6 +80,8 @@ class Panel:
     vmax: float | None = None
     cmap: str = "inferno"
     label: str = ""
+    base: np.ndarray | None = None
+    alpha: float = 0.6
 
 
 def label_panel(title: str, labels, names: Sequence[str], palette: Sequence[Sequence[int]], *,
@@ -123,6 +126,11 @@ def _shown(panel: Panel, min_width: int, max_width: int) -> np.ndarray:
     rgb = np.asarray(panel.image)
     if rgb.ndim == 2:
         rgb = heatmap(rgb, vmin=panel.vmin, vmax=panel.vmax, cmap=panel.cmap)
+        if panel.base is not None:
+            if np.shape(panel.base) != rgb.shape:
+                raise ValueError(f"panel {panel.title!r}: base: expected RGB (H, W, 3) of the score's size "
+                                 f"{rgb.shape}, got {np.shape(panel.base)}")
+            rgb = overlay(panel.base, rgb, alpha=panel.alpha)
     if rgb.ndim != 3 or rgb.shape[-1] != 3 or rgb.dtype != np.uint8 or 0 in rgb.shape:
         raise ValueError(f"panel {panel.title!r}: expected RGB uint8 (H, W, 3) or scores (H, W), "
                          f"got {np.asarray(panel.image).dtype} {np.asarray(panel.image).shape}")
@@ -244,42 +252,3 @@ def plot_curves(path: str | os.PathLike, curves: Mapping[str, tuple], *, kind: s
     buffer = io.BytesIO()
     figure.savefig(buffer, format="png")
     write_bytes_atomic(path, buffer.getvalue())
-
-
-def score_figure(image, score, *, title: str, label: str = "anomaly score", cmap: str = "inferno",
-                 alpha: float = 0.6, width: int = 1600) -> np.ndarray:
-    """A picture for people: ``image`` (H, W, 3) uint8 RGB and ``score`` (H, W) laid over it as a
-    heat map, in two titled panels with a colour bar of the score's values; ``width`` pixels wide.
-
-    Returns RGB uint8. The colour range is the score's finite range on this image.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.cm import ScalarMappable
-    from matplotlib.colors import Normalize
-    from matplotlib.figure import Figure
-
-    image, score = np.asarray(image), np.asarray(score, np.float64)
-    if image.ndim != 3 or image.shape[-1] != 3 or image.shape[:2] != score.shape:
-        raise ValueError(f"image, score: expected (H, W, 3) and (H, W) of one size, got {image.shape} and {score.shape}")
-    finite = score[np.isfinite(score)]
-    low, high = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
-    high = high if high > low else low + 1.0
-    dpi, bar = 100, 0.035
-    panel = width / dpi / (2 + bar + 0.2)
-    figure = Figure(figsize=(width / dpi, panel * image.shape[0] / image.shape[1] + 0.9), dpi=dpi)
-    FigureCanvasAgg(figure)
-    left, right, scale = figure.subplots(1, 3, gridspec_kw={"width_ratios": [1, 1, bar]})
-    left.imshow(image)
-    left.set_title("image", fontsize=12)
-    right.imshow(overlay(image, heatmap(score, vmin=low, vmax=high, cmap=cmap), alpha=alpha))
-    right.set_title(label, fontsize=12)
-    for axes in (left, right):
-        axes.set_axis_off()
-    figure.suptitle(title, fontsize=13)
-    figure.colorbar(ScalarMappable(Normalize(low, high), cmap), cax=scale).ax.tick_params(labelsize=10)
-    figure.subplots_adjust(left=0.01, right=0.95, bottom=0.03, top=0.87, wspace=0.04)
-    figure.canvas.draw()
-    return np.ascontiguousarray(np.asarray(figure.canvas.buffer_rgba())[..., :3])

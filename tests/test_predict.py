@@ -92,7 +92,7 @@ def test_every_format_on_real_frames(tiny_run, real_frames, tmp_path, capsys):
                 assert value.dtype == np.float16 and value.shape == shape and value.compression == "gzip"
                 np.testing.assert_array_equal(value[()], npy)
             picture = cv2.imread(str(out / "png" / method / f"{path.stem}.png"))
-            assert picture.shape[1] == 1600 and picture.shape[0] > 400
+            assert 2 * 512 < picture.shape[1] < 2 * 1024 + 200 and picture.shape[0] > 300  # two readable panels
         # float16 rounding of the float32 map: half a unit in the last place, 2**-11 relative
         np.testing.assert_allclose(np.load(out / "npy" / "msp" / f"{path.stem}.npy").astype(np.float32), expected,
                                    rtol=2**-11, atol=1e-4)

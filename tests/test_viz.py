@@ -68,19 +68,19 @@ def test_json_is_atomic_and_readable(tmp_path):
         write_png_atomic(tmp_path / "bad.png", np.zeros((2, 2), np.float32))
 
 
-def test_score_figure_is_a_readable_picture():
+def test_a_score_panel_over_a_base_image_is_its_alpha_blend_with_a_colour_bar():
     image = np.zeros((36, 64, 3), np.uint8)  # black: the overlay shows alpha * heat-map colours
     score = np.linspace(-3.0, 5.0, 36 * 64).reshape(36, 64)
-    picture = viz.score_figure(image, score, title="frame: msp", width=800, alpha=0.6)
-    assert picture.dtype == np.uint8 and picture.shape[1] == 800 and picture.shape[2] == 3
-    assert picture.shape[0] > 36 * 800 / 64 / 2.3  # two panels of the image's aspect ratio, titles above
+    picture = viz.render_panels([viz.Panel("frame", image), viz.Panel("msp", score, base=image, alpha=0.6)],
+                                columns=2, min_width=256)
+    assert picture.dtype == np.uint8 and picture.shape[1] > 2 * 256
     top = np.array(matplotlib.colormaps["inferno"](1.0, bytes=True)[:3], int)
     pixels = picture.reshape(-1, 3).astype(int)
     nearest = lambda colour: np.abs(pixels - colour).max(axis=1).min()  # noqa: E731
-    assert nearest(np.rint(0.6 * top)) <= 3  # the score's maximum over the (black) image
-    assert nearest(top) <= 12  # the top of the colour bar
-    with pytest.raises(ValueError, match="image, score"):
-        viz.score_figure(image, score[:, :10], title="x")
+    assert nearest(np.rint(0.6 * top)) <= 1  # the score's maximum over the (black) image
+    assert nearest(top) <= 20  # the top of the colour bar (drawn in 256 steps)
+    with pytest.raises(ValueError, match="base"):
+        viz.render_panels([viz.Panel("msp", score, base=image[:, :10])])
 
 
 def _pixel_box(axes, rendered):

@@ -235,7 +235,7 @@ def native_map(score: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
 def write_frame(out: Path, frame: dict, maps: dict, settings: PredictSettings) -> None:
     """Every output file of one frame; ``maps[method]`` (H, W) at the image's native size."""
-    from jaxanom.io import write_bytes_atomic, write_png_atomic, write_with_atomic
+    from jaxanom.io import write_bytes_atomic, write_with_atomic
 
     for method, score in maps.items():
         half = None
@@ -253,10 +253,12 @@ def write_frame(out: Path, frame: dict, maps: dict, settings: PredictSettings) -
             elif fmt == "smiyc":
                 write_with_atomic(path, lambda tmp: _write_hdf5(tmp, half))
             else:
-                from jaxanom.viz import score_figure
+                from jaxanom.viz import Panel, write_panels
 
-                write_png_atomic(path, score_figure(frame["image"], score, title=f"{frame['name']}: {method}",
-                                                    label=f"{method} (higher = more anomalous)"))
+                panels = [Panel(frame["name"], frame["image"]),
+                          Panel(f"{method} over the image", score, base=frame["image"],
+                                label=f"{method} (higher = more anomalous)")]
+                write_panels(path, panels, columns=2, min_width=512, max_width=1024)
 
 
 def _write_hdf5(path: str, value: np.ndarray) -> None:
