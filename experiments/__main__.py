@@ -73,7 +73,7 @@ def main(argv=None) -> None:
                 run(scale, args.seeds, args.out, args.runs, description=describe(module))
             else:
                 run_table(module.NAME, module.TITLE, module.rows, module.findings, scale, args.out, args.runs,
-                          description=describe(module), seeds=args.seeds)
+                          description=describe(module), seeds=args.seeds, controls=getattr(module, "controls", None))
         except Exception:  # noqa: BLE001 -- e.g. a diverged network: report it, run the other tables
             failures[name] = traceback.format_exc(limit=4).strip()
             print(failures[name])
