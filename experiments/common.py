@@ -141,15 +141,17 @@ class Row:
 class Finding:
     """A qualitative claim of the paper (or a positive control) and whether this run reproduces it.
 
-    ``rows``: the table rows it compares (their networks' mIoU decides whether it is tested,
-    ``competence``); ``intervals``: its ``comparison`` of each pair of rows.
+    ``rows``: the table rows it compares; ``intervals``: its ``comparison`` of each pair of rows;
+    ``tested`` / ``untested_because``: ``competence`` of the rows' networks (None: not checked).
     """
 
     claim: str
     holds: bool
     evidence: str
-    rows: tuple[str, ...] = ()
-    intervals: tuple[dict, ...] = ()
+    rows: list[str] = dataclasses.field(default_factory=list)
+    intervals: list[dict] = dataclasses.field(default_factory=list)
+    tested: bool | None = None
+    untested_because: str = ""
 
 
 def attention_positions(height: int, width: int) -> int:
@@ -518,15 +520,6 @@ def competence(values: dict, rows: Sequence[str]) -> tuple[bool | None, str]:
     return False, f"mIoU below {COMPETENT_MIOU:.0f}%: " + ", ".join(f"`{k}` {v:.1f}" for k, v in low.items())
 
 
-def _checked(values: dict, found: list[Finding]) -> list[dict]:
-    """Findings as JSON with ``tested`` / ``untested_because`` (``competence`` of their rows)."""
-    out = []
-    for finding in found:
-        tested, why = competence(values, finding.rows)
-        out.append({**dataclasses.asdict(finding), "tested": tested, "untested_because": why})
-    return out
-
-
 def _row_json(label: str, v: dict) -> dict:
     """A table row for the JSON: replicates replaced by each metric's 95% interval."""
     row = {"label": label, **{k: x for k, x in v.items() if k != "replicates"}}
@@ -547,7 +540,8 @@ def write_table(name: str, title: str, values: dict, curves: dict, findings: Cal
     binning = [v["binning"] for v in values.values() if "binning" in v]
     result = {"name": name, "title": title, "description": description,
               "table": [_row_json(k, v) for k, v in values.items()], "scale": dataclasses.asdict(scales[0]),
-              "findings": _checked(values, findings(values)), "controls": _checked(values, controls(values) if controls else []),
+              "findings": [dataclasses.asdict(f) for f in findings(values)],
+              "controls": [dataclasses.asdict(f) for f in (controls(values) if controls else [])],
               "networks": networks, "seeds": seeds_text(scales, paired), "num_seeds": len(scales), "paired": paired,
               **({"binning": max(binning)} if binning else {}), **({"steps_text": steps_text} if steps_text else {})}
     out_dir = Path(out_dir)
@@ -623,8 +617,9 @@ def _pair(values: dict, a: str, b: str, metric: str) -> str:
 
 def _finding(claim: str, holds: bool, evidence: str, values: dict, pairs: Sequence[tuple[str, str, str]]) -> Finding:
     """A finding comparing ``pairs`` of ``(a, b, metric)``, with their rows and intervals."""
-    rows = tuple(dict.fromkeys(label for a, b, _ in pairs for label in (a, b)))
-    return Finding(claim, holds, evidence, rows, tuple(comparison(values, a, b, m) for a, b, m in pairs))
+    rows = list(dict.fromkeys(label for a, b, _ in pairs for label in (a, b)))
+    return Finding(claim, holds, evidence, rows, [comparison(values, a, b, m) for a, b, m in pairs],
+                   *competence(values, rows))
 
 
 def improves(values: dict, new: str, old: str, metrics: Sequence[str] = ("ap",), claim: str | None = None) -> Finding:
