@@ -225,20 +225,28 @@ def _scaled(predict: Callable, factors: Sequence[float]) -> Callable:
 # ---------------------------------------------------------------- training
 
 
+_RESTORED: dict[Path, dict] = {}  # final checkpoint -> variables, kept for this process's other evaluations
+
+
 def trained(net: Network, runs: Path, log: Callable = print) -> dict:
-    """The network's final variables: trained into ``runs/<key>/``, or restored when already there.
+    """The network's final variables: trained into ``runs/<run_key>/``, or restored when already there
+    (once per process: a network evaluated twice, e.g. with ``scaled_logits``, is restored once).
 
     No validation during training: ``evaluate`` measures mIoU afterwards.
     """
     e = net.experiment
     run_dir = runs / net.run_key
-    done = (run_dir / "checkpoints" / str(e.train.steps)).exists()
+    final = (run_dir / "checkpoints" / str(e.train.steps)).resolve()
+    if final in _RESTORED and final.exists():
+        return _RESTORED[final]
+    done = final.exists()
     log(f"  network {net.run_key}: {'restoring' if done else 'training'} {e.attention or 'plain'} "
         f"({e.train.loss.method} loss, {e.train.steps} steps)")
     start = time.perf_counter()
     variables = run_training(e, run_dir, progress=False, validate=False)
     if not done:
         log(f"  trained in {time.perf_counter() - start:.0f} s")
+    _RESTORED[final] = variables
     return variables
 
 
