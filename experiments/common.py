@@ -7,6 +7,14 @@ it, and an interrupted run resumes), fits the SML class statistics on training f
 anomaly frames with every score, and writes ``<name>.json``, ``<name>.md``, ``<name>_roc.png`` and
 ``<name>_pr.png`` beside the experiment file.
 
+Findings are paired comparisons: every row keeps per-frame histograms of its score and per-frame
+confusion matrices (cached beside the evaluation), one hierarchical bootstrap over seeds and frames
+(``paired_replicates``) serves every row, and a finding holds when the 95% interval of the paired
+difference lies on the paper's side of 0 (``comparison``). A finding is *tested* only where every
+network of its rows reaches ``COMPETENT_MIOU``. An experiment file may also define ``controls(values)
+-> [Finding]``: positive controls, rows built so that the mechanism must help (``scaled_logits``);
+a failing control points at a bug.
+
 Networks are trained with AdamW (lr 2e-3, as ``jaxanom demo``) instead of the papers' SGD (lr 0.01
 for tens of thousands of steps), because the budget here is a few hundred steps.
 
