@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from sklearn.metrics import average_precision_score, roc_auc_score, roc_curve
 
-from experiments.common import (COMPETENT_MIOU, _scaled, _scores, control_scales, improves, not_better,
+from experiments.common import (COMPETENT_MIOU, Scale, _scaled, _scores, control_scales, improves, not_better,
                                 paired_replicates)
 from experiments.stats import binned_auroc, bootstrap, frame_histograms, hierarchical_draws, interval
 
@@ -208,3 +208,36 @@ def test_the_scaled_logit_control_passes_with_sml_and_fails_when_its_normalisati
     assert good.holds and good.intervals[0]["low"] > 5  # by points of AP
     broken = improves(control_values(broken=True), "sml", "max_logit")
     assert not broken.holds and broken.intervals[0]["high"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_summary_lists_per_paper_what_holds_what_fails_and_what_could_not_be_tested():
+    from experiments.__main__ import summary
+
+    def finding(claim, holds, tested, why="", low=1.0):
+        return {"claim": claim, "holds": holds, "evidence": f"evidence of {claim}", "rows": ["x", "y"],
+                "intervals": [{"a": "x", "b": "y", "metric": "ap", "difference": 1.0, "low": low, "high": 2.0,
+                               "better": holds}], "tested": tested, "untested_because": why}
+
+    def result(name, findings, controls=()):
+        return {"name": name, "title": name.upper(), "description": "", "table": [], "scale": Scale().__dict__,
+                "findings": findings, "controls": list(controls), "networks": {}, "seeds": "s", "num_seeds": 3,
+                "paired": True}
+
+    results = [result("sml_a", [finding("sml holds", True, True), finding("sml fails", False, True),
+                                finding("sml weak", True, False, "mIoU below 60%: `n1` 18.0")]),
+               result("cudam_b", [finding("cudam good", True, True)], [finding("control", False, True)]),
+               {"name": "offroad_c", "title": "OFF", "scale": Scale().__dict__, "report": "## OFF",
+                "findings": [{"claim": "offroad claim", "holds": True, "evidence": "e"}]}]
+    text = summary(results)
+    assert "Of 5 qualitative findings of the papers, 2 hold here, 1 fail, and 2 could not be tested" in text
+    sml = text[text.index("### SML"):text.index("### CuDAM")]
+    holds, fails, untested = (sml[sml.index(h):] for h in ("Holds", "Fails in a competent", "Could not be tested"))
+    assert "sml holds (evidence of sml holds)" in holds.split("Fails")[0] and "sml fails" not in holds.split("Fails")[0]
+    assert "sml fails (evidence of sml fails)" in fails.split("Could not")[0]
+    assert "sml weak — mIoU below 60%: `n1` 18.0" in untested and "evidence of sml weak" not in untested
+    cudam = text[text.index("### CuDAM"):text.index("### off-road")]
+    assert "cudam good — the table's positive control failed (points at a bug): control" in cudam
+    assert "Holds" in cudam and cudam.count("- none") == 2
+    offroad = text[text.index("### off-road"):text.index("## Tables")]
+    assert "offroad claim (e) — no paired interval" in offroad and "no segmenter mIoU" in offroad
+    assert "| [CUDAM_B](#cudam_b) | 0 | 0 | 1 | 0 / 1 |" in text and "| [OFF](#off) | 1 | 0 | 0 | none yet |" in text
