@@ -110,21 +110,22 @@ def _hash(obj) -> str:
 class Network:
     """A trainable ``Experiment``, named by the hash of its configuration.
 
-    ``logit_scale``: per-class factors (C,) multiplying the trained network's logits before any score,
-    SML statistics or mIoU (a positive control, ``scaled_logits``); the weights stay those of the
-    unscaled network (``run_key``), only the evaluation differs (``key``).
+    ``class_scale``: per-class factors (C,); every logit of a pixel is multiplied by the factor of the
+    pixel's predicted class before any score or SML statistics (a positive control, ``scaled_logits``;
+    predictions and mIoU unchanged); the weights stay those of the unscaled network (``run_key``),
+    only the evaluation differs (``key``).
     """
 
     experiment: Experiment
-    logit_scale: tuple[float, ...] | None = None
+    class_scale: tuple[float, ...] | None = None
 
     def to_dict(self) -> dict:
         config = jsonable(self.experiment)
-        return config if self.logit_scale is None else {**config, "logit_scale": list(self.logit_scale)}
+        return config if self.class_scale is None else {**config, "class_scale": list(self.class_scale)}
 
     @property
     def key(self) -> str:
-        """Hash of the configuration (with ``logit_scale``): the network's name in tables."""
+        """Hash of the configuration (with ``class_scale``): the network's name in tables."""
         return _hash(self.to_dict())
 
     @property
@@ -219,15 +220,22 @@ def control_scales(num_classes: int) -> tuple[float, ...]:
 
 
 def scaled_logits(net: Network) -> Network:
-    """``net`` with its logits multiplied per class by ``control_scales`` (no retraining): max logit then
-    ranks pixels by their class's factor, while SML (Eq. 5, fitted on the scaled logits) divides it out."""
-    return dataclasses.replace(net, logit_scale=control_scales(net.experiment.num_classes))
+    """``net`` with each pixel's logits multiplied by its predicted class's factor of ``control_scales`` (no
+    retraining): the classes' logit scales differ by up to 16x, so max logit ranks pixels by their class's
+    factor, while SML (Eq. 5, fitted on the scaled logits) divides it out exactly: (s L - s mu) / (s sigma)."""
+    return dataclasses.replace(net, class_scale=control_scales(net.experiment.num_classes))
 
 
 def _scaled(predict: Callable, factors: Sequence[float]) -> Callable:
-    """``predict`` with its logits multiplied by ``factors`` (C,) on the class axis."""
+    """``predict`` with every pixel's logits (..., C) multiplied by ``factors[predicted class]``."""
     factors = np.asarray(factors, np.float32)
-    return lambda images: {**(out := predict(images)), "logits": out["logits"] * factors}
+
+    def scaled(images):
+        out = predict(images)
+        logits = np.asarray(out["logits"])
+        return {**out, "logits": logits * factors[np.argmax(logits, -1)][..., None]}
+
+    return scaled
 
 
 # ---------------------------------------------------------------- training
@@ -320,8 +328,8 @@ def evaluate(net: Network, variables: dict, scale: Scale, log: Callable = print)
     """
     e = net.experiment
     predict = predictor(net.module(), variables)
-    if net.logit_scale is not None:
-        predict = _scaled(predict, net.logit_scale)
+    if net.class_scale is not None:
+        predict = _scaled(predict, net.class_scale)
     batch = e.batch_size if scale.anomaly is None else 1
     train_frames = _batches(frames(e, "train", scale.stats_frames), e.batch_size)
     stats = class_statistics(predict, train_frames)
@@ -361,8 +369,8 @@ def evaluation(net: Network, scale: Scale, runs: Path, log: Callable = print) ->
     arrays' hash; a cache without them, or with other arrays, is recomputed)."""
     fields = ("stats_frames", "val_frames", "anomaly_frames", "anomaly_split", "anomaly")
     settings = {k: getattr(scale, k) for k in fields}
-    if net.logit_scale is not None:
-        settings["logit_scale"] = list(net.logit_scale)
+    if net.class_scale is not None:
+        settings["class_scale"] = list(net.class_scale)
     tag = hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:8]
     cache = runs / net.run_key / f"evaluation_{tag}.json"
     arrays_file = cache.with_suffix(".npz")

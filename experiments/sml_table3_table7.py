@@ -1,8 +1,8 @@
 """SML Tables 3 and 7: max logit -> SML -> + boundary suppression / + dilated smoothing / + both,
 and the same post-processing applied to MSP and max logit. One plain network (no attention).
-Positive control: the same trained network with its logits multiplied per class by factors from
-1/4 to 4 (``scaled_logits``), where SML (Eq. 5, its statistics fitted on those logits) must beat
-max logit.
+Positive control: the same trained network with each pixel's logits multiplied by a factor of its
+predicted class, from 1/4 to 4 over the classes (``scaled_logits``), where SML (Eq. 5, its
+statistics fitted on those logits) must beat max logit.
 
     python -m experiments --only sml_table3_table7
 """
@@ -11,7 +11,7 @@ from experiments.common import Row, best, improves, not_better, ordered, plain, 
 NAME = "sml_table3_table7"
 TITLE = "SML Table 3 (components) and Table 7 (post-processing on other scores)"
 BOTH = " + suppression + smoothing"
-CONTROL = "control: logits scaled per class by 1/4..4, "
+CONTROL = "control: logits scaled by predicted class, 1/4..4, "
 
 
 def rows(scale):

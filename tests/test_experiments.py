@@ -73,7 +73,7 @@ def test_table_trains_once_evaluates_and_writes_results(tmp_path):
                        description="What the smoke table shows.", controls=controls)
 
     # the control shares the trained network (one run folder), with an evaluation of its own
-    assert control.run_key == net.run_key == net.key != control.key and control.to_dict()["logit_scale"][0] == 0.25
+    assert control.run_key == net.run_key == net.key != control.key and control.to_dict()["class_scale"][0] == 0.25
     assert [p.name for p in runs.iterdir()] == [net.key]
     caches = sorted(p.name for p in (runs / net.key).glob("evaluation_*"))
     assert len(caches) == 4 and {p.rsplit(".", 1)[1] for p in caches} == {"json", "npz"}

@@ -165,17 +165,19 @@ def test_binned_auroc_with_one_bin_per_score_is_scikit_learns(rows):
 # ---------------------------------------------------------------- SML's positive control
 
 
-def control_frames(seed: int):
+def control_frames(seed: int, scale: bool = True):
     """Logits of a network that knows its classes: in-distribution pixels peak at their class (about 6),
-    anomalies (label 1) are unsure (peak about 3); then scaled per class by ``control_scales``."""
+    anomalies (label 1) are unsure (peak about 3); then (``scale``) each pixel's logits times its
+    predicted class's factor of ``control_scales``."""
     rng = np.random.default_rng(seed)
     classes = rng.integers(0, CLASSES, (4, 16, 16))
     anomaly = rng.random((4, 16, 16)) < 0.1
     logits = rng.normal(0, 1, (4, 16, 16, CLASSES)).astype(np.float32)
     peak = np.where(anomaly, 3.0, 6.0) + rng.normal(0, 0.7, anomaly.shape)
     np.put_along_axis(logits, classes[..., None], peak[..., None].astype(np.float32), -1)
-    scaled = _scaled(lambda images: {"logits": logits}, control_scales(CLASSES))(None)["logits"]
-    return scaled, anomaly.astype(np.uint8)
+    if scale:
+        logits = _scaled(lambda images: {"logits": logits}, control_scales(CLASSES))(None)["logits"]
+    return logits, anomaly.astype(np.uint8)
 
 
 def control_values(broken: bool) -> dict:
@@ -201,9 +203,24 @@ def test_the_scaled_logit_control_passes_with_sml_and_fails_when_its_normalisati
     scales = control_scales(19)
     assert len(scales) == 19 and scales[0] == pytest.approx(0.25) and scales[-1] == pytest.approx(4.0)
     assert np.allclose(np.diff(np.log(scales)), np.log(16) / 18)  # a geometric spread
-    logits = np.arange(2 * CLASSES, dtype=np.float32).reshape(1, 1, 2, CLASSES)
-    np.testing.assert_allclose(_scaled(lambda x: {"logits": logits, "other": 1}, [1, 2, 3, 4])(None)["logits"],
-                               logits * np.array([1, 2, 3, 4]))
+    logits = np.random.default_rng(1).normal(size=(2, 3, 5, CLASSES)).astype(np.float32)
+    got = _scaled(lambda x: {"logits": logits, "other": 1}, [1, 2, 3, 4])(None)
+    want = np.empty_like(logits)
+    for index in np.ndindex(logits.shape[:-1]):  # each pixel times its predicted class's factor
+        want[index] = logits[index] * [1, 2, 3, 4][int(np.argmax(logits[index]))]
+    np.testing.assert_allclose(got["logits"], want, rtol=1e-6)
+    assert got["other"] == 1
+    # predictions kept; SML refitted on the scaled logits is SML of the original ones
+    scaled, labels = control_frames(0)
+    original = control_frames(0, scale=False)[0]
+    assert (np.argmax(scaled, -1) == np.argmax(original, -1)).all()
+    from jaxanom import sml
+
+    def sml_of(x):
+        stats = sml.stats_finalize(sml.fit_stats([x]), missing="pooled", policy="none")
+        return np.asarray(_scores({"logits": x}, stats)["sml"])
+
+    np.testing.assert_allclose(sml_of(scaled), sml_of(original), rtol=1e-4, atol=1e-4)
     good = improves(control_values(broken=False), "sml", "max_logit")
     assert good.holds and good.intervals[0]["low"] > 5  # by points of AP
     broken = improves(control_values(broken=True), "sml", "max_logit")
