@@ -116,10 +116,10 @@ def verdict(result: dict, finding: dict) -> tuple[str, str]:
     """``(kind, note)`` of one finding: kind ``"holds"``, ``"fails"`` or ``"untested"``; the note says why it
     could not be tested, or how it was decided where it has no paired interval or no mIoU check."""
     failed = [c["claim"] for c in result.get("controls", []) if not c["holds"]]
-    if failed:
-        return "untested", f"the table's positive control failed (points at a bug): {'; '.join(failed)}"
-    if finding.get("tested") is False:
-        return "untested", finding["untested_because"]
+    reasons = [finding["untested_because"]] if finding.get("tested") is False else []
+    reasons += [f"the table's positive control failed (points at a bug): {'; '.join(failed)}"] if failed else []
+    if reasons:
+        return "untested", "; ".join(reasons)
     notes = []
     if not any(c.get("low") is not None for c in finding.get("intervals", [])):
         notes.append("no paired interval: decided by the difference of means against the larger std over seeds")

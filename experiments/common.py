@@ -538,10 +538,14 @@ def competence(values: dict, rows: Sequence[str]) -> tuple[bool | None, str]:
     mious = {label: values[label]["miou"] for label in rows if "miou" in values.get(label, {})}
     if not rows or len(mious) != len(rows):
         return None, "no segmenter mIoU to check"
-    low = {values[label].get("network", label): m for label, m in mious.items() if m < COMPETENT_MIOU}
+    low = {}  # network -> (first row of it, mIoU)
+    for label, m in mious.items():
+        if m < COMPETENT_MIOU:
+            low.setdefault(values[label].get("network", label), (label, m))
     if not low:
         return True, ""
-    return False, f"mIoU below {COMPETENT_MIOU:.0f}%: " + ", ".join(f"`{k}` {v:.1f}" for k, v in low.items())
+    return False, f"mIoU below {COMPETENT_MIOU:.0f}%: " + ", ".join(f"{label} (`{k}`) {m:.1f}"
+                                                                  for k, (label, m) in low.items())
 
 
 def _row_json(label: str, v: dict) -> dict:

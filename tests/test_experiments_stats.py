@@ -126,7 +126,7 @@ def test_competence_flags_findings_on_networks_below_the_bar():
          "strong 2": {"ap": 5.0, "miou": 80.0, "network": "n3"}}
     assert improves(v, "strong", "strong 2").tested is True
     weak = improves(v, "weak", "strong")
-    assert weak.tested is False and "`n1` 59.9" in weak.untested_because and "n2" not in weak.untested_because
+    assert weak.tested is False and weak.untested_because == "mIoU below 60%: weak (`n1`) 59.9"
     assert improves({"x": {"ap": 1.0}, "y": {"ap": 0.0}}, "x", "y").tested is None
 
 
@@ -242,11 +242,12 @@ def test_summary_lists_per_paper_what_holds_what_fails_and_what_could_not_be_tes
 
     results = [result("sml_a", [finding("sml holds", True, True), finding("sml fails", False, True),
                                 finding("sml weak", True, False, "mIoU below 60%: `n1` 18.0")]),
-               result("cudam_b", [finding("cudam good", True, True)], [finding("control", False, True)]),
+               result("cudam_b", [finding("cudam good", True, True), finding("cudam weak", True, False, "low mIoU")],
+                      [finding("control", False, True)]),
                {"name": "offroad_c", "title": "OFF", "scale": Scale().__dict__, "report": "## OFF",
                 "findings": [{"claim": "offroad claim", "holds": True, "evidence": "e"}]}]
     text = summary(results)
-    assert "Of 5 qualitative findings of the papers, 2 hold here, 1 fail, and 2 could not be tested" in text
+    assert "Of 6 qualitative findings of the papers, 2 hold here, 1 fail, and 3 could not be tested" in text
     sml = text[text.index("### SML"):text.index("### CuDAM")]
     holds, fails, untested = (sml[sml.index(h):] for h in ("Holds", "Fails in a competent", "Could not be tested"))
     assert "sml holds (evidence of sml holds)" in holds.split("Fails")[0] and "sml fails" not in holds.split("Fails")[0]
@@ -254,7 +255,8 @@ def test_summary_lists_per_paper_what_holds_what_fails_and_what_could_not_be_tes
     assert "sml weak — mIoU below 60%: `n1` 18.0" in untested and "evidence of sml weak" not in untested
     cudam = text[text.index("### CuDAM"):text.index("### off-road")]
     assert "cudam good — the table's positive control failed (points at a bug): control" in cudam
+    assert "cudam weak — low mIoU; the table's positive control failed" in cudam  # both reasons
     assert "Holds" in cudam and cudam.count("- none") == 2
     offroad = text[text.index("### off-road"):text.index("## Tables")]
     assert "offroad claim (e) — no paired interval" in offroad and "no segmenter mIoU" in offroad
-    assert "| [CUDAM_B](#cudam_b) | 0 | 0 | 1 | 0 / 1 |" in text and "| [OFF](#off) | 1 | 0 | 0 | none yet |" in text
+    assert "| [CUDAM_B](#cudam_b) | 0 | 0 | 2 | 0 / 1 |" in text and "| [OFF](#off) | 1 | 0 | 0 | none yet |" in text
