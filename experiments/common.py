@@ -315,6 +315,21 @@ def _miou(confusions: np.ndarray) -> dict[str, np.ndarray]:
     return {"miou": np.array([100 * miou(m) for m in confusions])}
 
 
+def frame_confusions(outputs, num_classes: int) -> np.ndarray:
+    """(V, C, C) int64 confusion matrices (rows: label) of every frame of batches ``{"logits", "label"}``."""
+    return np.stack([np.asarray(confusion_matrix(np.argmax(logits, -1), label, num_classes), np.int64)
+                     for out in outputs for logits, label in zip(np.asarray(out["logits"]), np.asarray(out["label"]))])
+
+
+def score_histograms(scores: list[np.ndarray], labels: list[np.ndarray]) -> tuple[np.ndarray, dict]:
+    """Per-frame histograms (F, TABLE_BINS + 1, 2) int32 of one score's frames over bins at the quantiles of
+    its pooled values, and the percent metrics of all frames' histograms (the binning's check)."""
+    histograms = frame_histograms(scores, labels, bin_edges(scores, labels, TABLE_BINS))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        binned = {k: float(v) for k, v in _anomaly_metrics(histograms.sum(0)).items()}
+    return histograms.astype(np.int32), binned
+
+
 def evaluate(net: Network, variables: dict, scale: Scale, log: Callable = print) -> tuple[dict, dict]:
     """``(result, frames)``: ``result = {"miou", "metrics": {score: {ap, auroc, fpr_at_tpr, ...}},
     "curves": {score: {roc, pr}}, "binned": {score: {ap, fpr95, auroc}}}`` and ``frames =
@@ -335,9 +350,7 @@ def evaluate(net: Network, variables: dict, scale: Scale, log: Callable = print)
     stats = class_statistics(predict, train_frames)
     mean_std = sml.stats_finalize(stats, missing="pooled", policy="none")
     val_frames = _batches(frames(e, "val", scale.val_frames), e.batch_size)
-    confusions = np.stack([np.asarray(confusion_matrix(np.argmax(logits, -1), label, e.num_classes), np.int64)
-                           for out in predictions(predict, val_frames)
-                           for logits, label in zip(np.asarray(out["logits"]), np.asarray(out["label"]))])
+    confusions = frame_confusions(predictions(predict, val_frames), e.num_classes)
     accumulators, kept, labels = {}, {}, []
     for out in predictions(predict, _batches(anomaly_source(scale, e), batch)):
         label = np.asarray(out["label"])
@@ -352,10 +365,7 @@ def evaluate(net: Network, variables: dict, scale: Scale, log: Callable = print)
         fpr, tpr, _ = roc_curve(scores, pooled_labels)
         precision, recall, _ = pr_curve(scores, pooled_labels)
         curves[name] = {"roc": _thin(fpr, tpr), "pr": _thin(recall, precision)}
-        histograms = frame_histograms(per_frame, labels, bin_edges(per_frame, labels, TABLE_BINS))
-        arrays[f"histograms_{name}"] = histograms.astype(np.int32)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            binned[name] = {k: float(v) for k, v in _anomaly_metrics(histograms.sum(0)).items()}
+        arrays[f"histograms_{name}"], binned[name] = score_histograms(per_frame, labels)
     segmentation = miou(confusions.sum(0))
     log(f"  evaluated {net.key}: mIoU {100 * segmentation:.1f}, SML AP {100 * metrics['sml_post']['ap']:.2f}")
     result = {"miou": float(segmentation), "metrics": metrics, "curves": curves, "binned": binned,
