@@ -21,7 +21,8 @@ import time
 import traceback
 from pathlib import Path
 
-from experiments.common import HERE, RUNS, Scale, matched_sigma, matched_tau, report, run_table
+from experiments.common import COMPETENT_MIOU, HERE, RUNS, Scale, matched_sigma, matched_tau, report, run_table
+from experiments.stats import REPLICATES
 from jaxanom.io import write_bytes_atomic
 
 # Ordered so that the shared networks (plain, CuDAM) are trained by the first tables.
@@ -73,7 +74,7 @@ def main(argv=None) -> None:
                 run(scale, args.seeds, args.out, args.runs, description=describe(module))
             else:
                 run_table(module.NAME, module.TITLE, module.rows, module.findings, scale, args.out, args.runs,
-                          description=describe(module), seeds=args.seeds)
+                          description=describe(module), seeds=args.seeds, controls=getattr(module, "controls", None))
         except Exception:  # noqa: BLE001 -- e.g. a diverged network: report it, run the other tables
             failures[name] = traceback.format_exc(limit=4).strip()
             print(failures[name])
@@ -108,14 +109,53 @@ def real_section(tables: list[str]) -> str:
     return "\n\n# Real data: the networks and claims on real frames (experiments/real_*.py)\n\n" + "\n\n".join(demoted)
 
 
+PAPERS = (("SML", "sml_"), ("CuDAM", "cudam_"), ("MSAAM", "msaam_"), ("MMF", "mmf_"), ("off-road", "offroad_"))
+
+
+def verdict(result: dict, finding: dict) -> tuple[str, str]:
+    """``(kind, note)`` of one finding: kind ``"holds"``, ``"fails"`` or ``"untested"``; the note says why it
+    could not be tested, or how it was decided where it has no paired interval or no mIoU check."""
+    failed = [c["claim"] for c in result.get("controls", []) if not c["holds"]]
+    reasons = [finding["untested_because"]] if finding.get("tested") is False else []
+    reasons += [f"the table's positive control failed (points at a bug): {'; '.join(failed)}"] if failed else []
+    if reasons:
+        return "untested", "; ".join(reasons)
+    notes = []
+    if not any(c.get("low") is not None for c in finding.get("intervals", [])):
+        notes.append("no paired interval: decided by the difference of means against the larger std over seeds")
+    if finding.get("tested") is None:
+        notes.append(f"not checked against the {COMPETENT_MIOU:.0f}% mIoU bar (no segmenter mIoU for its rows)")
+    return ("holds" if finding["holds"] else "fails"), "; ".join(notes)
+
+
+def paper_lines(results: list[dict]) -> list[str]:
+    """Per paper: the findings that hold, those that fail in a competent regime, those not testable here."""
+    heads = {"holds": f"Holds (every network compared at >= {COMPETENT_MIOU:.0f}% mIoU and the paired interval "
+                      "excludes 0, unless a note says otherwise):",
+             "fails": f"Fails in a competent regime (every network compared at >= {COMPETENT_MIOU:.0f}% mIoU, unless "
+                      "a note says no mIoU bar applies):",
+             "untested": "Could not be tested here (the evidence is in the table's section):"}
+    lines = []
+    for paper, prefix in PAPERS:
+        found = [(r, f, *verdict(r, f)) for r in results if r["name"].startswith(prefix) for f in r["findings"]]
+        if not found:
+            continue
+        lines += ["", f"### {paper}"]
+        for kind, head in heads.items():
+            items = [f"- `{r['name']}`: {f['claim']}" + ("" if kind == "untested" else f" ({f['evidence']})")
+                     + (f" — {note}" if note else "") for r, f, k, note in found if k == kind]
+            lines += ["", head, "", *(items or ["- none"])]
+    return lines
+
+
 def summary(results: list[dict], failures: dict[str, str] | None = None) -> str:
-    """The RESULTS.md text: set-up, a count of findings reproduced, every table, then failed experiments."""
+    """The RESULTS.md text: set-up, per paper the findings that hold / fail in a competent regime / could not
+    be tested, every table, then failed experiments."""
     failed = [f"\n## {name}: failed\n\n```\n{text}\n```" for name, text in (failures or {}).items()]
     if not results:
         return "\n".join(["# Experiments\n\nNo experiment has completed yet: `python -m experiments`.", *failed])
     scale = Scale(**results[0]["scale"])
-    held = sum(f["holds"] for r in results for f in r["findings"])
-    total = sum(len(r["findings"]) for r in results)
+    kinds = [verdict(r, f)[0] for r in results for f in r["findings"]]
     data = f"Cityscapes at `{scale.cityscapes_root}`" if scale.cityscapes_root else (
         f"{scale.train_frames} synthetic training scenes of {scale.height} x {scale.width}")
     anomaly = scale.anomaly or f"{scale.anomaly_frames} synthetic `{scale.anomaly_split}` frames"
@@ -142,18 +182,21 @@ def summary(results: list[dict], failures: dict[str, str] | None = None) -> str:
         "values are rows of their own (Table II `cudam` score, Fig. 6). At the \"output\" position (the paper's "
         "surface, Table V) the map covers the whole frame, and tau and sigma are rescaled to its H x W positions.",
         "",
-        f"**{held} of {total} qualitative findings of the papers hold here.** The synthetic data was not "
-        "changed to make any of them hold; a finding that does not hold is reported as such.",
+        f"**Of {len(kinds)} qualitative findings of the papers, {kinds.count('holds')} hold here, "
+        f"{kinds.count('fails')} fail, and {kinds.count('untested')} could not be tested** (a network compared is "
+        f"below {COMPETENT_MIOU:.0f}% mIoU, or the table's positive control failed). The synthetic data was not "
+        "changed to make any of them hold.",
         "",
-        "Findings that do **not** hold here:",
+        "## Findings per paper",
+        *paper_lines(results),
         "",
-        *(f"- `{r['name']}`: {f['claim']} ({f['evidence']})"
-          for r in results for f in r["findings"] if not f["holds"]),
+        "## Tables",
         "",
-        "| experiment | findings that hold |",
-        "|---|---|",
-        *(f"| [{r['title']}](#{_anchor(r['title'])}) | {sum(f['holds'] for f in r['findings'])} / "
-          f"{len(r['findings'])} |" for r in results),
+        "| experiment | hold | fail | not testable | positive controls passing |",
+        "|---|---|---|---|---|",
+        *(f"| [{r['title']}](#{_anchor(r['title'])}) | {counts.count('holds')} | {counts.count('fails')} | "
+          f"{counts.count('untested')} | {control_count(r)} |"
+          for r in results for counts in [[verdict(r, f)[0] for f in r["findings"]]]),
     ]
     for result in results:
         if "report" in result:  # an experiment that renders its own table (the off-road ones)
@@ -165,16 +208,34 @@ def summary(results: list[dict], failures: dict[str, str] | None = None) -> str:
     return "\n".join(lines + failed)
 
 
+def control_count(result: dict) -> str:
+    controls = result.get("controls", [])
+    return f"{sum(c['holds'] for c in controls)} / {len(controls)}" if controls else "none yet"
+
+
 def seed_lines(results: list[dict]) -> list[str]:
-    """What RESULTS.md says about seeds: how many each table used and what a finding needs to hold."""
+    """What RESULTS.md says about seeds and about how a finding is decided."""
     counts = {r["name"]: r.get("num_seeds", 1) for r in results}
     single = [name for name, n in counts.items() if n == 1]
-    lines = ["**Seeds.** Each table states its seeds. With several seeds a value is the mean ± sample std (ddof 1) "
-             "over seeds (each seed sets the network's initialisation, the shuffling and the synthetic scenes), and "
-             "**a finding holds only when the difference of means exceeds the larger std of the rows compared**."]
+    unpaired = [r["name"] for r in results if not r.get("paired")]
+    lines = [f"**How a finding is decided.** Each table states its seeds. With several seeds a value is the mean ± "
+             "sample std (ddof 1) over seeds (each seed sets the network's initialisation, the shuffling and the "
+             "synthetic scenes). Rows are compared **paired**: a hierarchical bootstrap "
+             f"({REPLICATES} replicates, fixed seed) resamples the seeds with replacement and, inside each drawn seed, its "
+             "anomaly frames (and validation frames, for mIoU) with replacement; a row's replicate is the mean over the "
+             "drawn seeds of its metric on the drawn frames, and every row of a table uses the same draws (same seeds, "
+             "frames and networks). **A finding holds when the 95% percentile interval of the paired difference "
+             "lies entirely on the paper's side of 0**; evidence reads e.g. \"AP 20.60 vs 13.30, Δ +7.30 [+2.10, "
+             "+12.00]\" (Δ: the difference of the means; [ ]: its interval). A finding is **tested** only where every "
+             f"network of the rows it compares reaches {COMPETENT_MIOU:.0f}% mIoU on the validation frames; a finding "
+             "that fails below that says little about the paper. Positive controls are rows built so that the "
+             "mechanism must help; a failing control points at a bug here, and its table's findings count as not "
+             "testable."]
     if single:
-        lines[0] += (f" Tables with a single seed ({', '.join(single)}): differences of a point or two are within "
-                     "what another seed could change; read those findings as indications, not evidence.")
+        lines[0] += f" Tables with a single seed ({', '.join(single)}): the interval covers frames only, not seeds."
+    if unpaired:
+        lines[0] += (f" Tables without paired intervals ({', '.join(unpaired)}): a finding holds when the difference of "
+                     "means exceeds the larger std over seeds; their findings say so.")
     return lines
 
 

@@ -1,10 +1,11 @@
 """What the real-data experiments share: the files of ../shared/realdata, the ESPNet authors'
-Cityscapes network, and bootstrap confidence intervals over frames.
+Cityscapes network, and the pooled metrics of their frames with bootstrap intervals
+(``experiments.stats``).
 
 Frames are few (RoadAnomaly21: 10, RoadObstacle21: 30), so every pooled pixel metric comes with a
 95% percentile interval from resampling *frames* with replacement (``bootstrap``): a replicate
 pools the pixels of the drawn frames (a frame drawn twice counts twice). Replicates use per-frame
-histograms of each score over ``NUM_BINS`` bins at the quantiles of its pooled non-void values,
+histograms of each score over ``stats.NUM_BINS`` bins at the quantiles of its pooled non-void values,
 so a replicate costs a matrix product instead of a sort; the point estimates are exact
 (``jaxanom.metrics.anomaly_metrics``), and ``binned_metrics`` of all frames is reported beside them
 as the binning's check. Methods compared on the same frames are resampled with the same draws
@@ -18,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.stats import bin_edges, binned_metrics, bootstrap, frame_histograms, interval
+
 HERE = Path(__file__).parent
 REALDATA = Path(os.environ.get("JAXANOM_REALDATA", HERE.parent.parent / "shared" / "realdata"))
 CHECKPOINT = REALDATA / "espnet" / "espnet_p_2_q_8.pth"
-NUM_BINS = 20_000
-REPLICATES = 1000
 TRAIN_IDS = 19  # the ESPNet weights' channels 0..18; channel 19 is their extra void class
 
 
@@ -47,63 +48,6 @@ def espnet():
 def logits_of(predict, image: np.ndarray) -> np.ndarray:
     """float32 (H, W, C) logits of one uint8 (H, W, 3) image at its own size (multiples of 8)."""
     return np.asarray(predict(image[None])["logits"][0])
-
-
-# ----------------------------------------------------------------------------- bootstrap over frames
-def bin_edges(scores: list[np.ndarray], labels: list[np.ndarray], num_bins: int = NUM_BINS) -> np.ndarray:
-    """Increasing inner bin edges at the quantiles of the pooled non-void scores (ties merge bins)."""
-    pooled = np.concatenate([s[l != 255].ravel() for s, l in zip(scores, labels)]).astype(np.float64)
-    return np.unique(np.quantile(pooled, np.linspace(0, 1, num_bins + 1)[1:-1]))
-
-
-def frame_histograms(scores: list[np.ndarray], labels: list[np.ndarray], edges: np.ndarray) -> np.ndarray:
-    """(F, len(edges) + 1, 2) int64: per frame, per bin, (negative, positive) non-void pixels;
-    bin b holds scores in [edges[b-1], edges[b])."""
-    out = np.zeros((len(scores), edges.size + 1, 2), np.int64)
-    for f, (score, label) in enumerate(zip(scores, labels)):
-        keep = label != 255
-        bins = np.searchsorted(edges, score[keep].astype(np.float64), side="right")
-        out[f, :, 0] = np.bincount(bins[label[keep] == 0], minlength=edges.size + 1)
-        out[f, :, 1] = np.bincount(bins[label[keep] == 1], minlength=edges.size + 1)
-    return out
-
-
-def binned_metrics(histograms: np.ndarray, tpr: float = 0.95) -> dict[str, np.ndarray]:
-    """AP (step: sum_k dR_k Prec_k), envelope AP (MMF Eq. 7: sum_k dR_k max_{j >= k} Prec_j) and
-    FPR at the first threshold with TPR >= ``tpr`` of pooled histograms (..., bins, 2), thresholds
-    from the highest bin down; pixels of a bin tie."""
-    neg, pos = histograms[..., ::-1, 0].astype(np.float64), histograms[..., ::-1, 1].astype(np.float64)
-    tp, fp = np.cumsum(pos, -1), np.cumsum(neg, -1)
-    p, n = tp[..., -1:], fp[..., -1:]
-    precision = tp / np.maximum(tp + fp, 1.0)
-    envelope = np.maximum.accumulate(precision[..., ::-1], -1)[..., ::-1]  # an empty bin repeats an earlier point
-    ap, ap_envelope = (pos / p * precision).sum(-1), (pos / p * envelope).sum(-1)
-    first = np.argmax(tp / p >= tpr, axis=-1)
-    fpr = np.take_along_axis(fp, first[..., None], -1)[..., 0] / n[..., 0]
-    return {"ap": ap, "ap_envelope": ap_envelope, "fpr_at_tpr": fpr}
-
-
-def draws(num_frames: int, replicates: int = REPLICATES, seed: int = 0) -> np.ndarray:
-    """(replicates, num_frames) multiplicities of each frame in each bootstrap replicate."""
-    rng = np.random.default_rng(seed)
-    picks = rng.integers(0, num_frames, size=(replicates, num_frames))
-    return np.stack([np.bincount(row, minlength=num_frames) for row in picks])
-
-
-def bootstrap(histograms: np.ndarray, multiplicities: np.ndarray) -> dict[str, np.ndarray]:
-    """Metrics of every replicate, (replicates,) per metric: frames pooled with their multiplicities."""
-    parts = []
-    for start in range(0, len(multiplicities), 50):  # 50 replicates at a time bound the memory
-        pooled = np.einsum("rf,fbc->rbc", multiplicities[start:start + 50].astype(np.float64), histograms)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            parts.append(binned_metrics(pooled))
-    return {name: np.concatenate([part[name] for part in parts]) for name in parts[0]}
-
-
-def interval(values: np.ndarray) -> tuple[float, float]:
-    """The 95% percentile interval of bootstrap values (NaN replicates, e.g. without an anomaly, left out)."""
-    low, high = np.nanpercentile(values, [2.5, 97.5])
-    return float(low), float(high)
 
 
 # ----------------------------------------------------------------------------- scoring real frames
@@ -168,8 +112,3 @@ def with_intervals(scores: dict[str, list[np.ndarray]], labels: list[np.ndarray]
         table[name] = {**exact_metrics(values, labels), "binned": {k: float(v) for k, v in binned.items()},
                        "interval": {k: interval(v) for k, v in replicates[name].items()}}
     return table, replicates
-
-
-def difference(replicates: dict, a: str, b: str, metric: str) -> tuple[float, float]:
-    """95% interval of ``metric(a) - metric(b)`` over paired replicates."""
-    return interval(replicates[a][metric] - replicates[b][metric])

@@ -16,8 +16,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from experiments.real_common import (HERE, REPLICATES, TRAIN_IDS, anomaly_tracks, difference, draws, espnet,
-                                     score_frames, with_intervals)
+from experiments.real_common import HERE, TRAIN_IDS, anomaly_tracks, espnet, score_frames, with_intervals
+from experiments.stats import REPLICATES, difference, draws
 from jaxanom import scores as S
 from jaxanom.io import write_bytes_atomic, write_json_atomic
 

@@ -28,9 +28,9 @@ import time
 import cv2
 import numpy as np
 
-from experiments.real_common import (HERE, REPLICATES, anomaly_tracks, difference, draws, espnet, logits_of,
-                                     resized, with_intervals)
+from experiments.real_common import HERE, anomaly_tracks, espnet, logits_of, resized, with_intervals
 from experiments.real_sml import WIDTH
+from experiments.stats import REPLICATES, difference, draws
 from jaxanom import scores as S
 from jaxanom.data.smiyc import SegmentMeIfYouCan
 from jaxanom.io import write_bytes_atomic, write_json_atomic

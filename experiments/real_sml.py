@@ -25,8 +25,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from experiments.real_common import (HERE, REPLICATES, anomaly_tracks, difference, draws, espnet, logits_of,
-                                     require_realdata, score_frames, with_intervals)
+from experiments.real_common import (HERE, anomaly_tracks, espnet, logits_of, require_realdata, score_frames,
+                                     with_intervals)
+from experiments.stats import REPLICATES, difference, draws
 from jaxanom import scores as S
 from jaxanom import sml
 from jaxanom.data.cityscapes import Cityscapes

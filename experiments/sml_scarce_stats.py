@@ -13,13 +13,14 @@ from typing import Callable
 
 import numpy as np
 
-from experiments.common import (HERE, RUNS, Finding, Scale, _batches, _thin, anomaly_source, improves, over_seeds,
-                                plain, trained, write_table)
+from experiments.common import (HERE, RUNS, Finding, Scale, _batches, _thin, anomaly_source, frame_confusions,
+                                improves, over_seeds, paired_replicates, plain, score_histograms, trained,
+                                write_table)
 from jaxanom.app import methods as scoring
 from jaxanom import sml
-from jaxanom.app.evaluate import class_statistics, predictions, predictor, segmentation_results
+from jaxanom.app.evaluate import class_statistics, predictions, predictor
 from jaxanom.app.experiment import frames
-from jaxanom.metrics import AnomalyMetricAccumulator, pr_curve, roc_curve
+from jaxanom.metrics import AnomalyMetricAccumulator, miou, pr_curve, roc_curve
 
 NAME = "sml_scarce_stats"
 TITLE = "SML with scarce class statistics: policies x statistics frames"
@@ -34,14 +35,16 @@ def label(score: str, policy: str | None = None, count: int | None = None) -> st
 
 
 def seed_values(scale: Scale, runs: Path, log: Callable) -> tuple[dict, dict, dict]:
-    """One seed: ``(values[label], curves[label], scarce[count] = classes under 10 000 pixels)``."""
+    """One seed: ``(values[label], curves[label], {"scarce": {count: classes under 10 000 pixels},
+    "frames": {label: per-frame histograms and confusion matrices}})`` (``common.table``'s frames)."""
     net = plain(scale)
     e = net.experiment
     predict = predictor(net.module(), trained(net, runs, log))
     outputs = [{"logits": np.asarray(o["logits"]), "label": np.asarray(o["label"])}
                for o in predictions(predict, _batches(anomaly_source(scale, e), e.batch_size))]
-    miou = segmentation_results(predictions(predict, _batches(frames(e, "val", scale.val_frames), e.batch_size)),
-                                e.num_classes)["miou"]
+    confusions = frame_confusions(predictions(predict, _batches(frames(e, "val", scale.val_frames), e.batch_size)),
+                                  e.num_classes)
+    segmentation = miou(confusions.sum(0))
     finals, scarce = {}, {}
     for count in STATS_FRAMES:
         stats = class_statistics(predict, _batches(frames(e, "train", count), e.batch_size))
@@ -50,22 +53,26 @@ def seed_values(scale: Scale, runs: Path, log: Callable) -> tuple[dict, dict, di
             finals[(policy, count)] = sml.stats_finalize(stats, **options)
     runs_of = {label("max_logit"): ("max_logit", None), label("max_logit_post"): ("max_logit_post", None)}
     runs_of.update({label(s, p, c): (s, finals[(p, c)]) for s in SCORES for (p, c) in finals})
-    values, curves = {}, {}
+    values, curves, kept_frames = {}, {}, {}
+    labels = [frame_label for out in outputs for frame_label in out["label"]]
     for name, (score, stats) in runs_of.items():
-        accumulator, kept = AnomalyMetricAccumulator(), []
+        accumulator, per_frame = AnomalyMetricAccumulator(), []
         for out in outputs:
             result = np.asarray(scoring.score_batch(score, out["logits"], stats=stats))
             accumulator.update(result, out["label"])
-            kept.append((result.ravel(), out["label"].ravel()))
+            per_frame.extend(result)
         m = accumulator.compute()
-        values[name] = {"ap": 100 * m["ap"], "auroc": 100 * m["auroc"], "fpr95": 100 * m["fpr_at_tpr"],
-                        "miou": 100 * miou, "network": net.key, "score": score}
-        scores, labels = (np.concatenate(x) for x in zip(*kept))
-        fpr, tpr, _ = roc_curve(scores, labels)
-        precision, recall, _ = pr_curve(scores, labels)
+        exact = {"ap": 100 * m["ap"], "auroc": 100 * m["auroc"], "fpr95": 100 * m["fpr_at_tpr"]}
+        histograms, binned = score_histograms(per_frame, labels)
+        values[name] = {**exact, "miou": 100 * segmentation, "network": net.key, "score": score,
+                        "binning": max(abs(binned[k] - v) for k, v in exact.items())}
+        kept_frames[name] = {"histograms": histograms, "confusion": confusions}
+        scores, labels_flat = (np.concatenate([x.ravel() for x in xs]) for xs in (per_frame, labels))
+        fpr, tpr, _ = roc_curve(scores, labels_flat)
+        precision, recall, _ = pr_curve(scores, labels_flat)
         curves[name] = {"roc": _thin(fpr, tpr), "pr": _thin(recall, precision)}
     log(f"  {NAME} seed {scale.seed}: classes under 10k pixels {scarce}")
-    return values, curves, scarce
+    return values, curves, {"scarce": scarce, "frames": kept_frames}
 
 
 def findings(v: dict) -> list[Finding]:
@@ -85,7 +92,10 @@ def run(scale: Scale, seeds: int, out_dir: Path = HERE, runs: Path = RUNS, log: 
         description: str = "") -> dict:
     """Every seed, aggregated; writes ``sml_scarce_stats.json/.md/_roc.png/_pr.png``."""
     log(f"{NAME}: {TITLE}")
-    scales, values, curves, scarce = over_seeds(seed_values, scale, seeds, runs, log)
+    scales, values, curves, extras = over_seeds(seed_values, scale, seeds, runs, log)
+    for label, replicates in paired_replicates([x["frames"] for x in extras]).items():
+        values[label]["replicates"] = replicates
+    scarce = [x["scarce"] for x in extras]
     counts = ", ".join(f"{c} frames: {[x[c] for x in scarce]}" for c in STATS_FRAMES)
     description = f"{description} Classes under 10 000 predicted pixels, per seed: {counts}."
     networks = {plain(s).key: plain(s).to_dict() for s in scales}

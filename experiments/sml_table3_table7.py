@@ -1,13 +1,17 @@
 """SML Tables 3 and 7: max logit -> SML -> + boundary suppression / + dilated smoothing / + both,
 and the same post-processing applied to MSP and max logit. One plain network (no attention).
+Positive control: the same trained network with each pixel's logits multiplied by a factor of its
+predicted class, from 1/4 to 4 over the classes (``scaled_logits``), where SML (Eq. 5, its
+statistics fitted on those logits) must beat max logit.
 
     python -m experiments --only sml_table3_table7
 """
-from experiments.common import Row, best, improves, not_better, ordered, plain, worse
+from experiments.common import Row, best, improves, not_better, ordered, plain, scaled_logits, worse
 
 NAME = "sml_table3_table7"
 TITLE = "SML Table 3 (components) and Table 7 (post-processing on other scores)"
 BOTH = " + suppression + smoothing"
+CONTROL = "control: logits scaled by predicted class, 1/4..4, "
 
 
 def rows(scale):
@@ -15,7 +19,8 @@ def rows(scale):
     return [Row("MSP", net, "msp"), Row("MSP" + BOTH, net, "msp_post"),
             Row("max logit", net, "max_logit"), Row("max logit" + BOTH, net, "max_logit_post"),
             Row("SML", net, "sml"), Row("SML + suppression", net, "sml_suppress"),
-            Row("SML + smoothing", net, "sml_smooth"), Row("SML" + BOTH, net, "sml_post")]
+            Row("SML + smoothing", net, "sml_smooth"), Row("SML" + BOTH, net, "sml_post"),
+            Row(CONTROL + "max logit", scaled_logits(net), "max_logit"), Row(CONTROL + "SML", scaled_logits(net), "sml")]
 
 
 def findings(v):
@@ -32,6 +37,11 @@ def findings(v):
         not_better(v, "max logit" + BOTH, "max logit", "ap", "Table 7: post-processing does not improve max logit's AP"),
         improves(v, "SML" + BOTH, "SML", ("ap", "fpr95", "auroc"), "Table 7: post-processing improves SML in every metric"),
     ]
+
+
+def controls(v):
+    return [improves(v, CONTROL + "SML", CONTROL + "max logit", ("ap",),
+                     "SML beats max logit when the classes' logit scales differ (1/4 to 4)")]
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@ from benchmarks.__main__ import NOTES, interpret
 from benchmarks.__main__ import main as bench_main
 from experiments.__main__ import summary, write_results
 from experiments.common import (BASE_SCORES, Finding, Row, Scale, _scores, attention_positions, best, cudam,
-                                improves, matched_sigma, matched_tau, ordered, run_table, worse)
+                                improves, matched_sigma, matched_tau, ordered, run_table, scaled_logits, worse)
 
 
 def test_matched_constants_keep_the_papers_per_pixel_magnitude():
@@ -58,29 +58,52 @@ def test_scale_rejects_an_unknown_anomaly_reader():
 def test_table_trains_once_evaluates_and_writes_results(tmp_path):
     scale = Scale.smoke()
     net = cudam(scale)
-    rows = [Row("SML", net, "sml_post"), Row("CuDAM + SML", net, "sml_post+att"), Row("MSP", net, "msp")]
+    control = scaled_logits(net)
+    rows = [Row("SML", net, "sml_post"), Row("CuDAM + SML", net, "sml_post+att"), Row("MSP", net, "msp"),
+            Row("scaled SML", control, "sml"), Row("scaled max logit", control, "max_logit")]
 
     def findings(v):
         return [improves(v, "CuDAM + SML", "SML"), Finding("always", True, "by construction")]
 
+    def controls(v):
+        return [improves(v, "scaled SML", "scaled max logit", claim="SML beats max logit on scaled logits")]
+
     out, runs = tmp_path / "out", tmp_path / "runs"
     result = run_table("smoke", "Smoke table", rows, findings, scale, out, runs, log=lambda *_: None,
-                       description="What the smoke table shows.")
+                       description="What the smoke table shows.", controls=controls)
 
+    # the control shares the trained network (one run folder), with an evaluation of its own
+    assert control.run_key == net.run_key == net.key != control.key and control.to_dict()["class_scale"][0] == 0.25
     assert [p.name for p in runs.iterdir()] == [net.key]
+    caches = sorted(p.name for p in (runs / net.key).glob("evaluation_*"))
+    assert len(caches) == 4 and {p.rsplit(".", 1)[1] for p in caches} == {"json", "npz"}
     assert sorted(p.name for p in out.iterdir()) == ["smoke.json", "smoke.md", "smoke_pr.png", "smoke_roc.png"]
     saved = json.loads((out / "smoke.json").read_text())
     assert saved == json.loads(json.dumps(result))
     table = {row["label"]: row for row in saved["table"]}
-    assert list(table) == ["SML", "CuDAM + SML", "MSP"]
+    assert list(table) == ["SML", "CuDAM + SML", "MSP", "scaled SML", "scaled max logit"]
     for values in table.values():
         assert all(0 <= values[k] <= 100 and math.isfinite(values[k]) for k in ("ap", "auroc", "fpr95", "miou"))
-    assert table["SML"]["network"] == table["MSP"]["network"] == net.key
-    assert saved["findings"][1] == {"claim": "always", "holds": True, "evidence": "by construction"}
-    assert "single seed" in saved["seeds"]
+        for k in ("ap", "auroc", "fpr95", "miou"):  # the interval of each row's metric
+            assert len(values[f"{k}_interval"]) == 2 and values[f"{k}_interval"][0] <= values[f"{k}_interval"][1]
+        assert 0 <= values["binning"] < 1  # binned metrics of all frames near the exact ones (points)
+    assert table["SML"]["network"] == table["MSP"]["network"] == net.key and table["scaled SML"]["network"] == control.key
+    assert saved["findings"][1] == {"claim": "always", "holds": True, "evidence": "by construction", "rows": [],
+                                    "intervals": [], "tested": None, "untested_because": ""}
+    first = saved["findings"][0]
+    assert first["rows"] == ["CuDAM + SML", "SML"] and first["tested"] is False  # 2 training steps: mIoU far below 60
+    assert first["intervals"][0]["low"] <= first["intervals"][0]["high"] and "Δ" in first["evidence"]
+    assert saved["controls"][0]["claim"] == "SML beats max logit on scaled logits" and saved["paired"]
+    assert "single seed" in saved["seeds"] and "95% interval of the paired difference" in saved["seeds"]
     markdown = (out / "smoke.md").read_text()
     assert markdown.startswith("## Smoke table\n\nWhat the smoke table shows.\n")
-    assert "| CuDAM + SML | `sml_post+att` |" in markdown and "| always | yes | by construction |" in markdown
+    assert "| CuDAM + SML | `sml_post+att` |" in markdown and "| always | yes | n/a | by construction |" in markdown
+    assert "| positive control | passes? | evidence |" in markdown and "SML beats max logit on scaled logits" in markdown
+
+    # Reading the cache changes nothing.
+    stamps = {p: p.stat().st_mtime_ns for p in (runs / net.key).glob("evaluation_*")}
+    run_table("smoke", "Smoke table", rows, findings, scale, out, runs, log=lambda *_: None, controls=controls)
+    assert {p: p.stat().st_mtime_ns for p in (runs / net.key).glob("evaluation_*")} == stamps
 
     # A second table on the same network reads the cached evaluation (no new run folder).
     again = run_table("smoke2", "Again", rows[:1], lambda v: [], scale, out, runs, log=lambda *_: None)
@@ -90,13 +113,44 @@ def test_table_trains_once_evaluates_and_writes_results(tmp_path):
         run_table("bad", "Bad", [Row("x", net, "entropy+att")], lambda v: [], scale, out, runs, log=lambda *_: None)
 
     # RESULTS.md gathers the known experiments' JSON files only.
-    (out / "cudam_table2.json").write_text((out / "smoke.json").read_text())
+    (out / "cudam_table2.json").write_text(json.dumps({**saved, "name": "cudam_table2"}))
     text = write_results(out).read_text()
-    assert "1 of 2 qualitative findings" in text or "2 of 2 qualitative findings" in text
+    assert "Of 2 qualitative findings of the papers, 0 hold here, 0 fail, and 2 could not be tested" in text or (
+        "Of 2 qualitative findings of the papers, 1 hold here, 0 fail, and 1 could not be tested" in text)
+    assert "### CuDAM" in text and "Could not be tested here" in text and "mIoU below 60%" in text
     assert "Smoke table" in text and "single seed" in text.lower()
     assert "No experiment" in summary([])
     with_failure = summary([json.loads((out / "smoke.json").read_text())], {"cudam_fig6": "Traceback: boom"})
     assert "Smoke table" in with_failure and "## cudam_fig6: failed" in with_failure and "Traceback: boom" in with_failure
+
+
+def test_an_evaluation_cache_without_its_frames_is_recomputed(tmp_path, monkeypatch):
+    import experiments.common as common
+
+    calls = []
+
+    def fake_evaluate(net, variables, scale, log):
+        calls.append(net.key)
+        return {"miou": 0.5, "run": len(calls)}, {"confusion": np.full((2, 3, 3), len(calls))}
+
+    monkeypatch.setattr(common, "evaluate", fake_evaluate)
+    monkeypatch.setattr(common, "trained", lambda net, runs, log: {})
+    net, scale = cudam(Scale.smoke()), Scale.smoke()
+    result, arrays = common.evaluation(net, scale, tmp_path)
+    assert result["run"] == 1 and (arrays["confusion"] == 1).all() and len(calls) == 1
+    again, arrays = common.evaluation(net, scale, tmp_path)  # cached: not recomputed
+    assert again == result and (arrays["confusion"] == 1).all() and len(calls) == 1
+    [cache] = (tmp_path / net.run_key).glob("evaluation_*.json")
+    cache.write_text(json.dumps({"miou": 0.5}))  # a cache from before the per-frame arrays
+    assert common.evaluation(net, scale, tmp_path)[0]["run"] == 2
+    cache.with_suffix(".npz").unlink()  # arrays lost
+    assert common.evaluation(net, scale, tmp_path)[0]["run"] == 3
+    cache.with_suffix(".npz").write_bytes(cache.with_suffix(".npz").read_bytes() + b"x")  # other arrays
+    assert common.evaluation(net, scale, tmp_path)[0]["run"] == 4
+    scaled, _ = common.evaluation(scaled_logits(net), scale, tmp_path)  # the control: its own cache, same folder
+    assert scaled["run"] == 5 and calls[-1] == scaled_logits(net).key
+    assert [p.name for p in tmp_path.iterdir()] == [net.run_key] and len(list(tmp_path.glob("*/*.npz"))) == 2
+    assert not list(tmp_path.glob("*/.*"))  # no temporary file left
 
 
 FAKE = '''

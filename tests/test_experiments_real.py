@@ -1,11 +1,11 @@
-"""The bootstrap of the real-data experiments (experiments/real_common.py) against scikit-learn:
+"""The bootstrap of the real-data experiments (experiments/stats.py) against scikit-learn:
 binned metrics with one bin per distinct score are the exact ones, ties included, and a
 replicate is the metric of the frames repeated by their multiplicities."""
 import numpy as np
 import pytest
 from sklearn.metrics import average_precision_score, precision_recall_curve, roc_curve
 
-from experiments.real_common import binned_metrics, bootstrap, draws, frame_histograms, interval
+from experiments.stats import binned_metrics, bootstrap, draws, frame_histograms, interval
 
 
 def sklearn_metrics(scores: np.ndarray, labels: np.ndarray) -> tuple[float, float]:
