@@ -242,6 +242,47 @@ def _scaled(predict: Callable, factors: Sequence[float]) -> Callable:
     return scaled
 
 
+def oracle_attention(labels: np.ndarray, positions: int) -> np.ndarray:
+    """(B, H, W) float32: the upsampled map of an attention of ``positions`` cells that spends all its mass,
+    evenly, on the anomaly pixels (1) of ``labels`` (B, H, W): 1 / (anomalous share * positions) there,
+    0 elsewhere; a frame without anomaly gets the uniform 1 / positions. Values keep a real map's
+    magnitude, so Eq. 10 with it at the matched sigma must beat its base score (CuDAM's positive control;
+    a mis-scaled sigma, upsampling or ensemble fails it)."""
+    anomaly = (np.asarray(labels) == 1).astype(np.float32)
+    share = anomaly.mean(axis=(1, 2), keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(share > 0, anomaly / (share * positions), np.float32(1 / positions)).astype(np.float32)
+
+
+LOGIT_SCALE_CONTROL = "control: logits scaled by predicted class, 1/4..4, "
+ORACLE_CONTROL = "control: SML + attention on the anomalies only (Eq. 10, matched sigma)"
+ORACLE_BASE = "control: SML of the same network, no attention term"
+
+
+def logit_scale_rows(net: Network) -> list[Row]:
+    """The rows of SML's positive control on ``net``: max logit and SML of ``scaled_logits(net)``."""
+    return [Row(LOGIT_SCALE_CONTROL + "max logit", scaled_logits(net), "max_logit"),
+            Row(LOGIT_SCALE_CONTROL + "SML", scaled_logits(net), "sml")]
+
+
+def logit_scale_control(values: dict) -> Finding:
+    """SML must beat max logit in AP when the classes' logit scales differ (``logit_scale_rows``)."""
+    return improves(values, LOGIT_SCALE_CONTROL + "SML", LOGIT_SCALE_CONTROL + "max logit", ("ap",),
+                    "SML beats max logit when the classes' logit scales differ (1/4 to 4)")
+
+
+def oracle_rows(net: Network) -> list[Row]:
+    """The rows of CuDAM's positive control on ``net`` (a network with attention): Eq. 10 with
+    ``oracle_attention`` and its base score, SML with post-processing."""
+    return [Row(ORACLE_CONTROL, net, "sml_post+oracle"), Row(ORACLE_BASE, net, "sml_post")]
+
+
+def oracle_control(values: dict) -> Finding:
+    """Eq. 10 with an attention map on the anomalies must beat its base score in AP and AUROC (``oracle_rows``)."""
+    return improves(values, ORACLE_CONTROL, ORACLE_BASE, ("ap", "auroc"),
+                    "Eq. 10 at the matched sigma, with an attention map that covers the anomalies, beats SML alone")
+
+
 # ---------------------------------------------------------------- training
 
 
@@ -290,14 +331,17 @@ def _batches(source, batch_size: int):
 
 
 def _scores(out: dict, stats) -> dict:
-    """Every score of one batch of outputs (see ``BASE_SCORES``, ``ENSEMBLE_BASES``)."""
+    """Every score of one batch of outputs (see ``BASE_SCORES``, ``ENSEMBLE_BASES``); with attention also
+    ``"sml_post+oracle"``, Eq. 10 with ``oracle_attention`` in place of the network's map (a control)."""
     attention = out.get("attention_up")
     scores = {name: scoring.score_batch(name, out["logits"], stats=stats) for name in BASE_SCORES}
     if attention is not None:
         positions = out.get("attention_positions")
-        sigma = matched_sigma(*out["logits"].shape[1:3]) if positions is None else paper_sigma(int(positions))
+        positions = attention_positions(*out["logits"].shape[1:3]) if positions is None else int(positions)
+        sigma = paper_sigma(positions)
         for base in ENSEMBLE_BASES:
             scores[f"{base}+att"] = cudam_score(scores[base], attention, sigma)
+        scores["sml_post+oracle"] = cudam_score(scores["sml_post"], oracle_attention(out["label"], positions), sigma)
         scores["cudam"] = scoring.score_batch("cudam", out["logits"], stats=stats, attention_up=attention)
     return scores
 

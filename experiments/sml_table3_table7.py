@@ -6,12 +6,11 @@ statistics fitted on those logits) must beat max logit.
 
     python -m experiments --only sml_table3_table7
 """
-from experiments.common import Row, best, improves, not_better, ordered, plain, scaled_logits, worse
+from experiments.common import Row, best, improves, logit_scale_control, logit_scale_rows, not_better, ordered, plain, worse
 
 NAME = "sml_table3_table7"
 TITLE = "SML Table 3 (components) and Table 7 (post-processing on other scores)"
 BOTH = " + suppression + smoothing"
-CONTROL = "control: logits scaled by predicted class, 1/4..4, "
 
 
 def rows(scale):
@@ -19,8 +18,7 @@ def rows(scale):
     return [Row("MSP", net, "msp"), Row("MSP" + BOTH, net, "msp_post"),
             Row("max logit", net, "max_logit"), Row("max logit" + BOTH, net, "max_logit_post"),
             Row("SML", net, "sml"), Row("SML + suppression", net, "sml_suppress"),
-            Row("SML + smoothing", net, "sml_smooth"), Row("SML" + BOTH, net, "sml_post"),
-            Row(CONTROL + "max logit", scaled_logits(net), "max_logit"), Row(CONTROL + "SML", scaled_logits(net), "sml")]
+            Row("SML + smoothing", net, "sml_smooth"), Row("SML" + BOTH, net, "sml_post"), *logit_scale_rows(net)]
 
 
 def findings(v):
@@ -40,8 +38,7 @@ def findings(v):
 
 
 def controls(v):
-    return [improves(v, CONTROL + "SML", CONTROL + "max logit", ("ap",),
-                     "SML beats max logit when the classes' logit scales differ (1/4 to 4)")]
+    return [logit_scale_control(v)]
 
 
 if __name__ == "__main__":

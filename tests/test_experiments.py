@@ -27,7 +27,8 @@ def test_ensemble_scores_add_sigma_times_attention():
     logits = (rng.normal(size=(2, 9, 13, 5)) * 3).astype(np.float32)
     attention = rng.random((2, 9, 13)).astype(np.float32) / 30
     stats = (rng.normal(size=5).astype(np.float32), (0.5 + rng.random(5)).astype(np.float32))
-    scores = {k: np.asarray(v, np.float64) for k, v in _scores({"logits": logits, "attention_up": attention}, stats).items()}
+    out = {"logits": logits, "attention_up": attention, "label": np.zeros((2, 9, 13), np.uint8)}
+    scores = {k: np.asarray(v, np.float64) for k, v in _scores(out, stats).items()}
     sigma = 2e4 * (3 * 4) / (256 * 512)  # 9 x 13 frames -> 3 x 4 attention positions
     probabilities = np.exp(logits - logits.max(-1, keepdims=True))
     probabilities /= probabilities.sum(-1, keepdims=True)

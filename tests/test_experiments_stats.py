@@ -5,7 +5,7 @@ import pytest
 from sklearn.metrics import average_precision_score, roc_auc_score, roc_curve
 
 from experiments.common import (COMPETENT_MIOU, Scale, _scaled, _scores, control_scales, improves, not_better,
-                                paired_replicates)
+                                oracle_attention, paired_replicates)
 from experiments.stats import binned_auroc, bootstrap, frame_histograms, hierarchical_draws, interval
 
 EDGES = np.arange(0, 30) + 0.5  # integer scores 0..29, one per bin: binned metrics are exact
@@ -225,6 +225,33 @@ def test_the_scaled_logit_control_passes_with_sml_and_fails_when_its_normalisati
     assert good.holds and good.intervals[0]["low"] > 5  # by points of AP
     broken = improves(control_values(broken=True), "sml", "max_logit")
     assert not broken.holds and broken.intervals[0]["high"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_the_oracle_attention_spends_a_real_maps_mass_on_the_anomalies_only():
+    labels = np.zeros((3, 5, 7), np.uint8)
+    labels[0, 1:3, 2:5] = 1                 # 6 of 35 pixels
+    labels[0, 4, :] = 255                   # void is not anomaly
+    labels[1, :, :] = 255                   # no anomaly at all: uniform
+    labels[2, 0, 0] = 1                     # one pixel
+    att = oracle_attention(labels, positions=12)
+    assert att.dtype == np.float32 and att.shape == labels.shape
+    np.testing.assert_allclose(att[0][labels[0] == 1], 35 / (6 * 12), rtol=1e-6)
+    assert (att[0][labels[0] != 1] == 0).all()
+    np.testing.assert_allclose(att[1], 1 / 12, rtol=1e-6)
+    np.testing.assert_allclose(att[2, 0, 0], 35 / 12, rtol=1e-6)
+    np.testing.assert_allclose(att.mean(axis=(1, 2)), 1 / 12, rtol=1e-6)  # a real upsampled map's mean
+    # Eq. 10 with it at the matched sigma: the control score of a network with attention
+    rng = np.random.default_rng(0)
+    logits = rng.normal(size=(3, 5, 7, CLASSES)).astype(np.float32)
+    from jaxanom import sml
+    from jaxanom.cudam_score import paper_sigma
+
+    stats = sml.stats_finalize(sml.fit_stats([logits]), missing="pooled", policy="none")
+    out = {"logits": logits, "label": labels, "attention_up": np.full(labels.shape, 1 / 12, np.float32),
+           "attention_positions": 12}
+    scores = _scores(out, stats)
+    np.testing.assert_allclose(scores["sml_post+oracle"], np.asarray(scores["sml_post"]) + paper_sigma(12) * att,
+                               rtol=1e-5, atol=1e-5)
 
 
 def test_summary_lists_per_paper_what_holds_what_fails_and_what_could_not_be_tested():
