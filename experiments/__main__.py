@@ -117,6 +117,10 @@ def verdict(result: dict, finding: dict) -> tuple[str, str]:
     could not be tested, or how it was decided where it has no paired interval or no mIoU check."""
     failed = [c["claim"] for c in result.get("controls", []) if not c["holds"]]
     reasons = [finding["untested_because"]] if finding.get("tested") is False else []
+    lowest = min((row["miou"] for row in result.get("table", []) if "miou" in row), default=None)
+    if "tested" not in finding and lowest is not None and lowest < COMPETENT_MIOU:  # a table from before the bar
+        reasons.append(f"its networks reach {lowest:.1f}% mIoU at the lowest (< {COMPETENT_MIOU:.0f}%): a table of "
+                       "the earlier tiny-network regime, not rerun on the competent one")
     reasons += [f"the table's positive control failed (points at a bug): {'; '.join(failed)}"] if failed else []
     if reasons:
         return "untested", "; ".join(reasons)
@@ -154,7 +158,7 @@ def summary(results: list[dict], failures: dict[str, str] | None = None) -> str:
     failed = [f"\n## {name}: failed\n\n```\n{text}\n```" for name, text in (failures or {}).items()]
     if not results:
         return "\n".join(["# Experiments\n\nNo experiment has completed yet: `python -m experiments`.", *failed])
-    scale = Scale(**results[0]["scale"])
+    scale = Scale(**{"model": "deeplabv3plus_tiny", **results[0]["scale"]})  # results before the model field: tiny
     kinds = [verdict(r, f)[0] for r in results for f in r["findings"]]
     data = f"Cityscapes at `{scale.cityscapes_root}`" if scale.cityscapes_root else (
         f"{scale.train_frames} synthetic training scenes of {scale.height} x {scale.width}")
@@ -165,8 +169,8 @@ def summary(results: list[dict], failures: dict[str, str] | None = None) -> str:
         f"Written by `python -m experiments` on {datetime.date.today().isoformat()}. Defaults of the SML, CuDAM "
         "and MSAAM tables (the MMF and off-road tables state their own networks, frames, region and AP "
         "convention in their descriptions, e.g. MMF: four networks, frames scored inside the road ROI, "
-        "envelope AP): every network is the tiny "
-        f"DeepLabV3+ (`deeplabv3plus_tiny`, output stride 16) trained for the steps its table states, batch "
+        f"envelope AP): every network is `{scale.model}` (a DeepLabV3+, output stride 16; "
+        "`docs/decisions/baselines.md`) trained for the steps its table states, batch "
         f"{scale.batch_size}, on {data}, with AdamW (lr 2e-3) instead of the papers' SGD schedule. SML "
         f"statistics come from {scale.stats_frames} training frames; anomaly metrics pool all non-void pixels "
         f"of {anomaly}; mIoU is on {scale.val_frames} validation frames. Numbers are percent: AP is the step sum "
@@ -242,10 +246,14 @@ def seed_lines(results: list[dict]) -> list[str]:
 def other_sizes(results: list[dict]) -> list[str]:
     """A line naming the tables whose frames or training scenes differ from the first table's (the
     off-road experiments, with ``"sizes"`` of their own, describe them in their tables)."""
-    size = lambda r: (r["scale"]["height"], r["scale"]["width"], r["scale"]["train_frames"])  # noqa: E731
-    others = [f"`{r['name']}` ({h} x {w}, {n} scenes, {r['scale']['steps']} steps)"
-              for r in results if "sizes" not in r for h, w, n in [size(r)] if (h, w, n) != size(results[0])]
-    return ["", "**Other sizes.** Trained at another size than stated above: " + ", ".join(others) + "."] if others else []
+    def size(r):
+        s = r["scale"]
+        return s["height"], s["width"], s["train_frames"], s["steps"], s.get("model", "deeplabv3plus_tiny")
+
+    others = [f"`{r['name']}` ({h} x {w}, {n} scenes, {steps} steps, `{model}`)"
+              for r in results if "sizes" not in r for h, w, n, steps, model in [size(r)] if size(r) != size(results[0])]
+    return (["", "**Other sizes.** Trained at another size, length or network than stated above: " + ", ".join(others)
+             + "."] if others else [])
 
 
 def _anchor(title: str) -> str:
