@@ -289,7 +289,8 @@ def test_summary_lists_per_paper_what_holds_what_fails_and_what_could_not_be_tes
     assert "| [CUDAM_B](#cudam_b) | 0 | 0 | 2 | 0 / 1 |" in text and "| [OFF](#off) | 1 | 0 | 0 | none yet |" in text
     # a table written before the mIoU bar (its findings carry no "tested"): judged by its rows' mIoU
     old = {"name": "msaam_old", "title": "OLD", "description": "", "scale": Scale().__dict__, "seeds": "s",
-           "num_seeds": 3, "networks": {}, "table": [{"label": "x", "miou": 18.3}, {"label": "y", "miou": 61.0}],
+           "num_seeds": 3, "networks": {}, "table": [{"label": k, "score": "sml", "network": "n", "miou": m, "ap": 1.0, "fpr95": 1.0, "auroc": 1.0}
+                     for k, m in (("x", 18.3), ("y", 61.0))],
            "findings": [{"claim": "old claim", "holds": False, "evidence": "e"}]}
     text = summary([old])
     assert "old claim — its networks reach 18.3% mIoU at the lowest (< 60%)" in text
