@@ -14,6 +14,12 @@ _XLA_CACHE = None if "JAX_COMPILATION_CACHE_DIR" in os.environ else tempfile.mkd
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", _XLA_CACHE or "")
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
 os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(8 << 30))
+# The networks here are tiny, so XLA's compile time dwarfs run time: LLVM optimisation level 0
+# halves the CPU time of a network's first train step (docs/decisions/test-speed.md). Results
+# stay within float32 rounding; subprocesses and xdist workers inherit it.
+OPT_FLAG = "--xla_backend_optimization_level=0"
+if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {OPT_FLAG}".strip()
 
 import jax  # noqa: E402
 import pytest  # noqa: E402
