@@ -14,6 +14,13 @@ _XLA_CACHE = None if "JAX_COMPILATION_CACHE_DIR" in os.environ else tempfile.mkd
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", _XLA_CACHE or "")
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
 os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(8 << 30))
+# The networks here are tiny, so XLA's compile time dwarfs run time: backend optimisation level 1
+# (XLA's default is 3) cuts the CPU time of a network's first train step by a third; level 0 would
+# save more but moves float32 results by an ulp, and a strict test fails
+# (docs/decisions/test-speed.md). Subprocesses and xdist workers inherit it.
+OPT_FLAG = "--xla_backend_optimization_level=1"
+if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {OPT_FLAG}".strip()
 
 import jax  # noqa: E402
 import pytest  # noqa: E402
@@ -38,6 +45,21 @@ def road_anomaly_sample() -> Path:
     if not root.is_dir():
         pytest.skip(f"real Road Anomaly sample not found at {root} (set JAXANOM_REALDATA)")
     return root
+
+
+# The files that take longest (most of it compiling), longest first. pytest-xdist's loadfile hands
+# each worker a whole file at a time in collection order (``--no-loadscope-reorder`` in pyproject
+# keeps this order instead of sorting by test count), so these start first and the short files
+# fill in around them; a long file left to the end would keep one worker busy while the other idles.
+LONGEST_FIRST = ("test_cli.py", "test_offroad_pipeline.py", "test_mmf_demo.py", "test_mmf_table2.py",
+                 "test_mixture.py", "test_experiments_offroad.py", "test_nn_afc_rgbd.py",
+                 "test_nn_spade_dissimilarity.py")
+
+
+def pytest_collection_modifyitems(items):
+    """Run the files of ``LONGEST_FIRST`` first, in its order; the rest keep pytest's order."""
+    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
 
 
 def pytest_unconfigure(config):

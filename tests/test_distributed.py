@@ -16,6 +16,8 @@ import numpy as np
 
 from jaxanom.app.experiment import load_variables
 
+from conftest import OPT_FLAG
+
 CONFIG = """
 from jaxanom.app.experiment import Experiment
 from jaxanom.train.loop import TrainConfig
@@ -27,7 +29,7 @@ TRAIN = "import sys; from jaxanom.cli import main; sys.exit(main(sys.argv[1:]))"
 
 def _env(**extra):
     env = {k: v for k, v in os.environ.items() if not k.startswith(("SLURM_", "OMPI_", "XLA_FLAGS"))}
-    env.update(extra, JAX_PLATFORMS="cpu")
+    env.update(extra, JAX_PLATFORMS="cpu", XLA_FLAGS=OPT_FLAG)  # the suite's compile setting only
     return env
 
 
