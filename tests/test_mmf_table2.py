@@ -143,7 +143,7 @@ def test_score_routes_each_row_to_its_net_with_auroc_and_mean_f1():
     original = pipe.maps
     pipe.maps = lambda chunk: seen.append(original(chunk)) or seen[-1]
     rows = [exp.Row("a", "mmf_raw"), exp.Row("b", "mmf_raw", net="no_depth"), exp.Row("c", "resynthesis")]
-    metrics, curves = exp._score(pipe, source, rows, 2, None)
+    metrics, curves = exp._score(exp._maps(pipe, source, 2), rows, None)
     for label, key in (("a", "mmf"), ("b", "dissim_no_depth"), ("c", "resynthesis_score")):
         score = np.concatenate([m[key] for m in seen])
         scored = np.where(roi, labels, 255)
@@ -162,18 +162,20 @@ def untrained_parts(monkeypatch):
 
     def run_training(experiment, run_dir, **_):
         image = np.zeros((1, experiment.height, experiment.width, 3), np.float32)
-        return build_network(experiment).init(jax.random.key(experiment.train.seed), image, train=False)
+        return jax.jit(build_network(experiment).init, static_argnames="train")(
+            jax.random.key(experiment.train.seed), image, train=False)
 
     def train(config, model, stream):
         batch = next(iter(stream))
         extras = {k: np.asarray(batch[k][:1]) for k in model.extra_inputs}
-        variables = model.init(jax.random.key(config.seed), model_input(np.asarray(batch["image"][:1])), train=False,
+        variables = jax.jit(model.init, static_argnames="train")(
+            jax.random.key(config.seed), model_input(np.asarray(batch["image"][:1])), train=False,
                                **extras)
         return types.SimpleNamespace(variables=variables)
 
     def train_gan(config, generator, critic, stream):
         label = np.asarray(next(iter(stream))["label"][:1])
-        return types.SimpleNamespace(generator_variables=generator.init(jax.random.key(config.seed), label))
+        return types.SimpleNamespace(generator_variables=jax.jit(generator.init)(jax.random.key(config.seed), label))
 
     monkeypatch.setattr(pipeline, "run_training", run_training)
     monkeypatch.setattr(pipeline, "train", train)
@@ -221,3 +223,29 @@ def test_table_over_two_seeds_is_written_and_summarised(tmp_path, untrained_part
 
 def result_values(saved: dict) -> dict:
     return {row["label"]: row for row in saved["table"]}
+
+
+def test_timed_modules_compute_the_pipelines_maps(tmp_path, untrained_parts):
+    """``module_calls`` (Table 3's timings) times the computations ``MMFPipeline.maps`` makes."""
+    from jaxanom.app.methods import score_batch
+    from jaxanom.data.synthetic import SyntheticScenes
+    from jaxanom.models.dissimilarity import anomaly_probability
+
+    config = pipeline.MMFConfig.quick()
+    pipe = pipeline.MMFPipeline.build(config, tmp_path, progress=False, log=lambda *_: None)
+    seg = config.segmenter
+    frames = [SyntheticScenes("anomaly", 1, 0, height=seg.height, width=seg.width, disparity=True, roi=True)[0]]
+    maps = pipe.maps(frames)
+    calls = pipeline.module_calls(pipe, frames)
+    assert list(calls) == ["segmentation", "uncertainty", "synthesis", "perceptual difference", "depth",
+                           "dissimilarity", "post-processor"]
+    close = lambda a, b: np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-5)  # noqa: E731
+    close(calls["segmentation"](), maps["logits"])
+    close(calls["uncertainty"]()["entropy"], maps["entropy"])
+    close(calls["synthesis"](), maps["resynthesis"])
+    r, perceptual, anomaly = calls["perceptual difference"]()
+    close(perceptual, maps["perceptual"]) or close(anomaly, maps["anomaly"])
+    np.testing.assert_array_equal(np.argmax(np.asarray(calls["depth"]()), -1), maps["prediction_depth"])
+    close(anomaly_probability(calls["dissimilarity"]()), maps["mmf"])
+    batch = pipeline.scored_batch(frames, maps)
+    close(calls["post-processor"](), score_batch("mmf", batch["logits"], mmf_maps=batch["mmf_maps"]))
