@@ -78,3 +78,12 @@ def test_scored_batch_gives_the_mmf_rows_the_named_net():
     assert batch["superpixels"] is maps["superpixels_no_depth"]  # its own segmentation where it has one
     with pytest.raises(ValueError, match="net"):
         pipeline.scored_batch(frames, maps, "no_uncertainty")
+
+
+def test_a_config_with_variants_round_trips_through_json():
+    import json
+
+    from jaxanom.app.demos.mmf import MMFDemoConfig
+
+    config = MMFDemoConfig(pipeline=dataclasses.replace(QUICK, dissim_variants=("no_depth", "truth_resynthesis")))
+    assert MMFDemoConfig.from_dict(json.loads(json.dumps(dataclasses.asdict(config)))) == config
