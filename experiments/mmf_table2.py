@@ -367,7 +367,7 @@ def report(result: dict) -> str:
         lines += table3(t, result["size"])
     lines += ["", "| paper's finding | holds here? | evidence |", "|---|---|---|"]
     marks = {"holds": "yes", "fails": "**no**", "untested": "untested"}
-    lines += [f"| {'**control** ' if f['control'] else ''}{f['claim']} | {marks[f['status']]} | {f['evidence']} |"
+    lines += [f"| {'**' + f['claim'] + '**' if f['control'] else f['claim']} | {marks[f['status']]} | {f['evidence']} |"
               for f in result["findings"]]
     same = result["identical_rows"]
     lines += ["", "Rows with identical outputs in every seed (their comparisons are untested): "
