@@ -162,20 +162,18 @@ def untrained_parts(monkeypatch):
 
     def run_training(experiment, run_dir, **_):
         image = np.zeros((1, experiment.height, experiment.width, 3), np.float32)
-        return jax.jit(build_network(experiment).init, static_argnames="train")(
-            jax.random.key(experiment.train.seed), image, train=False)
+        return build_network(experiment).init(jax.random.key(experiment.train.seed), image, train=False)
 
     def train(config, model, stream):
         batch = next(iter(stream))
         extras = {k: np.asarray(batch[k][:1]) for k in model.extra_inputs}
-        variables = jax.jit(model.init, static_argnames="train")(
-            jax.random.key(config.seed), model_input(np.asarray(batch["image"][:1])), train=False,
+        variables = model.init(jax.random.key(config.seed), model_input(np.asarray(batch["image"][:1])), train=False,
                                **extras)
         return types.SimpleNamespace(variables=variables)
 
     def train_gan(config, generator, critic, stream):
         label = np.asarray(next(iter(stream))["label"][:1])
-        return types.SimpleNamespace(generator_variables=jax.jit(generator.init)(jax.random.key(config.seed), label))
+        return types.SimpleNamespace(generator_variables=generator.init(jax.random.key(config.seed), label))
 
     monkeypatch.setattr(pipeline, "run_training", run_training)
     monkeypatch.setattr(pipeline, "train", train)
