@@ -15,7 +15,10 @@ its checkpoints):
    GAN (``"spade"``, ``mmf.gan_train``; Table 4's "lighter" synthesizer);
 4. two dissimilarity nets (``models.dissimilarity``), with and without the assistant maps
    [A, D] and Ŝ_D, trained on frames the segmenter never saw (D14, another seed) with void
-   clutter as anomaly (void -> 1, labelled -> 0).
+   clutter as anomaly (void -> 1, labelled -> 0); ``dissim_variants`` adds nets of the same
+   training for ablations and a control (``DISSIM_VARIANTS``): without Ŝ_D, without [A, D], and
+   the plain net fed the resynthesis of the ground-truth semantics (255, unknown, where void or
+   anomalous) instead of the prediction's.
 
 Synthetic data only (real-data training needs Cityscapes disparity, not wired here).
 """
@@ -41,6 +44,7 @@ from jaxanom.app.experiment import Experiment, build_network, jsonable, load_var
 from jaxanom.io import write_bytes_atomic
 from jaxanom.losses import balanced_class_weights
 from jaxanom.mmf.perceptual import anomaly_map_batch, perceptual_difference_batch
+from jaxanom.mmf.postprocess import superpixel_score_batch
 from jaxanom.mmf.gan_train import GANConfig, train_gan, trained_generator
 from jaxanom.mmf.synthesis import ClassMeanSynthesizer, SPADESynthesizer, resynthesize
 from jaxanom.mmf.training_free import SLIC_INPUTS, segment
@@ -69,6 +73,7 @@ class MMFConfig:
     ``rgbd_*``: RGB-D net backbone, decoder width, steps; ``dissim_*``: dissimilarity nets' width
     multiplier, steps, learning rate (Adam, betas 0.9 / 0.999), frames and void clutter per frame,
     ``dissim_balance``: class-weighted cross-entropy (``losses.balanced_class_weights``);
+    ``dissim_variants``: names of ``DISSIM_VARIANTS`` trained besides ``mmf`` and ``resynthesis``;
     ``synthesizer``: ``"class_mean"`` or ``"spade"``; ``gan_*`` (SPADE only): steps, base width nf,
     upsamplings n, SPADE hidden width, critic layers (MMF.md A2.2's tiny nf = 8, n = 3);
     ``slic_step``: SLIC grid step S in pixels, None: ``superpixels.scaled_step`` of the frame
@@ -88,6 +93,7 @@ class MMFConfig:
     dissim_lr: float = 1e-3
     dissim_frames: int = 96
     dissim_balance: bool = True
+    dissim_variants: tuple[str, ...] = ()
     void_objects: int = 4
     batch_size: int = 8
     slic_step: int | None = None
@@ -113,6 +119,9 @@ class MMFConfig:
         check_count("void_objects", self.void_objects, minimum=0)
         if self.slic_step is not None:  # None: scaled with the frame (superpixels.scaled_step)
             check_count("slic_step", self.slic_step, maximum=min(s.height, s.width))
+        if not isinstance(self.dissim_variants, tuple) or not set(self.dissim_variants) <= set(DISSIM_VARIANTS):
+            raise ValueError(f"dissim_variants: expected a tuple of names from {tuple(DISSIM_VARIANTS)}, "
+                             f"got {self.dissim_variants!r}")
         if self.slic_input not in SLIC_INPUTS:
             raise ValueError(f"slic_input: expected one of {SLIC_INPUTS}, got {self.slic_input!r}")
         for name in ("dissim_balance", "slic_connectivity"):
@@ -161,8 +170,13 @@ class MMFConfig:
 
 
 SYNTHESIZERS = ("class_mean", "spade")
+# dissimilarity nets: name -> (uncertainty channels [A, D], reads S_D, resynthesis of the ground truth)
+DISSIM_NETS = {"mmf": (2, True, False), "resynthesis": (0, False, False)}
+DISSIM_VARIANTS = {"no_depth": (2, False, False), "no_uncertainty": (0, True, False),
+                   "truth_resynthesis": (0, False, True)}
 _REVISIONS = {"dissimilarity": "correlation concatenated after the prior product (issue 20)"}
 _SLIC_FIELDS = ("slic_step", "slic_input", "slic_connectivity")  # scoring only: in no part's key
+# each variant is its own folder (its name in it): the list of them is in no part's key
 _SPADE_FIELDS = ("gan_steps", "gan_nf", "gan_upsamples", "gan_hidden", "gan_layers")
 # the class-mean parts' keys leave out the SPADE settings (caches of class-mean runs stay valid)
 _PARTS = {"segmenter": ("segmenter",),
@@ -170,7 +184,7 @@ _PARTS = {"segmenter": ("segmenter",),
           "synthesizer": ("segmenter",),
           "spade": ("segmenter", "batch_size") + _SPADE_FIELDS,
           "dissimilarity": tuple(f.name for f in dataclasses.fields(MMFConfig)
-                                 if f.name not in ("synthesizer",) + _SLIC_FIELDS + _SPADE_FIELDS)}
+                                 if f.name not in ("synthesizer", "dissim_variants") + _SLIC_FIELDS + _SPADE_FIELDS)}
 
 
 def training_stream(arrays: dict[str, np.ndarray], batch_size: int, seed: int) -> Iterator[dict]:
@@ -210,9 +224,21 @@ def _rgbd_train_config(config: MMFConfig, run: Path, progress: bool) -> TrainCon
     return _train_config(run, config.rgbd_steps, 2e-3, config.segmenter.train.seed, progress)
 
 
-def _dissimilarity_model(config: MMFConfig, assisted: bool) -> DissimilarityNet:
-    return DissimilarityNet(config.segmenter.num_classes, uncertainty_channels=2 if assisted else 0,
-                            use_depth=assisted, width=config.dissim_width)
+def _dissimilarity_model(config: MMFConfig, name: str) -> DissimilarityNet:
+    channels, depth, _ = {**DISSIM_NETS, **DISSIM_VARIANTS}[name]
+    return DissimilarityNet(config.segmenter.num_classes, uncertainty_channels=channels, use_depth=depth,
+                            width=config.dissim_width)
+
+
+def dissimilarity_names(config: MMFConfig) -> tuple[str, ...]:
+    """The dissimilarity nets a pipeline of ``config`` trains: ``mmf``, ``resynthesis``, its variants."""
+    return (*DISSIM_NETS, *config.dissim_variants)
+
+
+def _net_inputs(inputs: dict, name: str, model: DissimilarityNet) -> dict:
+    """The extra inputs of net ``name``; the ground-truth resynthesis for the control net."""
+    truth = {**DISSIM_NETS, **DISSIM_VARIANTS}[name][2]
+    return {k: inputs["resynthesis_truth" if truth and k == "resynthesis" else k] for k in model.extra_inputs}
 
 
 def _dissimilarity_train_config(config: MMFConfig, root: Path, name: str, progress: bool,
@@ -337,9 +363,9 @@ class MMFPipeline:
             chunk = [dissim_frames[i] for i in range(j, min(j + config.batch_size, len(dissim_frames)))]
             batches.append(pipe._dissimilarity_inputs(chunk, pipe._network_maps(chunk)))
         arrays = {k: np.concatenate([b[k] for b in batches]) for k in batches[0]}
-        for name, assisted in (("mmf", True), ("resynthesis", False)):
-            model = _dissimilarity_model(config, assisted)
-            data = {k: arrays[k] for k in ("image", "label", *model.extra_inputs)}
+        for name in dissimilarity_names(config):
+            model = _dissimilarity_model(config, name)
+            data = {"image": arrays["image"], "label": arrays["label"], **_net_inputs(arrays, name, model)}
             state = train(_dissimilarity_train_config(config, root, name, progress, arrays["label"]),
                           model, training_stream(data, config.batch_size, seed + 2))
             pipe.dissimilarity[name] = (model, jax.device_get(state.variables))
@@ -360,8 +386,8 @@ class MMFPipeline:
                                            "depth": np.zeros((*shape, 1), np.float32)}, complete=True)
             synthesizer = load_synthesizer(config, root)
             dissimilarity = {}
-            for name, assisted in (("mmf", True), ("resynthesis", False)):
-                model = _dissimilarity_model(config, assisted)
+            for name in dissimilarity_names(config):
+                model = _dissimilarity_model(config, name)
                 example = {"image": np.zeros((*shape, 3), np.float32), "resynthesis": np.zeros((*shape, 3), np.float32),
                            "semantic": np.zeros(shape, np.int32), "semantic_depth": np.zeros(shape, np.int32),
                            "uncertainty": np.zeros((*shape, 2), np.float32)}
@@ -380,13 +406,22 @@ class MMFPipeline:
                        depth_input(disparity, images.shape[2])[..., None])
         return {k: np.asarray(v) for k, v in out.items()}
 
-    @staticmethod
-    def _dissimilarity_inputs(frames: list[dict], out: dict) -> dict[str, np.ndarray]:
-        """The dissimilarity nets' inputs (and void-as-anomaly labels where frames have ``void``)."""
+    def semantics(self, frames: list[dict]) -> tuple[np.ndarray, np.ndarray]:
+        """(Ŝ of the segmenter, Ŝ_D of the RGB-D net), int32 (B, H, W), of frames with ``image`` and ``disparity``."""
+        out = self._network_maps(frames)
+        return out["prediction"], out["prediction_depth"]
+
+    def _dissimilarity_inputs(self, frames: list[dict], out: dict) -> dict[str, np.ndarray]:
+        """The dissimilarity nets' inputs (and void-as-anomaly labels where frames have ``void``);
+        ``resynthesis_truth`` (of the frames' ground-truth ``semantic``) when the control net is trained."""
         images = np.stack([f["image"] for f in frames])
         inputs = {"image": normalize(images), "resynthesis": out["resynthesis_normalized"],
                   "semantic": out["prediction"], "semantic_depth": out["prediction_depth"],
                   "uncertainty": np.stack([out["anomaly"], out["distance"]], axis=-1)}
+        if "truth_resynthesis" in self.config.dissim_variants:
+            semantic = np.stack([f["semantic"] for f in frames]).astype(np.int32)
+            r = self.synthesizer.synthesize_batch(semantic)
+            inputs["resynthesis_truth"] = np.asarray(normalize(jnp.round(r * 255).astype(jnp.uint8)))
         if "void" in frames[0]:  # void as anomaly (1), labelled pixels 0
             inputs["label"] = np.stack([f["void"] for f in frames]).astype(np.int32)
         return inputs
@@ -395,18 +430,21 @@ class MMFPipeline:
         """Every map of MMF for a list of equally sized frames (``image``, ``disparity``):
         ``logits``, ``entropy`` (U), ``distance`` (D), ``perceptual`` (L), ``anomaly`` (A),
         ``resynthesis`` (r, [0, 1]), ``mmf`` / ``resynthesis_score`` (a of the two nets),
-        ``superpixels`` and ``num_segments`` (SLIC of ``config.slic_input``; with ``"anomaly"``,
-        ``superpixels`` segments ``mmf`` and ``superpixels_resynthesis`` segments ``resynthesis_score``)."""
+        ``dissim_<variant>`` (a of each variant net), ``superpixels`` and ``num_segments`` (SLIC of
+        ``config.slic_input``; with ``"anomaly"``, ``superpixels`` segments ``mmf``,
+        ``superpixels_resynthesis`` segments ``resynthesis_score`` and ``superpixels_<variant>``
+        each variant's map)."""
         out = self._network_maps(frames)
         inputs = self._dissimilarity_inputs(frames, out)
+        names = {"mmf": "mmf", "resynthesis": "resynthesis_score"}
         for name, (model, variables) in self.dissimilarity.items():
-            kw = {k: inputs[k] for k in model.extra_inputs}
-            logits = _dissimilarity_forward(model, variables, inputs["image"], kw)
-            out["mmf" if name == "mmf" else "resynthesis_score"] = np.asarray(anomaly_probability(logits))
+            logits = _dissimilarity_forward(model, variables, inputs["image"], _net_inputs(inputs, name, model))
+            out[names.get(name, f"dissim_{name}")] = np.asarray(anomaly_probability(logits))
         c = self.config
-        out.update(segment(np.stack([f["image"] for f in frames]),
-                           {"superpixels": out["mmf"], "superpixels_resynthesis": out["resynthesis_score"]},
-                           step=c.slic_step, slic_input=c.slic_input, connectivity=c.slic_connectivity))
+        targets = {"superpixels": out["mmf"], "superpixels_resynthesis": out["resynthesis_score"],
+                   **{f"superpixels_{v}": out[f"dissim_{v}"] for v in self.dissimilarity if v not in names}}
+        out.update(segment(np.stack([f["image"] for f in frames]), targets, step=c.slic_step,
+                           slic_input=c.slic_input, connectivity=c.slic_connectivity))
         return out
 
 
@@ -435,18 +473,61 @@ def _maps(seg_model, rgbd_model, generator, seg_vars, rgbd_vars, synth_arrays, i
     maps = uncertainty_maps_batch(logits)
     prediction = maps["prediction"]
     resynthesis = resynthesize(generator, synth_arrays, prediction)
+    r, perceptual, anomaly = _perceptual(seg_model, seg_vars, x, resynthesis, maps["entropy"])
+    depth_logits = rgbd_model.apply(rgbd_vars, x, depth=depth)["logits"]
+    return {"logits": logits, "entropy": maps["entropy"], "distance": maps["distance"], "road": maps["road"],
+            "prediction": prediction, "prediction_depth": jnp.argmax(depth_logits, -1).astype(jnp.int32),
+            "resynthesis": resynthesis, "resynthesis_normalized": r, "perceptual": perceptual, "anomaly": anomaly}
+
+
+def _perceptual(seg_model, seg_vars, x, resynthesis, entropy) -> tuple:
+    """(r normalised, L of Eq. 3, A of Eq. 4) for normalised images x and r in [0, 1] (B, H, W, 3):
+    the perceptual features are the segmenter's own ResNet stages (D10)."""
     r = normalize(jnp.round(resynthesis * 255).astype(jnp.uint8))
-    # perceptual features: the segmenter's own ResNet stages (D10)
     backbone = ResNet(RESNETS[seg_model.backbone], seg_model.output_stride)
     sub = {"params": seg_vars["params"]["backbone"], "batch_stats": seg_vars["batch_stats"]["backbone"]}
     fx, fr = backbone.apply(sub, x), backbone.apply(sub, r)
     taps = [f"layer{i}" for i in range(1, 5)]
-    perceptual = perceptual_difference_batch([fx[t] for t in taps], [fr[t] for t in taps], images.shape[1:3])
-    depth_logits = rgbd_model.apply(rgbd_vars, x, depth=depth)["logits"]
-    return {"logits": logits, "entropy": maps["entropy"], "distance": maps["distance"], "road": maps["road"],
-            "prediction": prediction, "prediction_depth": jnp.argmax(depth_logits, -1).astype(jnp.int32),
-            "resynthesis": resynthesis, "resynthesis_normalized": r, "perceptual": perceptual,
-            "anomaly": anomaly_map_batch(maps["entropy"], perceptual)}
+    perceptual = perceptual_difference_batch([fx[t] for t in taps], [fr[t] for t in taps], x.shape[1:3])
+    return r, perceptual, anomaly_map_batch(entropy, perceptual)
+
+
+def module_calls(pipe: MMFPipeline, frames: list[dict]) -> dict[str, Callable[[], object]]:
+    """One zero-argument call per module of MMF on ``frames`` (``image``, ``disparity``), each
+    jitted on its own with its inputs computed beforehand, for per-module timings (the paper's
+    Table 3): ``segmentation``, ``uncertainty`` (Eqs. 1-2), ``synthesis``, ``perceptual difference``
+    (Eqs. 3-4), ``depth`` (RGB-D net), ``dissimilarity`` (the MMF net) and ``post-processor``
+    (SLIC of ``config.slic_input`` and Eq. 6, on the host where SLIC's labels are read)."""
+    (seg_model, seg_vars), (rgbd_model, rgbd_vars) = pipe.segmenter, pipe.rgbd
+    generator, arrays = getattr(pipe.synthesizer, "model", None), pipe.synthesizer.arrays
+    images = np.stack([f["image"] for f in frames])
+    x = normalize(images)
+    depth = depth_input(np.stack([f["disparity"] for f in frames]), images.shape[2])[..., None]
+    segment_fn = jax.jit(lambda v, x: seg_model.apply(v, x)["logits"])
+    uncertainty_fn = jax.jit(uncertainty_maps_batch)
+    synthesis_fn = jax.jit(lambda a, p: resynthesize(generator, a, p))
+    perceptual_fn = jax.jit(lambda v, x, r, u: _perceptual(seg_model, v, x, r, u))
+    depth_fn = jax.jit(lambda v, x, d: rgbd_model.apply(v, x, depth=d)["logits"])
+    logits = segment_fn(seg_vars, x)
+    maps = uncertainty_fn(logits)
+    resynthesis = synthesis_fn(arrays, maps["prediction"])
+    out = pipe.maps(frames)
+    inputs = pipe._dissimilarity_inputs(frames, pipe._network_maps(frames))
+    model, variables = pipe.dissimilarity["mmf"]
+    extra = _net_inputs(inputs, "mmf", model)
+    c = pipe.config
+
+    def post():
+        labels = segment(images, {"superpixels": out["mmf"]}, step=c.slic_step, slic_input=c.slic_input,
+                         connectivity=c.slic_connectivity)
+        return superpixel_score_batch(out["mmf"], out["road"], labels["superpixels"], labels["num_segments"])
+
+    return {"segmentation": lambda: segment_fn(seg_vars, x), "uncertainty": lambda: uncertainty_fn(logits),
+            "synthesis": lambda: synthesis_fn(arrays, maps["prediction"]),
+            "perceptual difference": lambda: perceptual_fn(seg_vars, x, resynthesis, maps["entropy"]),
+            "depth": lambda: depth_fn(rgbd_vars, x, depth),
+            "dissimilarity": lambda: _dissimilarity_forward(model, variables, inputs["image"], extra),
+            "post-processor": post}
 
 
 def scored_batches(pipe: MMFPipeline, source, batch_size: int, keep: int = 0, kept: list | None = None):
@@ -458,10 +539,22 @@ def scored_batches(pipe: MMFPipeline, source, batch_size: int, keep: int = 0, ke
         if kept is not None:
             for i, frame in enumerate(frames[:max(0, keep - start)]):
                 kept.append((frame, {k: v[i] for k, v in maps.items() if k != "num_segments"}))
-        batch = {"logits": maps["logits"], "label": np.stack([f["label"] for f in frames]),
-                 "mmf_maps": {"mmf": maps["mmf"], "resynthesis": maps["resynthesis_score"],
-                              "num_segments": maps["num_segments"],
-                              **{k: v for k, v in maps.items() if k.startswith("superpixels")}}}
-        if "roi" in frames[0]:  # the road region of interest, where the dataset has one
-            batch["roi"] = np.stack([f["roi"] for f in frames])
-        yield batch
+        yield scored_batch(frames, maps)
+
+
+def scored_batch(frames: list[dict], maps: dict, net: str = "mmf") -> dict:
+    """One batch for ``evaluate.anomaly_results`` from ``MMFPipeline.maps`` of ``frames``; ``net``
+    (``"mmf"`` or a variant of ``DISSIM_VARIANTS``) is the net scored by the ``mmf_raw`` / ``mmf`` rows."""
+    source = "" if net == "mmf" else f"_{net}"
+    if net != "mmf" and f"dissim_{net}" not in maps:
+        raise ValueError(f"net: expected 'mmf' or a trained variant, got {net!r}")
+    mmf = maps["mmf"] if net == "mmf" else maps[f"dissim_{net}"]
+    segments = maps.get(f"superpixels{source}", maps["superpixels"])  # SLIC of this map, if it has its own
+    batch = {"logits": maps["logits"], "label": np.stack([f["label"] for f in frames]),
+             "mmf_maps": {"mmf": mmf, "resynthesis": maps["resynthesis_score"], "num_segments": maps["num_segments"],
+                          "superpixels": segments,
+                          **({"superpixels_resynthesis": maps["superpixels_resynthesis"]}
+                             if "superpixels_resynthesis" in maps else {})}}
+    if "roi" in frames[0]:  # the road region of interest, where the dataset has one
+        batch["roi"] = np.stack([f["roi"] for f in frames])
+    return batch

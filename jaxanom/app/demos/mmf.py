@@ -57,6 +57,8 @@ class MMFDemoConfig:
         try:
             if "segmenter" in pipeline:
                 pipeline["segmenter"] = Experiment.from_dict(pipeline["segmenter"])
+            if isinstance(pipeline.get("dissim_variants"), list):  # JSON has no tuples
+                pipeline["dissim_variants"] = tuple(pipeline["dissim_variants"])
             return cls(pipeline=MMFConfig(**pipeline), **values)
         except (TypeError, KeyError) as error:  # an unknown or missing field
             raise ValueError(f"config: {type(error).__name__}: {error}") from None
