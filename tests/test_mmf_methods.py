@@ -1,4 +1,6 @@
 """MMF rows of jaxanom.app.methods (mmf, mmf_raw, resynthesis, resynthesis_post) and the pipeline's batches."""
+from types import SimpleNamespace
+
 import jax
 import numpy as np
 import pytest
@@ -51,7 +53,8 @@ def test_dissimilarity_inputs_are_the_anomaly_map_and_the_distance():
     out = {k: rng.random((2, 8, 16)).astype(np.float32) for k in ("anomaly", "distance", "entropy", "perceptual")}
     out.update(resynthesis_normalized=rng.random((2, 8, 16, 3)).astype(np.float32),
                prediction=rng.integers(0, 3, (2, 8, 16)), prediction_depth=rng.integers(0, 3, (2, 8, 16)))
-    inputs = MMFPipeline._dissimilarity_inputs(frames, out)
+    pipeline = SimpleNamespace(config=SimpleNamespace(dissim_variants=()))  # no control net: no synthesizer call
+    inputs = MMFPipeline._dissimilarity_inputs(pipeline, frames, out)
     np.testing.assert_array_equal(inputs["uncertainty"][..., 0], out["anomaly"])
     np.testing.assert_array_equal(inputs["uncertainty"][..., 1], out["distance"])
     np.testing.assert_array_equal(inputs["label"], np.stack([f["void"] for f in frames]).astype(np.int32))
