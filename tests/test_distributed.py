@@ -52,3 +52,41 @@ def test_two_processes_join_one_mesh_and_train(tmp_path):
     assert all(np.isfinite(s["train/loss"]) for s in steps if "train/loss" in s)
     _, variables = load_variables(tmp_path / "run")
     assert all(np.isfinite(np.asarray(leaf)).all() for leaf in jax.tree.leaves(variables))
+
+
+JOIN = ("import jax; from jaxanom.train.sharding import initialize_distributed; initialize_distributed(); "
+        "print('joined', jax.process_index(), 'of', jax.process_count(), flush=True)")
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def _jax_env(port: int, index: int, processes: int = 2, timeout: int = 60) -> dict:
+    """The environment variables the README and the error messages name (no cluster manager)."""
+    return _env(JAX_COORDINATOR_ADDRESS=f"127.0.0.1:{port}", JAX_NUM_PROCESSES=str(processes),
+                JAX_PROCESS_ID=str(index), JAXANOM_DISTRIBUTED_TIMEOUT=str(timeout))
+
+
+def test_the_documented_environment_variables_join_two_processes():
+    port = _free_port()
+    workers = [subprocess.Popen([sys.executable, "-c", JOIN], env=_jax_env(port, i), stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, text=True) for i in range(2)]
+    outputs = [worker.communicate(timeout=300)[0] for worker in workers]
+    assert [worker.returncode for worker in workers] == [0, 0], outputs
+    assert [output.strip().splitlines()[-1] for output in outputs] == ["joined 0 of 2", "joined 1 of 2"], outputs
+
+
+def test_process_zero_whose_peers_never_join_ends_with_one_line(tmp_path):
+    """JAX would abort process 0 from C++ with a stack trace; the command ends in one line, exit 2."""
+    port = _free_port()
+    command = [sys.executable, "-c", TRAIN, "train", "--distributed", "--no-progress", "--out", str(tmp_path / "run")]
+    done = subprocess.run(command, env=_jax_env(port, 0, timeout=2), capture_output=True, text=True, timeout=300)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1, done.stderr
+    assert f"not every process joined the run at 127.0.0.1:{port} within 2 s" in lines[0]
+    assert "JAX_NUM_PROCESSES" in lines[0] and not (tmp_path / "run").exists()

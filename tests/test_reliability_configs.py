@@ -208,3 +208,19 @@ def test_evaluate_checks_its_methods_before_reading_the_network(tmp_path, capsys
     (tmp_path / "run" / "experiment.json").write_text(json.dumps(jsonable(Experiment())))
     _refused_at_once(capsys, ["evaluate", "--run", str(tmp_path / "run"), "--dataset", "synthetic", "--path", "anomaly",
                               "--methods", methods, "--out", str(tmp_path / "o")], fragment, out=tmp_path / "o")
+
+
+@pytest.mark.parametrize("variables, fragments", [
+    ({"JAX_NUM_PROCESSES": "two", "JAX_PROCESS_ID": "0"}, ["JAX_NUM_PROCESSES", "integer >= 1", "'two'"]),
+    ({"JAX_NUM_PROCESSES": "0", "JAX_PROCESS_ID": "0"}, ["JAX_NUM_PROCESSES", "integer >= 1", "'0'"]),
+    ({"JAX_NUM_PROCESSES": "2", "JAX_PROCESS_ID": "-1"}, ["JAX_PROCESS_ID", "integer >= 0", "'-1'"]),
+    ({"JAX_NUM_PROCESSES": "2", "JAX_PROCESS_ID": "2"}, ["JAX_PROCESS_ID", "below JAX_NUM_PROCESSES=2", "got 2"]),
+])
+def test_distributed_environment_variables_are_checked_in_one_line(tmp_path, capsys, monkeypatch, variables,
+                                                                   fragments):
+    monkeypatch.setattr("jax.distributed.is_initialized", lambda: False)
+    monkeypatch.setenv("JAX_COORDINATOR_ADDRESS", "127.0.0.1:1")
+    for name, value in variables.items():
+        monkeypatch.setenv(name, value)
+    _refused_at_once(capsys, ["train", "--distributed", "--out", str(tmp_path / "r")], *fragments,
+                     out=tmp_path / "r")

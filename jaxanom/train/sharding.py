@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import os
 import socket
+import sys
+import threading
 import time
 from typing import Sequence
 
@@ -27,25 +29,59 @@ def initialize_distributed(timeout: int | None = None) -> None:
     (TPU pods, SLURM, Open MPI, ...), as ``jax.distributed.initialize`` documents, or read from
     ``JAX_COORDINATOR_ADDRESS``, ``JAX_NUM_PROCESSES`` and ``JAX_PROCESS_ID``. A second call is a
     no-op, so a command may join early and the train loop still asks. ``timeout`` (default
-    ``$JAXANOM_DISTRIBUTED_TIMEOUT`` or 300 s): how long to wait for the coordinator. Raises
-    ValueError in one line when there is no cluster to join, or the coordinator does not answer
-    (JAX itself would wait in silence, then abort the process).
+    ``$JAXANOM_DISTRIBUTED_TIMEOUT`` or 300 s): how long to wait for the coordinator and for every
+    process to join. Raises ValueError in one line when there is no cluster to join or the
+    coordinator does not answer. When the processes do not all join in time, JAX aborts the
+    process from C++ (a stack trace, no exception to catch): a watchdog ends it first, with one
+    line on stderr and exit status 2.
     """
     if jax.distributed.is_initialized():
         return
     timeout = int(os.environ.get("JAXANOM_DISTRIBUTED_TIMEOUT", 300)) if timeout is None else int(timeout)
-    address, index = os.environ.get("JAX_COORDINATOR_ADDRESS"), os.environ.get("JAX_PROCESS_ID")
-    if address and index not in (None, "0"):
+    num_processes, process_id = _env_int("JAX_NUM_PROCESSES", 1), _env_int("JAX_PROCESS_ID", 0)
+    if None not in (num_processes, process_id) and process_id >= num_processes:
+        raise ValueError(f"JAX_PROCESS_ID: expected an id below JAX_NUM_PROCESSES={num_processes}, got {process_id}")
+    address = os.environ.get("JAX_COORDINATOR_ADDRESS")
+    if address and process_id:
         _wait_for(address, timeout)
     previous = jax.config.jax_cpu_collectives_implementation
     jax.config.update("jax_cpu_collectives_implementation", "gloo")  # CPU hosts; GPUs use NCCL
-    try:
-        jax.distributed.initialize(initialization_timeout=timeout)
+    watchdog = threading.Timer(timeout, _give_up, args=(address, timeout))
+    watchdog.daemon = True
+    watchdog.start()
+    try:  # JAX's own deadline comes later than the watchdog's, so its abort never wins the race
+        jax.distributed.initialize(num_processes=num_processes, process_id=process_id,
+                                   initialization_timeout=timeout + _ABORT_GRACE_S)
     except (ValueError, RuntimeError) as error:
         jax.config.update("jax_cpu_collectives_implementation", previous)
         raise ValueError(f"distributed: cannot join a multi-host run ({str(error).strip().splitlines()[0]}): start one "
                          "process per host under SLURM, Open MPI or a TPU pod, or set JAX_COORDINATOR_ADDRESS "
                          "(host:port), JAX_NUM_PROCESSES and JAX_PROCESS_ID") from None
+    finally:
+        watchdog.cancel()
+
+
+_ABORT_GRACE_S = 30
+
+
+def _env_int(name: str, lowest: int) -> int | None:
+    """The integer in environment variable ``name`` (None where unset); ValueError naming it otherwise."""
+    text = os.environ.get(name, "").strip()
+    if not text:
+        return None
+    if not text.isdigit() or int(text) < lowest:
+        raise ValueError(f"{name}: expected an integer >= {lowest}, got {text!r}")
+    return int(text)
+
+
+def _give_up(address: str | None, timeout: int) -> None:
+    """End the process with one line: not every process joined the run within ``timeout`` seconds."""
+    where = f" at {address}" if address else ""
+    sys.stderr.write(f"jaxanom: error: distributed: not every process joined the run{where} within {timeout} s; "
+                     "start one process per host with the same JAX_COORDINATOR_ADDRESS and JAX_NUM_PROCESSES "
+                     "(JAXANOM_DISTRIBUTED_TIMEOUT sets the wait)\n")
+    sys.stderr.flush()
+    os._exit(2)
 
 
 def _wait_for(address: str, timeout: int) -> None:
