@@ -14,11 +14,14 @@ import dataclasses
 from pathlib import Path
 from typing import Callable
 
+import jax
 import numpy as np
 
 from experiments.common import HERE, RUNS, Finding, Scale
 from experiments.offroad_common import OffroadSizes, chain, model_on_a, run_seeds
+from jaxanom.app.offroad_pipeline import majority_class, raw_cluster_distance
 from jaxanom.data.offroad import GRANULARITIES
+from jaxanom.mixture import GaussianMixture, select_components
 
 NAME = "offroad_exp2"
 TITLE = "Off-road Exp. 2: clusters found by BIC vs label granularity"
@@ -38,7 +41,52 @@ def seed_values(sizes: OffroadSizes, log: Callable = print) -> dict:
             "argmin": counts[int(np.argmin([model.bics[m] for m in counts]))],
             "recovered": len(set(model.cluster_class[model.cluster_class >= 0].tolist())),
             "network": f"M_A {level} seed {sizes.demo.seed}", "bics": {str(m): model.bics[m] for m in counts}}
+    values[CONTROL] = separated_gaussians(sizes, control_components(sizes))
     return values
+
+
+CONTROL = "control: k separated Gaussians"
+
+
+def control_components(sizes: OffroadSizes) -> int:
+    """The control's k: 6 (LV2's class count), or the top of a smaller scan (a smoke run)."""
+    return min(6, max(sizes.demo.pipeline.components))
+
+
+def separated_gaussians(sizes: OffroadSizes, k: int) -> dict:
+    """BIC on embeddings drawn from exactly ``k`` Gaussians: unit-vector means (on the unit sphere of the
+    encoder's dimension, pairwise at least 0.5 apart by rejection) and std 0.02, as many points as M_A's
+    anchors (training frames x anchors), chosen like M_A's m (the same scan, inits and rule)."""
+    pipe = sizes.demo.pipeline
+    rng = np.random.default_rng([sizes.demo.seed, 9])
+    dim, n = pipe.encoder.dim, sum(s.frames for s in sizes.demo.train) * sizes.demo.anchors
+    means = []
+    while len(means) < k:
+        u = rng.standard_normal(dim)
+        u /= np.linalg.norm(u)
+        if all(np.linalg.norm(u - m) >= 0.5 for m in means):
+            means.append(u)
+    truth = np.arange(n) % k
+    z = np.asarray(means)[truth] + 0.02 * rng.standard_normal((n, dim))
+    m, fits, bics = select_components(jax.random.key(sizes.demo.seed), z, pipe.components, n_init=pipe.gmm_inits,
+                                      max_count=pipe.max_components)
+    mixture = GaussianMixture(*(np.asarray(x) for x in fits[m].mixture))
+    clusters = np.argmin(raw_cluster_distance(z, mixture), axis=1)  # Eq. 6's k*, as the pipeline maps clusters
+    counts = sorted(bics)
+    return {"classes": k, "clusters": m, "argmin": counts[int(np.argmin([bics[c] for c in counts]))],
+            "recovered": len(set(majority_class(clusters, truth, m).tolist()) - {-1}),
+            "network": "no network: drawn features", "bics": {str(c): bics[c] for c in counts}}
+
+
+def controls(v: dict) -> list[Finding]:
+    """BIC must return k on k well-separated Gaussians, in every seed."""
+    row = v[CONTROL]
+    k = int(row["classes"])
+    return [Finding(f"BIC chooses m = {k} on {k} well-separated Gaussian clusters (every seed) and each cluster's "
+                    "majority is a different Gaussian", all(int(m) == k for m in row["clusters_seeds"])
+                    and all(int(r) == k for r in row["recovered_seeds"]),
+                    f"m per seed {[int(m) for m in row['clusters_seeds']]}, recovered per seed "
+                    f"{[int(r) for r in row['recovered_seeds']]}")]
 
 
 def findings(v: dict) -> list[Finding]:
@@ -58,7 +106,8 @@ def findings(v: dict) -> list[Finding]:
 def run(scale: Scale, seeds: int, out_dir: Path = HERE, runs: Path = RUNS, log: Callable = print,
         description: str = "") -> dict:
     """Every seed, aggregated; writes ``offroad_exp2.json/.md``."""
-    return run_seeds(NAME, TITLE, description, scale, seeds, out_dir, runs, seed_values, COLUMNS, findings, log)
+    return run_seeds(NAME, TITLE, description, scale, seeds, out_dir, runs, seed_values, COLUMNS, findings, log,
+                     controls=controls)
 
 
 if __name__ == "__main__":
