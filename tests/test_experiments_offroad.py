@@ -23,7 +23,8 @@ def test_smoke_run_writes_tables_that_the_summary_includes(tmp_path):
         assert (out / f"{result['name']}.md").read_text() == saved["report"] + "\n"
         assert saved["report"].startswith(f"## {saved['title']}\n\n{saved['name']} text.\n")
     exp2, table2, table3 = ({row["label"]: row for row in r["table"]} for r in results)
-    assert list(exp2) == ["LV1", "LV2", "LV3", offroad_exp2.CONTROL] and [exp2[k]["classes"] for k in exp2] == [4, 6, 10, 3]
+    assert list(exp2) == ["LV1", "LV2", "LV3", offroad_exp2.CONTROL, offroad_exp2.REFERENCE]
+    assert [exp2[k]["classes"] for k in exp2] == [4, 6, 10, 3, 3]
     assert all(row["clusters"] in (2, 3) and 1 <= row["recovered"] <= row["clusters"] for row in exp2.values())
     # Every table has its positive control, and it passes at smoke sizes too (it holds by construction).
     assert [[c["holds"] for c in r["controls"]] for r in results] == [[True], [True], [True]]
