@@ -8,7 +8,10 @@ budgets B10..B30 (of 1639 frames) become 2, 4 and 8 frames here, compared at 4 (
 every row of a seed fine-tunes M_A with the same key, so rows differ only in the frames chosen.
 PA and mIoU (votes, unknown counted wrong) of each row's model on ``segmented`` frames of B and C.
 "Ours B4 + triggered round": after Ours B4, a second round (4 more hard frames of B) runs only if
-Phi^s on B exceeds the trigger (``rounds`` says how many ran).
+Phi^s on B exceeds the trigger 50 % (``rounds`` says how many ran); "Φs B" is each row's Phi^s on B
+and "M_A err" M_A's error on the row's chosen frames (on all of B for M_A). Positive control
+("control: Oracle B4"): the same DP on M_A's true per-frame error must pick frames at least as
+wrong for M_A as Rand, Unif and Ours in every seed.
 
     python -m experiments --only offroad_table2
 """

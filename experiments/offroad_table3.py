@@ -11,7 +11,11 @@ percent, on 4 frames of domain E, from the Gaussian votes (unknown counted wrong
 argmax over the known clusters' votes (the CRF's input: the control, since the CRF never outputs
 unknown) and after the dense CRF (B2.6); with the means of per-class precision, recall and FPR;
 clusters map to classes by the majority reference class of their training
-patches (D-B13; A's LV3 references mapped to DeepScene's classes).
+patches (D-B13; A's LV3 references mapped to DeepScene's classes). "supervised" rows: the same
+patch network with a c-class softmax output, trained from scratch with the dense labels of the
+frames the active rows of that budget annotate (A's and D's chosen ones) for the same number of
+steps, segmented by the same windows and votes (m = c). Positive control: the CRF on the ground
+truth plus independent per-pixel logit noise must beat the noise's argmax.
 
     python -m experiments --only offroad_table3
 """
