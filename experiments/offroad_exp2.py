@@ -93,7 +93,8 @@ def controls(v: dict) -> list[Finding]:
     row = v[CONTROL]
     k = int(row["classes"])
     return [Finding(f"BIC chooses m = {k} on {k} Gaussians far apart (every seed; means >= 2.5 apart, std 0.001) "
-                    "and each cluster's majority is a different Gaussian", all(int(m) == k for m in row["clusters_seeds"])
+                    "and each cluster's majority is a different Gaussian",
+                    all(int(m) == k for m in row["clusters_seeds"])
                     and all(int(r) == k for r in row["recovered_seeds"]),
                     f"m per seed {[int(m) for m in row['clusters_seeds']]}, recovered per seed "
                     f"{[int(r) for r in row['recovered_seeds']]}")]

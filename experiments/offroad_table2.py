@@ -131,7 +131,8 @@ def controls(v: dict) -> list[Finding]:
     budget = oracle.split("B")[-1]
     others = [k for k in v if k.endswith(f" B{budget}") and k != oracle]
     holds = all(o >= x - 1e-9 for k in others for o, x in zip(v[oracle]["error_seeds"], v[k]["error_seeds"]))
-    evidence = "M_A's error on the chosen frames: " + ", ".join(f"{k} {_cell(v[k], 'error')}" for k in (oracle, *others))
+    evidence = "M_A's error on the chosen frames: " + ", ".join(f"{k} {_cell(v[k], 'error')}"
+                                                                 for k in (oracle, *others))
     return [Finding(f"hard-frame selection with an oracle risk (M_A's per-frame error) picks, in every seed, frames "
                     f"at least as hard for M_A as {', '.join(others)}", holds, evidence)]
 

@@ -53,7 +53,8 @@ def test_four_frame_smoke_run_of_all_three_stages():
     fired = active_round(jax.random.key(1), model, data, images, annotate_frames, CONFIG, flr=risky)
     assert fired["triggered"] and fired["sequence_risk"] == 0.75 and fired["model"] is not model
     assert sorted(fired["chosen"].tolist()) == [0, 2]  # the DP's best pair more than gap 1 apart (0.9 + 0.8)
-    quiet = active_round(jax.random.key(1), model, data, images, annotate_frames, CONFIG, flr=np.array([0.9, 0.2, 0.3, 0.7]))
+    quiet = active_round(jax.random.key(1), model, data, images, annotate_frames, CONFIG,
+                         flr=np.array([0.9, 0.2, 0.3, 0.7]))
     assert not quiet["triggered"] and quiet["sequence_risk"] == 0.5  # Phi^s = trigger: not above it
 
 

@@ -1,7 +1,8 @@
 """An AlexNet-style patch encoder (Krizhevsky et al. 2012) with L2-normalised embeddings (B2.2).
 
 ``PatchAlexNet()(patches)``: (B, s, s, 6) float -> ``{"embedding": (B, D) unit vectors,
-"features": (B, hidden)}`` (with ``unit=False`` the embedding is fc2's raw output, e.g. class logits). Layers: conv5x5 c1, ReLU, maxpool 3/2; conv5x5 c2, ReLU, maxpool
+"features": (B, hidden)}`` (with ``unit=False`` the embedding is fc2's raw output, e.g. class logits).
+Layers: conv5x5 c1, ReLU, maxpool 3/2; conv5x5 c2, ReLU, maxpool
 3/2; conv3x3 c3, c4, c5 with ReLU; maxpool 3/2; global average pooling; Dense(hidden), ReLU;
 Dense(D); z / ||z||. No BatchNorm (a patch batch mixes frames and domains). ``PATCH_ALEXNET_TINY``
 holds the CPU widths.
