@@ -655,12 +655,17 @@ def report(result: dict) -> str:
              "", "| paper's finding | holds here? | tested? | evidence |", "|---|---|---|---|"]
     lines += [f"| {f['claim']} | {'yes' if f['holds'] else '**no**'} | {_tested(f)} | {f['evidence']} |"
               for f in result["findings"]]
-    if result.get("controls"):
-        lines += ["", "Positive controls (built so that the mechanism must help; a failing control points at a bug, "
-                  "not at the paper):", "", "| positive control | passes? | evidence |", "|---|---|---|"]
-        lines += [f"| {f['claim']} | {'yes' if f['holds'] else '**no: points at a bug**'} | {f['evidence']} |"
-                  for f in result["controls"]]
-    return "\n".join(lines)
+    return "\n".join(lines + control_lines(result.get("controls", [])))
+
+
+def control_lines(controls: Sequence[dict]) -> list[str]:
+    """The markdown lines of the positive ``controls`` (``Finding`` dicts; none without any)."""
+    if not controls:
+        return []
+    lines = ["", "Positive controls (built so that the mechanism must help; a failing control points at a bug, "
+             "not at the paper):", "", "| positive control | passes? | evidence |", "|---|---|---|"]
+    return lines + [f"| {f['claim']} | {'yes' if f['holds'] else '**no: points at a bug**'} | {f['evidence']} |"
+                    for f in controls]
 
 
 # ---------------------------------------------------------------- findings

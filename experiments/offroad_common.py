@@ -25,7 +25,7 @@ from typing import Callable, Sequence
 
 import jax
 
-from experiments.common import Finding, Scale, _cell, aggregate, seed_scales
+from experiments.common import Finding, Scale, _cell, aggregate, control_lines, seed_scales
 from jaxanom.io import write_bytes_atomic, write_json_atomic
 from jaxanom.app.demos.offroad import OffroadDemoConfig, annotated, source_frames
 from jaxanom.offroad.encoder import AnnotatedFrames
@@ -125,6 +125,13 @@ def beats(values: dict, a: str, b: str, metrics: dict[str, str], claim: str, low
     return Finding(claim, holds, evidence)
 
 
+def not_beaten(values: dict, a: str, b: str, metrics: dict[str, str], claim: str, lower: Sequence[str] = ()) -> Finding:
+    """``a`` is at ``b``'s level: ``b`` beats ``a`` (by more than the larger std) in none of ``metrics``."""
+    holds = not any(better(values, b, a, m, m in lower) for m in metrics)
+    evidence = ", ".join(f"{name} {_cell(values[a], m)} vs {_cell(values[b], m)}" for m, name in metrics.items())
+    return Finding(claim, holds, evidence)
+
+
 def chain(values: dict, rows: Sequence[str], metric: str, name: str, claim: str, lower: bool = False) -> Finding:
     """Each row of ``rows`` beats the one before it in ``metric``."""
     holds = all(better(values, b, a, metric, lower) for a, b in zip(rows, rows[1:]))
@@ -140,9 +147,11 @@ def markdown_table(values: dict, columns: dict[str, str]) -> str:
 
 def run_seeds(name: str, title: str, description: str, scale: Scale, seeds: int, out_dir: Path, runs: Path,
               seed_values: Callable[[OffroadSizes, Callable], dict], columns: dict[str, str],
-              findings: Callable[[dict], list[Finding]], log: Callable = print) -> dict:
-    """Every seed's values (``seed_values(sizes, log)``, cached), aggregated; the findings checked on the
-    means against the spread; ``<name>.json`` and ``<name>.md`` written to ``out_dir``. Returns the result."""
+              findings: Callable[[dict], list[Finding]], log: Callable = print,
+              controls: Callable[[dict], list[Finding]] | None = None) -> dict:
+    """Every seed's values (``seed_values(sizes, log)``, cached), aggregated; the findings and the positive
+    ``controls`` checked on the means against the spread; ``<name>.json`` and ``<name>.md`` written to
+    ``out_dir``. Returns the result."""
     log(f"{name}: {title}")
     scales = seed_scales(scale, seeds)
     sizes = [offroad_sizes(s) for s in scales]
@@ -155,11 +164,13 @@ def run_seeds(name: str, title: str, description: str, scale: Scale, seeds: int,
     lines = [f"## {title}", "", description, "", markdown_table(values, columns), "", f"`{name}`; {seed_text}.", "",
              "| paper's finding | holds here? | evidence |", "|---|---|---|"]
     lines += [f"| {f.claim} | {'yes' if f.holds else '**no**'} | {f.evidence} |" for f in checked]
-    report = "\n".join(lines)
+    checked_controls = [dataclasses.asdict(f) for f in (controls(values) if controls else [])]
+    report = "\n".join(lines + control_lines(checked_controls))
     result = {"name": name, "title": title, "description": description,
               "table": [{"label": k, **v} for k, v in values.items()], "scale": dataclasses.asdict(scales[0]),
               "sizes": json.loads(json.dumps(dataclasses.asdict(sizes[0]), default=str)),
-              "findings": [dataclasses.asdict(f) for f in checked], "seeds": seed_text, "num_seeds": len(scales),
+              "findings": [dataclasses.asdict(f) for f in checked],
+              "controls": checked_controls, "seeds": seed_text, "num_seeds": len(scales),
               "report": report}
     out_dir = Path(out_dir)
     write_json_atomic(out_dir / f"{name}.json", result)

@@ -2,6 +2,8 @@
 import json
 import math
 
+import numpy as np
+
 from experiments import offroad_exp2, offroad_table2, offroad_table3
 from experiments.__main__ import summary
 from experiments.common import Scale
@@ -21,27 +23,45 @@ def test_smoke_run_writes_tables_that_the_summary_includes(tmp_path):
         assert (out / f"{result['name']}.md").read_text() == saved["report"] + "\n"
         assert saved["report"].startswith(f"## {saved['title']}\n\n{saved['name']} text.\n")
     exp2, table2, table3 = ({row["label"]: row for row in r["table"]} for r in results)
-    assert list(exp2) == ["LV1", "LV2", "LV3"] and [exp2[k]["classes"] for k in exp2] == [4, 6, 10]
+    assert list(exp2) == ["LV1", "LV2", "LV3", offroad_exp2.CONTROL, offroad_exp2.REFERENCE]
+    assert [exp2[k]["classes"] for k in exp2] == [4, 6, 10, 3, 3]
     assert all(row["clusters"] in (2, 3) and 1 <= row["recovered"] <= row["clusters"] for row in exp2.values())
+    # Every table has its positive control, and it passes at smoke sizes too (it holds by construction).
+    assert [[c["holds"] for c in r["controls"]] for r in results] == [[True], [True], [True]]
+    assert all("| positive control | passes? |" in r["report"] for r in results)
     sizes = offroad_sizes(Scale.smoke())
-    assert list(table2) == ["M_A", "Rand B2", "Unif B2", "Ours B1", "Ours B2", "Ours B2 + triggered round"]
+    assert list(table2) == ["M_A", "Rand B2", "Unif B2", "Ours B1", "Ours B2", "Ours B2 + triggered round",
+                            "control: Oracle B2"]
     for label, row in table2.items():
-        assert all(0 <= row[k] <= 100 for k in ("mflr_b", "mflr_c", "sc_b", "sc_c", "pa_b", "pa_c", "miou_b", "miou_c"))
+        assert all(0 <= row[k] <= 100 for k in ("mflr_b", "mflr_c", "sc_b", "sc_c", "pa_b", "pa_c", "miou_b", "miou_c",
+                                                "phi_b", "error"))
         if "+" in label:  # the second round's frames join the first's (it ran only if the trigger fired)
             assert row["rounds"] in (1, 2) and 2 <= len(row["frames"]) <= 2 * row["rounds"]
             continue
         assert len(row["frames"]) == (0 if label == "M_A" else int(label[-1]))
         assert all(b - a > sizes.gap for a, b in zip(row["frames"], row["frames"][1:])) or label.startswith("Unif")
-    assert list(table3)[:3] == ["5-class M_A", "5-class M_A known argmax", "5-class M_A + CRF"] and len(table3) == 18
+    assert list(table3)[:3] == ["5-class M_A", "5-class M_A known argmax", "5-class M_A + CRF"] and len(table3) == 28
+    supervised = [k for k in table3 if "supervised" in k]
+    assert supervised == [f"{c}-class supervised D{b} (paper D{p}){r}" for c in (5, 4) for b, p in ((1, 20), (2, 40))
+                          for r in ("", " + CRF")]
+    assert list(table3)[-2:] == [offroad_table3.CONTROL_NOISY, offroad_table3.CONTROL_CRF]
     for label, row in table3.items():
         assert 0 <= row["pa"] <= 100 and 0 <= row["iou"] <= 100 and math.isfinite(row["iou"])
         assert all(0 <= row[k] <= 100 or math.isnan(row[k]) for k in ("pre", "rec", "fpr"))
+        if label in supervised or label.startswith("control"):  # a supervised row's m: its classes
+            assert row["clusters"] == int(label[0]) if label in supervised else row["clusters"] == 5
+            continue
         assert row["clusters"] == 5 if label.startswith("5-class") else row["clusters"] in (2, 3)
+    # Supervised rows train on the frames their budget's active rows annotate.
+    assert all(table3[k]["frames"] == table3[k.replace("supervised ", "").removesuffix(" + CRF")]["frames"]
+               for k in supervised)
     # The summary renders each experiment's own table (no ROC/PR curve lines for them).
     text = summary([json.loads((out / f"{r['name']}.json").read_text()) for r in results])
     assert all(r["report"] in text for r in results) and "offroad_exp2_roc.png" not in text
     per_paper = text[text.index("### off-road"):text.index("## Tables")]  # said to lack intervals, not given any
     assert "no paired interval" in per_paper and "no segmenter mIoU" in per_paper and "Δ" not in per_paper
+    rows = [next(line for line in text.splitlines() if line.startswith(f"| [{r['title']}]")) for r in results]
+    assert all(line.endswith("| 1 / 1 |") for line in rows)  # the summary counts their controls
     # A rerun reads every seed's values from the cache: same tables, nothing recomputed.
     again = offroad_table2.run(Scale.smoke(), 1, tmp_path / "again", runs, log=quiet)
     assert again["table"] == results[1]["table"]
@@ -86,10 +106,50 @@ def test_findings_need_the_difference_to_exceed_the_spread():
     names = ["5-class M_A", "5-class D4 (paper D20)", "5-class D8 (paper D40)", "4-class M_A", "4-class D4 (paper D20)",
              "4-class D8 (paper D40)"]
     gain = {"": 0, " known argmax": 2, " + CRF": 5}
-    table3 = _rows(**{f"{n}{r}": {"pa": (50 + 10 * i + gain[r], 0.5), "iou": (20 + 5 * i + gain[r], 0.5)}
-                      for i, n in enumerate(names) for r in gain})
-    assert [f.holds for f in offroad_table3.findings(table3)] == [True] * 8
+    metrics = lambda pa, iou: {"pa": (pa, 0.5), "iou": (iou, 0.5), "pre": (iou, 0.5), "rec": (iou, 0.5),  # noqa: E731
+                               "fpr": (100 - pa, 0.5)}
+    table3 = _rows(**{f"{n}{r}": metrics(50 + 10 * i + gain[r], 20 + 5 * i + gain[r])
+                      for i, n in enumerate(names) for r in gain},
+                   **{f"{c}-class supervised D8 (paper D40){r}": metrics(pa + 2 * (r != ""), iou)
+                      for c, pa, iou in ((5, 70, 35.3), (4, 100, 50.3)) for r in ("", " + CRF")})
+    assert [f.holds for f in offroad_table3.findings(table3)] == [True] * 13
     table3["5-class D8 (paper D40) known argmax"]["pa"] = 104.8  # the CRF only fills unknown: control as good
-    assert [f.holds for f in offroad_table3.findings(table3)] == [True, True, True, False, True, True, True, True]
+    assert [f.holds for f in offroad_table3.findings(table3)] == [True, True, True, False] + [True] * 9
     table3["5-class D8 (paper D40) + CRF"]["iou_std"] = 10.0
-    assert [f.holds for f in offroad_table3.findings(table3)] == [True, True, False, False, True, True, True, True]
+    assert [f.holds for f in offroad_table3.findings(table3)] == [True, True, False, False] + [True] * 9
+    table3["4-class supervised D8 (paper D40) + CRF"]["pa"] = 104.8  # the supervised + CRF as good in PA
+    assert [f.holds for f in offroad_table3.findings(table3)][-5:] == [True, True, True, False, True]
+    against_supervised = lambda: [offroad_table3.findings(table3)[i].holds for i in (-5, -4, -1)]  # noqa: E731
+    # Against the supervised rows: PA and FPR must both be better; "at its level": beaten in no metric.
+    table3["4-class supervised D8 (paper D40)"]["fpr"] = -6.0  # supervised FPR -6 < -5 - 0.5: beaten in FPR
+    assert against_supervised() == [True, False, False]
+    table3["4-class supervised D8 (paper D40)"]["fpr"] = -5.3  # within the spread: neither beats the other
+    assert against_supervised() == [True, False, True]
+    table3["4-class supervised D8 (paper D40)"]["rec"] = 50.4  # REC 50 vs 50.4: within the spread
+    assert [f.holds for f in offroad_table3.findings(table3)][-1]
+    table3["4-class supervised D8 (paper D40)"]["rec"] = 51.0
+    assert not [f.holds for f in offroad_table3.findings(table3)][-1]
+
+
+def test_controls_fail_when_their_mechanism_does_not_deliver():
+    exp2 = _rows(**{offroad_exp2.CONTROL: {"classes": (6, 0), "clusters": (6.0, 0.0), "recovered": (6.0, 0.0)}})
+    row = exp2[offroad_exp2.CONTROL]
+    row.update(clusters_seeds=[6, 6, 6], recovered_seeds=[6, 6, 6])
+    assert [f.holds for f in offroad_exp2.controls(exp2)] == [True]
+    row["clusters_seeds"] = [6, 5, 6]  # one seed off: the control fails (a mean near k is not enough)
+    assert [f.holds for f in offroad_exp2.controls(exp2)] == [False]
+    row.update(clusters_seeds=[6, 6, 6], recovered_seeds=[6, 6, 5])  # two clusters on one Gaussian
+    assert [f.holds for f in offroad_exp2.controls(exp2)] == [False]
+
+    errors = {"Rand B4": [10, 20], "Unif B4": [30, 5], "Ours B4": [40, 30], "Ours B8": [90, 90],
+              "control: Oracle B4": [40, 31]}
+    table2 = {k: {"error": float(np.mean(e)), "error_std": 0.0, "error_seeds": e} for k, e in errors.items()}
+    assert [f.holds for f in offroad_table2.controls(table2)] == [True]  # Ours B8 (another budget) not compared
+    table2["control: Oracle B4"]["error_seeds"] = [45, 29]  # below Ours B4 in one seed (not in the mean): fails
+    assert [f.holds for f in offroad_table2.controls(table2)] == [False]
+
+    table3 = _rows(**{offroad_table3.CONTROL_NOISY: {"pa": (50, 1), "iou": (30, 1)},
+                      offroad_table3.CONTROL_CRF: {"pa": (90, 1), "iou": (70, 1)}})
+    assert [f.holds for f in offroad_table3.controls(table3)] == [True]
+    table3[offroad_table3.CONTROL_CRF]["iou"] = 30.5
+    assert [f.holds for f in offroad_table3.controls(table3)] == [False]

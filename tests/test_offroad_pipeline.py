@@ -48,6 +48,14 @@ def test_four_frame_smoke_run_of_all_three_stages():
     calm = active_round(jax.random.key(1), model, data, images, annotate_frames,
                         dataclasses.replace(CONFIG, trigger=1.0), flr=flr)
     assert not calm["triggered"] and calm["model"] is model and calm["chosen"].size == 0
+    # Unforced, the trigger fires when Phi^s (frames with FLR > epsilon) exceeds it: 3 of 4 frames > 0.5.
+    risky = np.array([0.9, 0.2, 0.8, 0.7])
+    fired = active_round(jax.random.key(1), model, data, images, annotate_frames, CONFIG, flr=risky)
+    assert fired["triggered"] and fired["sequence_risk"] == 0.75 and fired["model"] is not model
+    assert sorted(fired["chosen"].tolist()) == [0, 2]  # the DP's best pair more than gap 1 apart (0.9 + 0.8)
+    quiet = active_round(jax.random.key(1), model, data, images, annotate_frames, CONFIG,
+                         flr=np.array([0.9, 0.2, 0.3, 0.7]))
+    assert not quiet["triggered"] and quiet["sequence_risk"] == 0.5  # Phi^s = trigger: not above it
 
 
 def test_majority_class_and_class_mapping():

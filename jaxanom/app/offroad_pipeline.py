@@ -29,6 +29,7 @@ from jaxanom.offroad.crf import dense_crf_batch
 from jaxanom.offroad.encoder import AnnotatedFrames, EncoderConfig, concat_frames, embed, init_encoder, train_encoder
 from jaxanom.offroad.patches import neighbour_centers, sliding_centers
 from jaxanom.offroad.risk import RISKS, classify_batch, frame_risk_batch, risk_bound, training_risks, vote_batch
+from jaxanom.offroad.supervised import classifier_config
 
 
 @dataclasses.dataclass(frozen=True)
@@ -209,10 +210,31 @@ def segment(model: OffroadModel, images: np.ndarray, config: OffroadConfig, *, c
     # the CRF's input without the CRF (argmax over the known clusters' votes; control for "unknown filled")
     result["known_labels"] = np.where(result["labels"] == 255, 255, result["votes"][..., :m].argmax(-1)).astype(np.int32)
     if crf:
-        votes = result["votes"][..., :m]  # known clusters only (decision)
-        probs = np.maximum(votes / np.maximum(votes.sum(-1, keepdims=True), 1e-12), 1e-4)
-        q = dense_crf_batch(probs / probs.sum(-1, keepdims=True), images, iters=config.crf_iters, reference_width=512)
-        result["crf_labels"] = np.asarray(q).argmax(-1).astype(np.int32)
+        result["crf_labels"] = crf_labels(result["votes"][..., :m], images, config)  # known clusters only (decision)
+    return result
+
+
+def crf_labels(votes: np.ndarray, images: np.ndarray, config: OffroadConfig) -> np.ndarray:
+    """(B, H, W) labels of the dense CRF (B2.6) whose probabilities are the normalised ``votes (B, H, W, L)``
+    (floored at 1e-4) on ``images (B, H, W, 3)`` in [0, 1]."""
+    probs = np.maximum(votes / np.maximum(votes.sum(-1, keepdims=True), 1e-12), 1e-4)
+    q = dense_crf_batch(probs / probs.sum(-1, keepdims=True), images, iters=config.crf_iters, reference_width=512)
+    return np.asarray(q).argmax(-1).astype(np.int32)
+
+
+def segment_supervised(params, images: np.ndarray, config: OffroadConfig, classes: int, *, crf: bool = True) -> dict:
+    """The supervised patch classifier (``jaxanom.offroad.supervised``) on frames (B, H, W, 3) in [0, 1]:
+    each window's argmax class on the ``stride`` grid, voted into ``labels`` (B, H, W) (never unknown),
+    with ``crf`` also ``crf_labels`` from the normalised class votes."""
+    height, width = images.shape[1:3]
+    size = config.encoder.size
+    centers = sliding_centers(height, width, size, config.stride)
+    logits = embed(params, images, np.broadcast_to(centers, (len(images), *centers.shape)),
+                   classifier_config(config.encoder, classes))
+    voted = vote_batch(centers, logits.argmax(-1), patch_size=size, height=height, width=width, num_labels=classes)
+    result = {"labels": np.asarray(voted.labels), "votes": np.asarray(voted.votes)}
+    if crf:
+        result["crf_labels"] = crf_labels(result["votes"], images, config)
     return result
 
 

@@ -1,7 +1,8 @@
 """An AlexNet-style patch encoder (Krizhevsky et al. 2012) with L2-normalised embeddings (B2.2).
 
 ``PatchAlexNet()(patches)``: (B, s, s, 6) float -> ``{"embedding": (B, D) unit vectors,
-"features": (B, hidden)}``. Layers: conv5x5 c1, ReLU, maxpool 3/2; conv5x5 c2, ReLU, maxpool
+"features": (B, hidden)}`` (with ``unit=False`` the embedding is fc2's raw output, e.g. class logits).
+Layers: conv5x5 c1, ReLU, maxpool 3/2; conv5x5 c2, ReLU, maxpool
 3/2; conv3x3 c3, c4, c5 with ReLU; maxpool 3/2; global average pooling; Dense(hidden), ReLU;
 Dense(D); z / ||z||. No BatchNorm (a patch batch mixes frames and domains). ``PATCH_ALEXNET_TINY``
 holds the CPU widths.
@@ -21,6 +22,7 @@ class PatchAlexNet(nn.Module):
     widths: tuple[int, int, int, int, int] = (64, 192, 384, 256, 256)
     hidden: int = 256
     dim: int = 16
+    unit: bool = True
 
     @nn.compact
     def __call__(self, x: jax.Array) -> dict[str, jax.Array]:
@@ -33,5 +35,6 @@ class PatchAlexNet(nn.Module):
         x = pool(nn.relu(nn.Conv(c5, (3, 3), name="conv5")(x)))
         features = nn.relu(nn.Dense(self.hidden, name="fc1")(x.mean(axis=(1, 2))))
         z = nn.Dense(self.dim, name="fc2")(features)
-        z = z / jnp.maximum(jnp.linalg.norm(z, axis=-1, keepdims=True), 1e-12)
+        if self.unit:
+            z = z / jnp.maximum(jnp.linalg.norm(z, axis=-1, keepdims=True), 1e-12)
         return {"embedding": z, "features": features}

@@ -28,7 +28,8 @@ from jaxanom.offroad.patches import patches_batch
 class EncoderConfig:
     """Patch side, context factor, encoder widths, InfoNCE and Adam settings (D-B1, B2.3).
 
-    Defaults are the paper-scale ones of OFFROAD.md; ``tiny()`` is the CPU encoder.
+    Defaults are the paper-scale ones of OFFROAD.md; ``tiny()`` is the CPU encoder. ``unit=False``
+    leaves the last layer's output unnormalised (the supervised patch classifier's logits).
     """
 
     size: int = 32
@@ -41,6 +42,7 @@ class EncoderConfig:
     frames_per_step: int = 4
     steps: int = 5000
     lr: float = 1e-3
+    unit: bool = True
 
     def __post_init__(self):
         for name in ("size", "context", "hidden", "dim", "negatives", "frames_per_step", "steps"):
@@ -51,13 +53,15 @@ class EncoderConfig:
             check_count(f"widths[{index}]", width)
         check_number("temperature", self.temperature, 0.0, open_low=True)
         check_number("lr", self.lr, 0.0, open_low=True)
+        if not isinstance(self.unit, bool):
+            raise ValueError(f"unit: expected true or false, got {self.unit!r}")
 
     @classmethod
     def tiny(cls, **changes) -> "EncoderConfig":
         return cls(**{"widths": (16, 32, 64, 64, 64), "hidden": 64, "steps": 300, **changes})
 
     def model(self) -> PatchAlexNet:
-        return PatchAlexNet(widths=self.widths, hidden=self.hidden, dim=self.dim)
+        return PatchAlexNet(widths=self.widths, hidden=self.hidden, dim=self.dim, unit=self.unit)
 
 
 class AnnotatedFrames(NamedTuple):
@@ -153,7 +157,7 @@ def _embed_chunk(params, images, centers, config: EncoderConfig):
 
 
 def embed(params, images, centers, config: EncoderConfig, *, chunk: int = 8) -> np.ndarray:
-    """Unit embeddings (F, P, D) of the patches at ``centers`` (F, P, 2) of ``images`` (F, H, W, 3) in [0, 1].
+    """Unit embeddings (F, P, D) (raw outputs when ``config.unit`` is False) of the patches at ``centers`` (F, P, 2) of ``images`` (F, H, W, 3) in [0, 1].
 
     Frames go through in chunks of ``chunk`` (the last padded), so any F compiles once.
     """
