@@ -36,6 +36,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxanom._batching import over_images
 from jaxanom._validate import check_finite, check_range, check_rank
 
 _BLOCK = 512  # rows of the exact kernel computed at once
@@ -327,14 +328,21 @@ def _dense_crf(probs, image, keys, sxy_b, srgb, w_b, sxy_g, w_g, iters: int, sym
 
 
 def _room(count: int) -> int:
-    """Lattice size for ``count`` vertices: the next power of two (few recompiles, tight blur)."""
-    return max(64, 1 << (int(count) - 1).bit_length())
+    """Lattice size for ``count`` vertices: rounded up to a quarter of its octave (4 compiled sizes
+    per doubling; the blur, walks and searches cost O(size), at most 1.25x the count)."""
+    quarter = max(16, 1 << max(0, (int(count) - 1).bit_length() - 3))
+    return -(-int(count) // quarter) * quarter
+
+
+def _dense_crf_frames(probs, image, keys, sxy_b, srgb, w_b, sxy_g, w_g, iters: int, symmetric: bool, size: int | None):
+    return over_images(lambda p, i, k: _dense_crf(p, i, k, sxy_b, srgb, w_b, sxy_g, w_g, iters, symmetric, size),
+                       probs, image, keys)
 
 
 _keys_jit = jax.jit(_bilateral_keys)
-_keys_batch = jax.jit(jax.vmap(_bilateral_keys, in_axes=(0, None, None)))
+_keys_batch = jax.jit(lambda images, sxy_b, srgb: over_images(lambda i: _bilateral_keys(i, sxy_b, srgb), images))
 _dense_crf_jit = jax.jit(_dense_crf, static_argnums=(8, 9, 10))
-_dense_crf_batch = jax.jit(jax.vmap(_dense_crf, in_axes=(0, 0, 0) + (None,) * 8), static_argnums=(8, 9, 10))
+_dense_crf_batch = jax.jit(_dense_crf_frames, static_argnums=(8, 9, 10))
 
 
 def dense_crf(probs, image, *, sxy_b: float = 80.0, srgb: float = 13.0, w_b: float = 10.0, sxy_g: float = 3.0,
