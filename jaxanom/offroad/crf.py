@@ -17,11 +17,13 @@ Two filters compute ``K Q``:
 - ``method="permutohedral"``: the permutohedral lattice of Adams, Baek & Davis (2010): features
   are lifted onto the (d+1)-dimensional lattice, splatted with barycentric weights, blurred
   with [1 2 1]/2 along each of the d+1 lattice directions and sliced back, for the bilateral
-  kernel. Its keys are packed into int64 codes and sorted once (``lattice_keys``, which also
-  counts the vertices); the tables get that many slots (``lattice_tables``). ``K~`` subtracts
-  the lattice's own diagonal (``Lattice.self_weight``, 0.4-0.8, not 1) and divides by
-  ``mass_scale`` (the lattice's off-diagonal mass over the exact kernel's, ~0.4-0.6). The
-  smoothness kernel depends only on positions and separates: it is computed exactly
+  kernel. Its keys are packed into int64 codes and sorted once, alone (``lattice_keys``, which
+  also counts the vertices; on CPU by NumPy through a callback); the tables get that many slots
+  rounded up to a quarter octave (``lattice_tables``): each point's vertex 0 is found by binary
+  search, the others by neighbour steps along its simplex. ``K~`` subtracts the lattice's own
+  diagonal (``Lattice.self_weight``, 0.4-0.8, not 1; from per-vertex tables of the blur walks) and
+  divides by ``mass_scale`` (the lattice's off-diagonal mass over the exact kernel's, ~0.4-0.6).
+  The smoothness kernel depends only on positions and separates: it is computed exactly
   (``positional_filter``), with no lattice.
 
 The public ``dense_crf`` computes in float32 (the lattice keys in int64 under a local
@@ -180,6 +182,7 @@ def lattice_tables(keys: LatticeKeys, size: int) -> Lattice:
     step = -jnp.sum(base) + (d + 1) * jnp.concatenate([base, jnp.zeros((1,), jnp.int64)])
     ahead = find((unique[None, :] + step[:, None]).reshape(-1)).reshape(dp1, size)
     back = jnp.full((dp1, size + 1), size, jnp.int32).at[jnp.arange(dp1)[:, None], ahead].set(jnp.arange(size, dtype=jnp.int32))
+    back = back.at[:, size].set(size)  # from a missing vertex: missing
     neighbours = jnp.stack([ahead, back[:, :size]], axis=1)  # (d+1, 2, size)
     # the simplex: vertex 0 is the point's remainder-0 key, vertex r+1 is one step back from vertex r
     # along the direction of rank d - r (its key: +1 everywhere, -d there)
