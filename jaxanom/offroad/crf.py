@@ -225,18 +225,21 @@ def _self_weights(vertex, weight, rank, neighbours):
     """
     n, dp1 = weight.shape
     d, full = dp1 - 1, 2**dp1 - 1
-    a, b = (x.ravel() for x in np.meshgrid(np.arange(dp1), np.arange(dp1), indexing="ij"))
-    lo, hi = np.minimum(a, b), np.maximum(a, b)
-    # the mask of the directions whose rank lies in (d - hi, d - lo]: prefix sums of 2^j by rank
+    a, b = np.meshgrid(np.arange(dp1), np.arange(dp1), indexing="ij")  # (d+1, d+1): the pair [a, b]
+    # the mask m of the directions whose rank lies in (d - max(a,b), d - min(a,b)], summed from 2^j
+    # by rank with a 0/1 matrix (exact in float32); a > b as a < b with ~m; a = b: m = 0
+    between = (np.arange(dp1)[:, None, None] > d - np.maximum(a, b)) & (np.arange(dp1)[:, None, None] <= d - np.minimum(a, b))
+    sign = np.where(a <= b, 1, -1)
     by_rank = jnp.sum((rank[:, :, None] == np.arange(dp1)) * (1 << np.arange(dp1, dtype=np.int32))[:, None], axis=1)
-    below = jnp.concatenate([jnp.zeros((n, 1), jnp.int32), jnp.cumsum(by_rank, axis=-1, dtype=jnp.int32)], axis=-1)
-    m = below[:, d - lo + 1] - below[:, d - hi + 1]
-    m = jnp.where(a <= b, m, full - m)  # a > b as a < b with the masks swapped; a = b: m = 0
+    m = jnp.dot(by_rank.astype(jnp.float32), jnp.asarray((between * sign).reshape(dp1, -1), jnp.float32))
+    m = m.astype(jnp.int32) + np.where(a <= b, 0, full).ravel()  # (N, (d+1)^2)
     plus, minus = _walk_gains(neighbours)
     table = plus + minus[:, full - np.arange(full + 1)]  # [y, m] = P[y, m] + N[y, ~m]
     table = table.at[:, 0].add(plus[:, full])  # m = 0 (a = b): also +1 on all
-    gains = table[vertex[:, b], m]
-    return _alpha(dp1) * jnp.sum(weight[:, a] * weight[:, b] * gains, axis=-1)
+    start = jnp.broadcast_to(vertex[:, None, :], (n, dp1, dp1)).reshape(n, -1)  # v_b
+    gains = table.reshape(-1)[start * (full + 1) + m]
+    pairs = (weight[:, :, None] * weight[:, None, :]).reshape(n, -1)
+    return _alpha(dp1) * jnp.sum(pairs * gains, axis=-1)
 
 
 def _alpha(dp1: int) -> float:
