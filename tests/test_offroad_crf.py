@@ -116,7 +116,7 @@ def test_lattice_self_weight_is_the_filter_diagonal():
     with jax.enable_x64(True):
         for d, spread in ((2, 3.0), (5, 2.0), (3, 0.4), (5, 12.0)):  # dense to sparse lattices
             features = jnp.asarray(rng.random((70, d)) * spread, jnp.float32)
-            lattice = build_lattice(features)
+            lattice = jax.jit(build_lattice)(features)  # jitted: eager dispatch of its many small ops is slower
             matrix = np.asarray(lattice_filter(lattice, jnp.eye(70, dtype=jnp.float32)))  # column j = K e_j
             np.testing.assert_allclose(lattice.self_weight, np.diag(matrix), rtol=1e-5, atol=1e-7)
 
@@ -172,7 +172,7 @@ def test_lattice_filter_matches_a_numpy_dict_lattice():
             features = rng.random((n, d)) * spread
             features[1] = features[0]  # a duplicate point
             values = rng.random((n, 2))
-            lattice = build_lattice(jnp.asarray(features, jnp.float32))
+            lattice = jax.jit(build_lattice)(jnp.asarray(features, jnp.float32))
             got = lattice_filter(lattice, jnp.asarray(values, jnp.float32))
             np.testing.assert_allclose(got, numpy_lattice_filter(features.astype(np.float32), values), rtol=1e-4, atol=1e-6)
 
@@ -294,8 +294,9 @@ def test_tightly_sized_lattice_filters_like_the_full_one():
         features = jnp.asarray(rng.random((300, 3)) * 4, jnp.float32)
         values = jnp.asarray(rng.random((300, 2)), jnp.float32)
         count = int(vertex_count(features))
-        full = build_lattice(features)
-        tight = build_lattice(features, count)
-        assert bool(full.fits) and bool(tight.fits) and not bool(build_lattice(features, count - 1).fits)
+        build = jax.jit(build_lattice, static_argnums=1)
+        full = build(features, None)
+        tight = build(features, count)
+        assert bool(full.fits) and bool(tight.fits) and not bool(build(features, count - 1).fits)
         assert count < 300 * 4 and tight.neighbours.shape == (4, 2, count)
         np.testing.assert_allclose(lattice_filter(tight, values), lattice_filter(full, values), rtol=1e-6)
