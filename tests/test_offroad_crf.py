@@ -116,9 +116,65 @@ def test_lattice_self_weight_is_the_filter_diagonal():
     with jax.enable_x64(True):
         for d, spread in ((2, 3.0), (5, 2.0), (3, 0.4), (5, 12.0)):  # dense to sparse lattices
             features = jnp.asarray(rng.random((70, d)) * spread, jnp.float32)
-            lattice = build_lattice(features)
+            lattice = jax.jit(build_lattice)(features)  # jitted: eager dispatch of its many small ops is slower
             matrix = np.asarray(lattice_filter(lattice, jnp.eye(70, dtype=jnp.float32)))  # column j = K e_j
             np.testing.assert_allclose(lattice.self_weight, np.diag(matrix), rtol=1e-5, atol=1e-7)
+
+
+def numpy_lattice_filter(features, values):
+    """Splat, blur, slice from Adams, Baek & Davis (2010), with a dict of (d+1)-integer vertex keys."""
+    n, d = features.shape
+    scale = np.sqrt(2 / 3) * (d + 1) / np.sqrt((np.arange(d) + 1) * (np.arange(d) + 2))
+    elevate = np.zeros((d + 1, d))  # column i: 1 in rows 0..i, -(i+1) in row i+1
+    for i in range(d):
+        elevate[: i + 1, i] = 1
+        elevate[i + 1, i] = -(i + 1)
+    points = []
+    for f in np.asarray(features, np.float64):
+        e = elevate @ (f * scale)
+        rem0 = np.round(e / (d + 1)) * (d + 1)
+        diff = e - rem0
+        rank = np.empty(d + 1, int)
+        rank[sorted(range(d + 1), key=lambda i: (-diff[i], i))] = np.arange(d + 1)  # descending, ties: lower index first
+        rank += int(round(rem0.sum() / (d + 1)))
+        rem0 = rem0 + (d + 1) * (rank < 0) - (d + 1) * (rank > d)
+        rank = rank + (d + 1) * (rank < 0) - (d + 1) * (rank > d)
+        bary = np.zeros(d + 2)
+        for i in range(d + 1):
+            bary[d - rank[i]] += (e[i] - rem0[i]) / (d + 1)
+            bary[d - rank[i] + 1] -= (e[i] - rem0[i]) / (d + 1)
+        bary[0] += 1 + bary[d + 1]
+        keys = [tuple(int(rem0[i]) + r - (d + 1) * (rank[i] > d - r) for i in range(d + 1)) for r in range(d + 1)]
+        points.append((keys, bary[: d + 1]))
+    grid = {}
+    for (keys, bary), v in zip(points, np.asarray(values, np.float64)):
+        for key, b in zip(keys, bary):
+            grid[key] = grid.get(key, 0.0) + b * v
+    for j in range(d + 1):  # neighbours along j: -1 everywhere and +d at j, and the opposite
+        step = np.full(d + 1, -1)
+        step[j] = d
+        zero = np.zeros(values.shape[1])
+        grid = {k: g + 0.5 * (grid.get(tuple(np.add(k, step)), zero) + grid.get(tuple(np.subtract(k, step)), zero))
+                for k, g in grid.items()}
+    alpha = 1 / (1 + 2.0**-d)
+    return np.stack([alpha * sum(b * grid[key] for key, b in zip(keys, bary)) for keys, bary in points])
+
+
+def test_lattice_filter_matches_a_numpy_dict_lattice():
+    import jax
+    import jax.numpy as jnp
+
+    from jaxanom.offroad.crf import build_lattice, lattice_filter
+
+    rng = np.random.default_rng(10)
+    with jax.enable_x64(True):
+        for d, spread, n in ((2, 3.0, 60), (5, 2.0, 150), (5, 12.0, 80), (3, 0.3, 40)):  # dense to sparse, few vertices
+            features = rng.random((n, d)) * spread
+            features[1] = features[0]  # a duplicate point
+            values = rng.random((n, 2))
+            lattice = jax.jit(build_lattice)(jnp.asarray(features, jnp.float32))
+            got = lattice_filter(lattice, jnp.asarray(values, jnp.float32))
+            np.testing.assert_allclose(got, numpy_lattice_filter(features.astype(np.float32), values), rtol=1e-4, atol=1e-6)
 
 
 def test_positional_filter_is_the_exact_gaussian_sum():
@@ -155,14 +211,41 @@ def test_mass_scale_makes_lattice_messages_match_the_exact_ones():
 
 
 def test_batch_twin_equals_single_images():
+    # frames with different vertex counts: the batch runs every frame in the largest one's tables
+    import jax
+    import jax.numpy as jnp
+
+    from jaxanom.offroad.crf import _room, crf_features, vertex_count
+
     rng = np.random.default_rng(4)
-    scenes = [two_region_scene(rng, 12, 20, 3)[:2] for _ in range(2)]
+    scenes = [noisy_scene(rng, 12, 20, 3, noise) for noise in (0.0, 0.3)]
     probs, images = np.stack([p for p, _ in scenes]), np.stack([i for _, i in scenes])
+    with jax.enable_x64(True):
+        counts = [int(vertex_count(crf_features(jnp.asarray(i), 10.0, 13.0, 1.0)[0])) for i in images]
+    assert _room(counts[0]) < _room(counts[1]), counts  # frame 0 is padded in the batch
     batch = dense_crf_batch(probs, images, sxy_b=10.0)
     for k in range(2):
         np.testing.assert_allclose(batch[k], dense_crf(probs[k], images[k], sxy_b=10.0), atol=1e-6)
     with pytest.raises(ValueError, match="probs must have rank 4"):
         dense_crf_batch(probs[0], images[0])
+
+
+def test_lattice_keys_under_jit_and_vmap_equal_one_frame_eagerly():
+    # the vertex codes are sorted by NumPy through a callback on CPU: it must batch and keep int64
+    import jax
+    import jax.numpy as jnp
+
+    from jaxanom.offroad.crf import lattice_keys
+
+    rng = np.random.default_rng(9)
+    with jax.enable_x64(True):
+        features = jnp.asarray(rng.random((3, 40, 5)) * 3, jnp.float32)
+        batched = jax.jit(jax.vmap(lattice_keys))(features)
+        for k in range(3):
+            one = lattice_keys(features[k])
+            assert batched.ordered.dtype == jnp.int64
+            np.testing.assert_array_equal(batched.ordered[k], np.sort(np.asarray(one.codes)))
+            assert int(batched.count[k]) == len(np.unique(np.asarray(one.codes))) == int(one.count)
 
 
 def test_matches_pydensecrf2_where_installed():
@@ -211,8 +294,9 @@ def test_tightly_sized_lattice_filters_like_the_full_one():
         features = jnp.asarray(rng.random((300, 3)) * 4, jnp.float32)
         values = jnp.asarray(rng.random((300, 2)), jnp.float32)
         count = int(vertex_count(features))
-        full = build_lattice(features)
-        tight = build_lattice(features, count)
-        assert bool(full.fits) and bool(tight.fits) and not bool(build_lattice(features, count - 1).fits)
+        build = jax.jit(build_lattice, static_argnums=1)
+        full = build(features, None)
+        tight = build(features, count)
+        assert bool(full.fits) and bool(tight.fits) and not bool(build(features, count - 1).fits)
         assert count < 300 * 4 and tight.neighbours.shape == (4, 2, count)
         np.testing.assert_allclose(lattice_filter(tight, values), lattice_filter(full, values), rtol=1e-6)

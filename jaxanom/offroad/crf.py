@@ -17,11 +17,13 @@ Two filters compute ``K Q``:
 - ``method="permutohedral"``: the permutohedral lattice of Adams, Baek & Davis (2010): features
   are lifted onto the (d+1)-dimensional lattice, splatted with barycentric weights, blurred
   with [1 2 1]/2 along each of the d+1 lattice directions and sliced back, for the bilateral
-  kernel. Its keys are packed into int64 codes and sorted once (``lattice_keys``, which also
-  counts the vertices); the tables get that many slots (``lattice_tables``). ``K~`` subtracts
-  the lattice's own diagonal (``Lattice.self_weight``, 0.4-0.8, not 1) and divides by
-  ``mass_scale`` (the lattice's off-diagonal mass over the exact kernel's, ~0.4-0.6). The
-  smoothness kernel depends only on positions and separates: it is computed exactly
+  kernel. Its keys are packed into int64 codes and sorted once, alone (``lattice_keys``, which
+  also counts the vertices; on CPU by NumPy through a callback); the tables get that many slots
+  rounded up to a quarter octave (``lattice_tables``): each point's vertex 0 is found by binary
+  search, the others by neighbour steps along its simplex. ``K~`` subtracts the lattice's own
+  diagonal (``Lattice.self_weight``, 0.4-0.8, not 1; from per-vertex tables of the blur walks) and
+  divides by ``mass_scale`` (the lattice's off-diagonal mass over the exact kernel's, ~0.4-0.6).
+  The smoothness kernel depends only on positions and separates: it is computed exactly
   (``positional_filter``), with no lattice.
 
 The public ``dense_crf`` computes in float32 (the lattice keys in int64 under a local
@@ -36,6 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxanom._batching import over_images
 from jaxanom._validate import check_finite, check_range, check_rank
 
 _BLOCK = 512  # rows of the exact kernel computed at once
@@ -86,19 +89,14 @@ class Lattice(NamedTuple):
 
 
 class LatticeKeys(NamedTuple):
-    """The first half of a build: the sorted vertex codes of all points (no table size yet)."""
+    """The first half of a build: every point's vertex codes and their sorted copy (no table size yet)."""
 
     codes: jax.Array  # (N (d+1),) int64, point-major
-    order: jax.Array  # argsort of codes
-    slot: jax.Array  # (N (d+1),) the distinct-vertex index of codes[order]
+    ordered: jax.Array  # (N (d+1),) the codes sorted
+    count: jax.Array  # int32 scalar: the number of distinct vertices
     weight: jax.Array  # (N, d+1) barycentric weights
     rank: jax.Array  # (N, d+1) the simplex ordering of the coordinates
     fits: jax.Array
-
-    @property
-    def count(self) -> jax.Array:
-        """The number of distinct vertices (int32 scalar)."""
-        return self.slot[..., -1] + 1
 
 
 def _elevate(features: jax.Array) -> jax.Array:
@@ -118,6 +116,21 @@ def _packing(d: int):
     return jnp.int64(1) << jnp.arange(d, dtype=jnp.int64) * bits, jnp.int64(1) << (bits - 1)
 
 
+def _sort(codes: jax.Array) -> jax.Array:
+    """``jnp.sort(codes)`` (int64) along the last axis; on CPU NumPy's, through a callback
+    (XLA:CPU sorts 3M int64 in 264 ms, NumPy in 31 ms, measured). The callback sees int32 pairs:
+    it runs on a thread where ``jax.enable_x64`` may be off, and an int64 result would not pass."""
+    if jax.default_backend() != "cpu":
+        return jnp.sort(codes)
+    pairs = jax.lax.bitcast_convert_type(codes, jnp.int32)  # (..., M, 2)
+
+    def host(p):
+        return np.sort(np.ascontiguousarray(p).view(np.int64)[..., 0], axis=-1)[..., None].view(np.int32)
+
+    ordered = jax.pure_callback(host, jax.ShapeDtypeStruct(pairs.shape, jnp.int32), pairs, vmap_method="expand_dims")
+    return jax.lax.bitcast_convert_type(ordered, jnp.int64)
+
+
 def lattice_keys(features: jax.Array) -> LatticeKeys:
     """Simplex vertices and barycentric weights of ``features (N, d)`` (already divided by their
     std devs), their codes sorted once; ``.count`` sizes the tables of ``lattice_tables``."""
@@ -134,22 +147,21 @@ def lattice_keys(features: jax.Array) -> LatticeKeys:
     rank = jnp.where(low, rank + d + 1, jnp.where(high, rank - d - 1, rank))
     rem0 = jnp.where(low, rem0 + d + 1, jnp.where(high, rem0 - d - 1, rem0))
     v = (elevated - rem0) / (d + 1)
-    bary = jnp.zeros((n, d + 2), features.dtype)
-    rows = jnp.arange(n)[:, None]
-    bary = bary.at[rows, d - rank].add(v).at[rows, d - rank + 1].add(-v)
+    # barycentric weights: b[p] = v[the coordinate of rank d - p] - v[the one of rank d - p + 1], b[0] += 1 + b[d+1]
+    by_rank = jnp.sum(jnp.where(rank[:, None, :] == d - jnp.arange(d + 1)[:, None], v[:, None, :], 0.0), axis=-1)
+    bary = jnp.concatenate([by_rank, jnp.zeros((n, 1), v.dtype)], -1) - jnp.concatenate([jnp.zeros((n, 1), v.dtype), by_rank], -1)
     bary = bary.at[:, 0].add(1.0 + bary[:, d + 1])[:, : d + 1]
 
     # vertex r of the simplex: rem0 + canonical[r][rank], with canonical[r][j] = r - (d+1) [j > d - r]
-    r = jnp.arange(d + 1)
-    canonical = r[:, None] - (d + 1) * (jnp.arange(d + 1)[None, :] > d - r[:, None])
-    keys = rem0[:, None, :d].astype(jnp.int64) + canonical[:, rank[:, :d]].transpose(1, 0, 2)  # (N, d+1, d)
+    r = np.arange(d + 1)[:, None]
+    keys = rem0[:, None, :d] + (r - (d + 1) * (rank[:, None, :d] > d - r)).astype(features.dtype)  # (N, d+1, d), integers
     base, half = _packing(d)
-    codes = jnp.sum((keys + half) * base, axis=-1).reshape(-1)
-    order = jnp.argsort(codes)
-    ordered = codes[order]
-    slot = jnp.cumsum(jnp.concatenate([jnp.ones((1,), jnp.int32), (ordered[1:] != ordered[:-1]).astype(jnp.int32)])) - 1
-    fits = jnp.max(jnp.abs(keys)) < half - (d + 2)  # digits (also neighbours') in their field
-    return LatticeKeys(codes, order, slot, bary, rank.astype(jnp.int32), fits)
+    # digits (also neighbours') in their field: over r, canonical[r][k] takes every value in [-k, d - k]
+    fits = jnp.max(jnp.maximum(jnp.abs(rem0[:, :d] - rank[:, :d]), jnp.abs(rem0[:, :d] + d - rank[:, :d]))) < half - (d + 2)
+    codes = jnp.sum((keys.astype(jnp.int64) + half) * base, axis=-1).reshape(-1)
+    ordered = _sort(codes)
+    count = 1 + jnp.sum(ordered[1:] != ordered[:-1], dtype=jnp.int32)
+    return LatticeKeys(codes, ordered, count, bary, rank.astype(jnp.int32), fits)
 
 
 def lattice_tables(keys: LatticeKeys, size: int) -> Lattice:
@@ -159,16 +171,45 @@ def lattice_tables(keys: LatticeKeys, size: int) -> Lattice:
     d = dp1 - 1
     base, _ = _packing(d)
     empty = jnp.iinfo(jnp.int64).max
-    inverse = jnp.zeros((n * dp1,), jnp.int32).at[keys.order].set(keys.slot).reshape(n, dp1)
-    unique = jnp.full((size,), empty, jnp.int64).at[keys.slot].set(keys.codes[keys.order], mode="drop")  # sorted
-    # neighbour along direction j: key - 1 everywhere and + d at j (j < d); the opposite one: its negative
+    slot = jnp.cumsum(jnp.concatenate([jnp.zeros((1,), jnp.int32), (keys.ordered[1:] != keys.ordered[:-1]).astype(jnp.int32)]))
+    unique = jnp.full((size,), empty, jnp.int64).at[slot].set(keys.ordered, mode="drop")  # sorted
+
+    def find(codes):  # the slot of each code, `size` if absent (or dropped: then fits is false)
+        at = jnp.clip(jnp.searchsorted(unique, codes), 0, size - 1)
+        return jnp.where((unique[at] == codes) & (codes != empty), at, size).astype(jnp.int32)
+
+    # the step along direction j: key - 1 everywhere and + d at j (j < d); the opposite one: its negative
     step = -jnp.sum(base) + (d + 1) * jnp.concatenate([base, jnp.zeros((1,), jnp.int64)])
-    queries = unique[None, None, :] + jnp.stack([step, -step], axis=1)[:, :, None]  # (d+1, 2, size)
-    at = jnp.clip(jnp.searchsorted(unique, queries.reshape(-1)), 0, size - 1).reshape(queries.shape)
-    found = (unique[at] == queries) & (unique != empty)[None, None, :]
-    neighbours = jnp.where(found, at, size).astype(jnp.int32)
+    ahead = find((unique[None, :] + step[:, None]).reshape(-1)).reshape(dp1, size)
+    back = jnp.full((dp1, size + 1), size, jnp.int32).at[jnp.arange(dp1)[:, None], ahead].set(jnp.arange(size, dtype=jnp.int32))
+    back = back.at[:, size].set(size)  # from a missing vertex: missing
+    neighbours = jnp.stack([ahead, back[:, :size]], axis=1)  # (d+1, 2, size)
+    # the simplex: vertex 0 is the point's remainder-0 key, vertex r+1 is one step back from vertex r
+    # along the direction of rank d - r (its key: +1 everywhere, -d there)
+    direction = jnp.sum((keys.rank[:, None, :] == d - np.arange(d)[:, None]) * np.arange(dp1), axis=-1)  # rank d - r
+    vertex = [find(keys.codes.reshape(n, dp1)[:, 0])]
+    for r in range(d):
+        vertex.append(back[direction[:, r], vertex[-1]])
+    inverse = jnp.stack(vertex, axis=-1)
     self_weight = _self_weights(inverse, keys.weight, keys.rank, neighbours)
-    return Lattice(inverse, keys.weight, neighbours, self_weight, keys.fits & (keys.slot[-1] < size))
+    return Lattice(inverse, keys.weight, neighbours, self_weight, keys.fits & (keys.count <= size))
+
+
+def _walk_gains(neighbours: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """``P, N (size + 1, 2^(d+1))``: ``P[y, m]`` is the blur walk from vertex y that moves +1
+    along the directions in bit mask m and stays on the others, ``N[y, m]`` the one that moves -1
+    on m; each 1/2 per move, 0 if a vertex on the way is missing (row ``size``: a missing start).
+    Built as binary trees over the directions in blur order: 2^(d+1) - 1 gathers per vertex each."""
+    dp1, _, size = neighbours.shape
+    moves = jnp.concatenate([neighbours, jnp.full((dp1, 2, 1), size, jnp.int32)], axis=-1)
+    gain = jnp.asarray([0.5 ** bin(m).count("1") for m in range(2**dp1)], jnp.float32)
+    walks = []
+    for sense in (0, 1):  # +1 moves, -1 moves
+        at = jnp.arange(size + 1, dtype=jnp.int32)[:, None]  # column m: where the walk of mask m is so far
+        for j in range(dp1):
+            at = jnp.concatenate([at, moves[j, sense][at]], axis=1)  # columns with bit j set moved along j
+        walks.append(jnp.where(at < size, gain, 0.0))
+    return walks[0], walks[1]
 
 
 def _self_weights(vertex, weight, rank, neighbours):
@@ -177,32 +218,28 @@ def _self_weights(vertex, weight, rank, neighbours):
     ``B[v_a, v_b]`` (what a unit splatted at vertex b holds at vertex a after the d+1 blurs) sums
     over the walks b -> a that move by s_j in {-1, 0, 1} lattice steps along direction j, in blur
     order, with weight 1/2 per move. The simplex's v_a - v_b is a sum of steps over the directions
-    whose rank lies in (d - max(a,b), d - min(a,b)] (sign: + if a < b); since the d+1 steps sum to
-    0, the walks are that pattern plus a constant c in {-1, 0, 1}. A walk counts only if every
-    vertex it passes exists in this lattice (a missing one holds nothing), checked with the
-    neighbour tables.
+    m whose rank lies in (d - max(a,b), d - min(a,b)] (sign: + if a < b); since the d+1 steps sum
+    to 0, the walks are: a < b, +1 on m or -1 off m (``P[m] + N[~m]``); a > b, -1 on m or +1 off
+    m (``N[m] + P[~m]``); a = b, staying or +1 / -1 on all (``P[0] + P[~0] + N[~0]``). A walk
+    counts only if every vertex it passes exists in this lattice (a missing one holds nothing).
     """
     n, dp1 = weight.shape
-    d = dp1 - 1
-    size = neighbours.shape[-1]
-    walks = [(a, b, c) for a in range(dp1) for b in range(dp1) for c in (-1, 0, 1)
-             if a == b or c == (-1 if a < b else 1) or c == 0]  # the walks whose moves stay in {-1, 0, 1}
-    a, b, c = (np.array(x) for x in zip(*walks))
-    lo, hi = np.minimum(a, b), np.maximum(a, b)
-    sign = np.where(a < b, 1, -1)
-    gain = 0.5 ** np.where(c == 0, hi - lo, np.where(a == b, dp1, dp1 - (hi - lo)))  # 1/2 per move
-    inside = (rank[:, None, :] > d - hi[None, :, None]) & (rank[:, None, :] <= d - lo[None, :, None])  # (N, W, d+1)
-    moves = (sign[None, :, None] * inside + c[None, :, None]).astype(jnp.int32)
-    # one gather per direction: rows (j, +1), (j, -1), (j, stay) of a table whose slot `size` is "missing"
-    stay = jnp.broadcast_to(jnp.arange(size + 1, dtype=jnp.int32), (dp1, 1, size + 1))
-    table = jnp.concatenate([jnp.concatenate([neighbours, jnp.full((dp1, 2, 1), size, jnp.int32)], -1), stay], 1)
-    table = table.at[:, 2, size].set(size).reshape(-1)
-    at = vertex[:, b]
-    for j in range(dp1):
-        row = jnp.where(moves[..., j] == 1, 0, jnp.where(moves[..., j] == -1, 1, 2))
-        at = table[(3 * j + row) * (size + 1) + at]
-    pair = weight[:, a] * weight[:, b] * jnp.where(at < size, jnp.asarray(gain, weight.dtype), 0.0)
-    return _alpha(dp1) * jnp.sum(pair, axis=-1)
+    d, full = dp1 - 1, 2**dp1 - 1
+    a, b = np.meshgrid(np.arange(dp1), np.arange(dp1), indexing="ij")  # (d+1, d+1): the pair [a, b]
+    # the mask m of the directions whose rank lies in (d - max(a,b), d - min(a,b)], summed from 2^j
+    # by rank with a 0/1 matrix (exact in float32); a > b as a < b with ~m; a = b: m = 0
+    between = (np.arange(dp1)[:, None, None] > d - np.maximum(a, b)) & (np.arange(dp1)[:, None, None] <= d - np.minimum(a, b))
+    sign = np.where(a <= b, 1, -1)
+    by_rank = jnp.sum((rank[:, :, None] == np.arange(dp1)) * (1 << np.arange(dp1, dtype=np.int32))[:, None], axis=1)
+    m = jnp.dot(by_rank.astype(jnp.float32), jnp.asarray((between * sign).reshape(dp1, -1), jnp.float32))
+    m = m.astype(jnp.int32) + np.where(a <= b, 0, full).ravel()  # (N, (d+1)^2)
+    plus, minus = _walk_gains(neighbours)
+    table = plus + minus[:, full - np.arange(full + 1)]  # [y, m] = P[y, m] + N[y, ~m]
+    table = table.at[:, 0].add(plus[:, full])  # m = 0 (a = b): also +1 on all
+    start = jnp.broadcast_to(vertex[:, None, :], (n, dp1, dp1)).reshape(n, -1)  # v_b
+    gains = table.reshape(-1)[start * (full + 1) + m]
+    pairs = (weight[:, :, None] * weight[:, None, :]).reshape(n, -1)
+    return _alpha(dp1) * jnp.sum(pairs * gains, axis=-1)
 
 
 def _alpha(dp1: int) -> float:
@@ -232,7 +269,7 @@ def lattice_filter(lattice: Lattice, values: jax.Array) -> jax.Array:
     def blur(grid, pair):
         return grid.at[:size].add(0.5 * (grid[pair[0]] + grid[pair[1]])), None
 
-    grid, _ = jax.lax.scan(blur, splat, lattice.neighbours)
+    grid, _ = jax.lax.scan(blur, splat, lattice.neighbours, unroll=True)
     return _alpha(dp1) * jnp.einsum("nr,nrl->nl", lattice.weight, grid[lattice.vertex])
 
 
@@ -297,14 +334,21 @@ def _dense_crf(probs, image, keys, sxy_b, srgb, w_b, sxy_g, w_g, iters: int, sym
 
 
 def _room(count: int) -> int:
-    """Lattice size for ``count`` vertices: the next power of two (few recompiles, tight blur)."""
-    return max(64, 1 << (int(count) - 1).bit_length())
+    """Lattice size for ``count`` vertices: rounded up to a quarter of its octave (4 compiled sizes
+    per doubling; the blur, walks and searches cost O(size), at most 1.25x the count)."""
+    quarter = max(16, 1 << max(0, (int(count) - 1).bit_length() - 3))
+    return -(-int(count) // quarter) * quarter
+
+
+def _dense_crf_frames(probs, image, keys, sxy_b, srgb, w_b, sxy_g, w_g, iters: int, symmetric: bool, size: int | None):
+    return over_images(lambda p, i, k: _dense_crf(p, i, k, sxy_b, srgb, w_b, sxy_g, w_g, iters, symmetric, size),
+                       probs, image, keys)
 
 
 _keys_jit = jax.jit(_bilateral_keys)
-_keys_batch = jax.jit(jax.vmap(_bilateral_keys, in_axes=(0, None, None)))
+_keys_batch = jax.jit(lambda images, sxy_b, srgb: over_images(lambda i: _bilateral_keys(i, sxy_b, srgb), images))
 _dense_crf_jit = jax.jit(_dense_crf, static_argnums=(8, 9, 10))
-_dense_crf_batch = jax.jit(jax.vmap(_dense_crf, in_axes=(0, 0, 0) + (None,) * 8), static_argnums=(8, 9, 10))
+_dense_crf_batch = jax.jit(_dense_crf_frames, static_argnums=(8, 9, 10))
 
 
 def dense_crf(probs, image, *, sxy_b: float = 80.0, srgb: float = 13.0, w_b: float = 10.0, sxy_g: float = 3.0,
