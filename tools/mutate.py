@@ -5,6 +5,7 @@ Usage (from the repository root, with the project's venv)::
     python tools/mutate.py jaxanom/offroad/risk.py jaxanom/mixture.py --per-module 12 --jobs 2 \\
         --out /tmp/mutants.jsonl
     python tools/mutate.py jaxanom/mixture.py --list          # the mutation sites, nothing run
+    python tools/mutate.py jaxanom/mixture.py --sites 3 7 --diff   # what those mutants change
 
 Each worker copies the working tree (without .git) to a temporary folder once; a mutant is the
 module's source with one site changed (``ast.unparse`` of the whole module), written into that
@@ -28,6 +29,7 @@ from __future__ import annotations
 import argparse
 import ast
 import copy
+import difflib
 import json
 import os
 import random
@@ -244,8 +246,26 @@ def main(argv=None):
     parser.add_argument("--jobs", type=int, default=1)
     parser.add_argument("--timeout-factor", type=float, default=3.0)
     parser.add_argument("--list", action="store_true", help="print the sites and stop")
+    parser.add_argument("--diff", action="store_true", help="print the diffs of --sites and stop")
     parser.add_argument("--out", default="mutants.jsonl")
     args = parser.parse_args(argv)
+
+    chosen = {}
+    for module in args.modules:
+        all_sites = sites((ROOT / module).read_text())
+        chosen[module] = ([s for s in all_sites if s["site"] in args.sites] if args.sites
+                          else sample(all_sites, args.per_module, args.seed))
+        if args.list:
+            for s in (chosen[module] if args.sites else all_sites):
+                print(module, json.dumps(s))
+        if args.diff:
+            source = (ROOT / module).read_text()
+            for s in chosen[module]:
+                before, after = mutant_source(source, None), mutant_source(source, s["site"])
+                print("".join(difflib.unified_diff(before.splitlines(True), after.splitlines(True),
+                                                   module, f"{module} site {s['site']}", n=0)))
+    if args.list or args.diff:
+        return
 
     cache_dir = tempfile.mkdtemp(prefix="jaxanom-mutate-xla-")
     workers = [Worker(cache_dir) for _ in range(args.jobs)]
@@ -262,18 +282,11 @@ def main(argv=None):
                 free.append(worker)
 
     with open(args.out, "a") as out, ThreadPoolExecutor(args.jobs) as pool:
-        for module in args.modules:
+        for module, picked in chosen.items():
             source = (ROOT / module).read_text()
-            all_sites = sites(source)
-            chosen = ([s for s in all_sites if s["site"] in args.sites] if args.sites
-                      else sample(all_sites, args.per_module, args.seed))
-            if args.list:
-                for s in (all_sites if not args.sites else chosen):
-                    print(module, json.dumps(s))
-                continue
             tests = args.tests or TESTS[module]
             status, clean = on_worker(lambda w: w.run(module, mutant_source(source, None), tests, 1800))
-            print(f"{module}: {len(all_sites)} sites, clean run {status} in {clean:.0f} s", flush=True)
+            print(f"{module}: clean run {status} in {clean:.0f} s", flush=True)
             if status != "survived":
                 continue
             timeout = max(args.timeout_factor * clean, 60.0)
@@ -282,7 +295,7 @@ def main(argv=None):
                 result, seconds = worker.run(module, mutant_source(source, site["site"]), tests, timeout)
                 return {"module": module, **site, "status": result, "seconds": round(seconds, 1)}
 
-            for record in pool.map(lambda s: on_worker(one, s), chosen):
+            for record in pool.map(lambda s: on_worker(one, s), picked):
                 out.write(json.dumps(record) + "\n")
                 out.flush()
                 print(json.dumps(record), flush=True)
