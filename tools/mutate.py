@@ -6,6 +6,7 @@ Usage (from the repository root, with the project's venv)::
         --out /tmp/mutants.jsonl
     python tools/mutate.py jaxanom/mixture.py --list          # the mutation sites, nothing run
     python tools/mutate.py jaxanom/mixture.py --sites 3 7 --diff   # what those mutants change
+    python tools/mutate.py --summary /tmp/mutants.jsonl      # run / killed / survived per module
 
 Each worker copies the working tree (without .git) to a temporary folder once; a mutant is the
 module's source with one site changed (``ast.unparse`` of the whole module), written into that
@@ -236,9 +237,22 @@ class Worker:
         return status, time.monotonic() - start
 
 
+def summary(path: str) -> None:
+    """Markdown table: mutants run, killed (a failing test or a timeout) and survived per module."""
+    rows = defaultdict(lambda: [0, 0, 0])
+    for line in open(path):
+        record = json.loads(line)
+        row = rows[record["module"]]
+        row[0] += 1
+        row[1 if record["status"] in ("killed", "timeout") else 2] += 1
+    print("| module | run | killed | survived |\n|---|---|---|---|")
+    for module, (run, killed, survived) in rows.items():
+        print(f"| {module} | {run} | {killed} | {survived} |")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("modules", nargs="+")
+    parser.add_argument("modules", nargs="*")
     parser.add_argument("--tests", nargs="*", help="test files (default: TESTS[module])")
     parser.add_argument("--per-module", type=int, default=12)
     parser.add_argument("--sites", type=int, nargs="*", help="run exactly these site numbers")
@@ -248,7 +262,10 @@ def main(argv=None):
     parser.add_argument("--list", action="store_true", help="print the sites and stop")
     parser.add_argument("--diff", action="store_true", help="print the diffs of --sites and stop")
     parser.add_argument("--out", default="mutants.jsonl")
+    parser.add_argument("--summary", metavar="JSONL", help="tabulate a results file and stop")
     args = parser.parse_args(argv)
+    if args.summary:
+        return summary(args.summary)
 
     chosen = {}
     for module in args.modules:
