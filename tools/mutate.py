@@ -218,7 +218,10 @@ class Worker:
         self.root = Path(tempfile.mkdtemp(prefix="jaxanom-mutate-"))
         shutil.copytree(ROOT, self.root, dirs_exist_ok=True,
                         ignore=shutil.ignore_patterns(".git", "__pycache__", ".venv", "*.pyc"))
-        self.env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1", "JAX_COMPILATION_CACHE_DIR": cache_dir}
+        # tests/conftest.py looks for the real data beside the tree: point it at the checkout's
+        realdata = os.environ.get("JAXANOM_REALDATA", str(ROOT.parent / "shared" / "realdata"))
+        self.env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1", "JAX_COMPILATION_CACHE_DIR": cache_dir,
+                    "JAXANOM_REALDATA": realdata}
 
     def run(self, module: str, source: str, tests: list[str], timeout: float) -> tuple[str, float]:
         path = self.root / module
