@@ -61,10 +61,20 @@ def test_feature_matching_and_l1_match_numpy():
     x, y = rng.random((2, 7, 5, 3)).astype(np.float32), rng.random((2, 7, 5, 3)).astype(np.float32)
     np.testing.assert_allclose(float(l1_loss(x, y)), np.mean(np.abs(x.astype(np.float64) - y)), rtol=1e-6)
     logits = [rng.normal(0, 1, (2, 3, 3, 1)).astype(np.float32)]
-    total, parts = generator_loss(logits, real, fake, x, y, feature_weight=10.0, l1_weight=10.0)
+    total, parts = generator_loss(logits, real, fake, x, y)  # MMF.md's weights: hinge + 10 FM + 10 L1
     np.testing.assert_allclose(float(total), -np.mean(logits[0]) + 10 * np.mean(layers)
                                + 10 * np.mean(np.abs(x.astype(np.float64) - y)), rtol=1e-5)
     assert set(parts) == {"g_hinge", "feature_matching", "l1"}
+    total, _ = generator_loss(logits, real, fake, x, y, feature_weight=2.0, l1_weight=0.5)
+    np.testing.assert_allclose(float(total), -np.mean(logits[0]) + 2 * np.mean(layers)
+                               + 0.5 * np.mean(np.abs(x.astype(np.float64) - y)), rtol=1e-5)
+    # scales or layers that do not pair up are an error, not silently truncated
+    with pytest.raises(ValueError, match="zip"):
+        feature_matching_loss(real, fake[:1])
+    with pytest.raises(ValueError, match="zip"):
+        feature_matching_loss([real[0]], [fake[0][:1]])
+    with pytest.raises(ValueError, match="zip"):
+        hinge_discriminator_loss(logits * 2, logits)
     # the real features are targets: no gradient flows into them
     grad = jax.grad(lambda r: feature_matching_loss([[r]], [[jnp.zeros_like(r)]]))(jnp.ones((2, 3)))
     assert not np.any(np.asarray(grad))
