@@ -65,6 +65,9 @@ def test_feature_matching_and_l1_match_numpy():
     np.testing.assert_allclose(float(total), -np.mean(logits[0]) + 10 * np.mean(layers)
                                + 10 * np.mean(np.abs(x.astype(np.float64) - y)), rtol=1e-5)
     assert set(parts) == {"g_hinge", "feature_matching", "l1"}
+    total, _ = generator_loss(logits, real, real, x, y)  # no feature term: the L1 weight shows at full precision
+    np.testing.assert_allclose(float(total), -np.mean(logits[0]) + 10 * np.mean(np.abs(x.astype(np.float64) - y)),
+                               rtol=1e-6)
     total, _ = generator_loss(logits, real, fake, x, y, feature_weight=2.0, l1_weight=0.5)
     np.testing.assert_allclose(float(total), -np.mean(logits[0]) + 2 * np.mean(layers)
                                + 0.5 * np.mean(np.abs(x.astype(np.float64) - y)), rtol=1e-5)
