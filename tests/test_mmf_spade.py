@@ -235,3 +235,29 @@ def test_non_finite_loss_stops_training(tmp_path):
     batch["image"] = np.where(batch["label"][..., None] == 255, np.nan, batch["image"] / 255.0).astype(np.float32)
     with pytest.raises(NonFiniteLossError, match="at step 1: training stopped"):
         _train(tmp_path, 2, iter([batch, batch]))
+
+
+def numpy_adam(grads, lr, b1, b2, eps=1e-8):
+    """Kingma & Ba's Adam with bias correction: the parameter after each gradient of ``grads``."""
+    p, m, v = 0.0, 0.0, 0.0
+    out = []
+    for t, g in enumerate(grads, start=1):
+        m, v = b1 * m + (1 - b1) * g, b2 * v + (1 - b2) * g * g
+        p -= lr * (m / (1 - b1**t)) / (np.sqrt(v / (1 - b2**t)) + eps)
+        out.append(p)
+    return out
+
+
+def test_both_optimizers_are_adam_with_the_configs_rates_and_betas():
+    from jaxanom.mmf.gan_train import _optimizers
+
+    config = GANConfig(run_dir="unused", g_lr=0.1, d_lr=0.3, betas=(0.5, 0.6))
+    grads = [1.0, -3.0, 0.5]
+    for tx, lr in zip(_optimizers(config), (config.g_lr, config.d_lr)):
+        p, got = jnp.zeros(()), []
+        state = tx.init(p)
+        for g in grads:
+            update, state = tx.update(jnp.asarray(g, jnp.float32), state)
+            p = p + update
+            got.append(float(p))
+        np.testing.assert_allclose(got, numpy_adam(grads, lr, 0.5, 0.6), rtol=1e-5)
