@@ -261,3 +261,24 @@ def test_both_optimizers_are_adam_with_the_configs_rates_and_betas():
             p = p + update
             got.append(float(p))
         np.testing.assert_allclose(got, numpy_adam(grads, lr, 0.5, 0.6), rtol=1e-5)
+
+
+def test_step_losses_are_those_of_separate_critic_calls(state):
+    """One step's metrics against the loss formulas in NumPy on the critic applied to the real and
+    the generated image separately (its instance norm is per example, so batching them is exact)."""
+    from jaxanom.mmf.gan_train import _inputs, make_gan_step
+
+    image, semantic = _inputs(_batch())
+    _, metrics = jax.jit(make_gan_step(GANConfig("unused"), GENERATOR, CRITIC))(state, image, semantic)
+    (out, _) = GENERATOR.apply({"params": state.g_params, "batch_stats": state.g_batch_stats}, semantic,
+                               train=True, mutable=["batch_stats"])
+    real, fake = (CRITIC.apply({"params": state.d_params}, x, semantic) for x in (image, out["image"]))
+    f64 = lambda x: np.asarray(x, np.float64)  # noqa: E731
+    fm = np.mean([np.mean(np.abs(f64(r) - f64(f))) for rs, fs in zip(real["features"], fake["features"])
+                  for r, f in zip(rs, fs)])
+    d = np.mean([np.mean(np.maximum(0, 1 - f64(r))) + np.mean(np.maximum(0, 1 + f64(f)))
+                 for r, f in zip(real["logits"], fake["logits"])])
+    g = np.mean([-np.mean(f64(f)) for f in fake["logits"]])
+    np.testing.assert_allclose([metrics["feature_matching"], metrics["d_loss"], metrics["g_hinge"]], [fm, d, g],
+                               rtol=1e-4, atol=1e-6)
+    assert fm > 1e-3  # the features differ: a feature term of zero would show
