@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import ast
-import copy
 import difflib
 import json
 import os
@@ -190,8 +189,7 @@ def sites(source: str) -> list[dict]:
 
 def mutant_source(source: str, site: int | None) -> str:
     """The module with site ``site`` mutated (``None``: unmutated, through the same unparse)."""
-    tree = ast.parse(source)
-    tree = _Sites(site).visit(copy.deepcopy(tree))
+    tree = _Sites(site).visit(ast.parse(source))
     return ast.unparse(ast.fix_missing_locations(tree)) + "\n"
 
 
