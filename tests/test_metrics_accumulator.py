@@ -107,3 +107,29 @@ def test_bad_use_raises():
         exact.update(scores.astype(np.float64), labels)
     with pytest.raises(ValueError, match="labels: expected values"):
         exact.update(scores, np.full(SHAPE, 7, np.uint8))
+
+
+def test_binned_histogram_matches_numpy_over_an_offset_range_edges_included():
+    """np.histogram's bins (the last one closed) over score_range (-2, 3), both ends included."""
+    low, high, num_bins = -2.0, 3.0, 10
+    width = (high - low) / num_bins
+    rng = np.random.default_rng(6)
+    centres = low + (rng.integers(0, num_bins, SHAPE) + 0.5) * width
+    scores = (centres + rng.uniform(-0.3, 0.3, SHAPE) * width).astype(np.float32)  # away from edges
+    scores[0, :2] = low, high
+    labels = (rng.random(SHAPE) < 0.3).astype(np.uint8)
+    labels[rng.random(SHAPE) < 0.1] = 255
+    labels[0, :2] = 0, 1
+    accumulator = AnomalyMetricAccumulator("binned", score_range=(low, high), num_bins=num_bins)
+    accumulator.update(scores, labels)
+    for cls in (0, 1):
+        expected, _ = np.histogram(scores[labels == cls], bins=num_bins, range=(low, high))
+        np.testing.assert_array_equal(accumulator.histogram[:, cls], expected)
+
+
+def test_cumulative_counts_widen_to_int64_past_int32():
+    accumulator = AnomalyMetricAccumulator()
+    last_int32 = int(np.iinfo(np.int32).max)
+    for total, dtype in ((last_int32, np.int32), (last_int32 + 1, np.int64)):
+        accumulator.counts.update(num_positives=1, num_negatives=total - 1)
+        assert accumulator._count_dtype() is dtype

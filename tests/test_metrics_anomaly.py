@@ -259,3 +259,37 @@ def test_envelope_equals_step_when_precision_never_rises():
     labels = np.array([1, 1, 1, 1, 0, 1, 0], np.uint8)
     step = anomaly_metrics(scores, labels)["ap"]
     assert anomaly_metrics(scores, labels, ap_convention="envelope")["ap"] == pytest.approx(step, abs=1e-15)
+
+
+def test_conventions_flag_adds_every_convention_and_is_off_by_default():
+    rng = np.random.default_rng(5)
+    scores, labels = random_case(rng, 1000, 5)
+    kept = labels != 255
+    plain = anomaly_metrics(scores, labels)
+    assert "ap_conventions" not in plain and "fpr_conventions" not in plain
+    full = anomaly_metrics(scores, labels, conventions=True)
+    assert set(full["ap_conventions"]) == {"step", "trapz", "envelope"}
+    assert set(full["fpr_conventions"]) == {"first", "interp", "nearest", "strict"}
+    np.testing.assert_allclose(full["ap_conventions"]["step"],
+                               sk.average_precision_score(labels[kept], scores[kept]), rtol=1e-9)
+    np.testing.assert_allclose(full["fpr_conventions"]["first"],
+                               reference_fpr_first(labels[kept], scores[kept], 0.95), rtol=1e-12)
+    for name in ("trapz", "envelope"):
+        assert full["ap_conventions"][name] == anomaly_metrics(scores, labels, ap_convention=name)["ap"]
+
+
+def test_index_and_count_dtypes_widen_to_int64_past_int32():
+    """Shapes only (``eval_shape``): 2**31 entries would need gigabytes."""
+    import jax
+    import jax.numpy as jnp
+
+    from jaxanom.metrics.anomaly import _pixel_weights
+    from jaxanom.metrics.curve import entry_index
+
+    last_int32 = int(np.iinfo(np.int32).max)
+    with jax.enable_x64(True):
+        for size, dtype in ((last_int32, jnp.int32), (last_int32 + 1, jnp.int64)):
+            assert jax.eval_shape(lambda: entry_index(size)).dtype == dtype
+            codes = jax.ShapeDtypeStruct((size,), jnp.uint8)
+            weights = jax.eval_shape(lambda c: _pixel_weights(c, c.shape[0]), codes)
+            assert [w.dtype for w in weights] == [dtype, dtype]

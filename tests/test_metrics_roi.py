@@ -36,6 +36,8 @@ def test_anomaly_results_evaluate_inside_the_roi():
     (np.zeros((2, 3), np.uint8), np.full((2, 3), 2), "roi must be a bool mask"),
     (np.zeros((2, 3), np.uint8), np.full((2, 3), 0.5), "roi must be a bool mask"),
     (np.full((2, 3), 7, np.uint8), np.ones((2, 3), bool), "labels must hold 0, 1 or 255"),
+    (np.zeros((2, 3), np.uint8), np.array([[0, 1, 1], [1, 0, 2]]), "roi must be a bool mask"),  # one bad value
+    (np.array([[0, 1, 255], [1, 0, 7]], np.uint8), np.ones((2, 3), bool), "labels must hold 0, 1 or 255"),
 ])
 def test_bad_input_raises(labels, roi, message):
     with pytest.raises(ValueError, match=message):

@@ -73,6 +73,8 @@ def test_bad_input_raises():
         confusion_matrix(prediction, np.where(label == 1, 9, label).astype(np.uint8), C)
     with pytest.raises(ValueError, match="prediction: expected an integer"):
         confusion_matrix(prediction.astype(np.float32), label, C)
+    with pytest.raises(ValueError, match="num_classes: expected a positive integer, got 0"):
+        confusion_matrix(np.zeros((2, 2), np.int32), np.full((2, 2), 255, np.uint8), 0)
 
 
 def test_arrays_sharded_over_the_four_devices():

@@ -143,3 +143,16 @@ def test_ill_defined_covariance_raises():
     z = np.repeat(np.array([[0.0, 0.0], [1.0, 1.0]]), 10, axis=0)  # every cluster is a single point
     with pytest.raises(ValueError, match="ill-defined covariance"):
         mx.em(z, np.full(2, 0.5), np.array([[0.0, 0.0], [1.0, 1.0]]), np.stack([np.eye(2)] * 2), reg_covar=0.0)
+
+
+def test_kmeans_plus_plus_seeds_one_centre_in_each_far_apart_cluster():
+    """D^2 seeding (no Lloyd step): a point of an already seeded tight cluster has probability
+    ~(spread / separation)^2 = 1e-8 of being picked, so each cluster gets exactly one centre."""
+    rng = np.random.default_rng(3)
+    corners = np.array([[0.0, 0.0], [100.0, 0.0], [0.0, 100.0], [100.0, 100.0]])
+    truth = np.repeat(np.arange(4), [5, 9, 7, 11])
+    z = jnp.asarray(corners[truth] + rng.normal(size=(truth.size, 2)) * 0.01, jnp.float32)
+    for seed in range(8):
+        labels = np.asarray(mx._kmeans(jax.random.key(seed), z, 4, 0))
+        assert [len(set(labels[truth == t])) for t in range(4)] == [1] * 4, (seed, labels)
+        assert len(set(labels)) == 4, (seed, labels)

@@ -137,10 +137,11 @@ def test_maps_inside_the_callers_jit():
     np.testing.assert_allclose(np.asarray(wrapped(fx[0])), np.asarray(perceptual_difference(fx, fr, (12, 16))), atol=1e-6)
 
 
-def test_class_mean_synthesizer_fit_and_gather():
+@pytest.mark.parametrize("seen", [[0, 1, 3, 255], [0, 1]])  # with unknown pixels; without, the last classes unseen
+def test_class_mean_synthesizer_fit_and_gather(seen):
     rng = np.random.default_rng(10)
     frames = [{"image": rng.integers(0, 256, (6, 7, 3), dtype=np.uint8),
-               "semantic": rng.choice([0, 1, 3, 255], (6, 7)).astype(np.uint8)} for _ in range(3)]
+               "semantic": rng.choice(seen, (6, 7)).astype(np.uint8)} for _ in range(3)]
     synthesizer = ClassMeanSynthesizer.fit(frames, num_classes=4)
     images = np.concatenate([f["image"].reshape(-1, 3) for f in frames]) / 255.0
     classes = np.concatenate([f["semantic"].ravel() for f in frames])
@@ -170,6 +171,8 @@ def test_class_mean_synthesizer_fit_and_gather():
     (lambda: anomaly_map(np.zeros((2, 2, 1)), np.zeros((2, 2))), "entropy must have rank 2"),
     (lambda: anomaly_map(np.zeros((2, 2)), np.full((2, 2), np.nan)), "perceptual must be finite"),
     (lambda: ClassMeanSynthesizer(np.zeros((3, 3), np.float32)).synthesize(np.full((2, 2), 2)), "semantic must hold classes"),
+    (lambda: ClassMeanSynthesizer(np.zeros((3, 3), np.float32)).synthesize(np.array([[0, 1], [255, 2]])),
+     r"semantic must hold classes in \[0, 2\) or 255, got \[2\]"),  # one bad value among good ones
     (lambda: ClassMeanSynthesizer(np.zeros((3, 3), np.float32)).synthesize(np.zeros((2, 2), np.float32)), "semantic must hold integer"),
     (lambda: ClassMeanSynthesizer.fit([{"image": np.zeros((2, 2, 3), np.uint8), "semantic": np.full((2, 2), 7)}], 4),
      "must hold classes in"),

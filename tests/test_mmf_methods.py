@@ -81,6 +81,15 @@ def test_segment_follows_the_config(slic_input, connectivity):
             np.testing.assert_array_equal(out[name][1], slic(100 * value[1, ..., None], 4, connectivity=True))
 
 
+def test_segment_scales_the_step_with_the_frame_not_the_batch():
+    from jaxanom.mmf.training_free import segment
+    from jaxanom.superpixels import rgb_to_lab, slic
+
+    images = np.random.default_rng(5).integers(0, 256, (1, 64, 128, 3), dtype=np.uint8)
+    out = segment(images, {})  # S = round(8 sqrt(64 * 128 / (256 * 512))) = 2
+    np.testing.assert_array_equal(out["superpixels"][0], slic(rgb_to_lab(images[0]), 2))
+
+
 @pytest.mark.parametrize("field,value,message", [("slic_step", 0, "slic_step"), ("slic_step", 2.5, "slic_step"),
                                                  ("slic_input", "rgb", "slic_input")])
 def test_config_rejects_bad_slic_settings(field, value, message):

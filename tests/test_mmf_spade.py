@@ -61,10 +61,23 @@ def test_feature_matching_and_l1_match_numpy():
     x, y = rng.random((2, 7, 5, 3)).astype(np.float32), rng.random((2, 7, 5, 3)).astype(np.float32)
     np.testing.assert_allclose(float(l1_loss(x, y)), np.mean(np.abs(x.astype(np.float64) - y)), rtol=1e-6)
     logits = [rng.normal(0, 1, (2, 3, 3, 1)).astype(np.float32)]
-    total, parts = generator_loss(logits, real, fake, x, y, feature_weight=10.0, l1_weight=10.0)
+    total, parts = generator_loss(logits, real, fake, x, y)  # MMF.md's weights: hinge + 10 FM + 10 L1
     np.testing.assert_allclose(float(total), -np.mean(logits[0]) + 10 * np.mean(layers)
                                + 10 * np.mean(np.abs(x.astype(np.float64) - y)), rtol=1e-5)
     assert set(parts) == {"g_hinge", "feature_matching", "l1"}
+    total, _ = generator_loss(logits, real, real, x, y)  # no feature term: the L1 weight shows at full precision
+    np.testing.assert_allclose(float(total), -np.mean(logits[0]) + 10 * np.mean(np.abs(x.astype(np.float64) - y)),
+                               rtol=1e-6)
+    total, _ = generator_loss(logits, real, fake, x, y, feature_weight=2.0, l1_weight=0.5)
+    np.testing.assert_allclose(float(total), -np.mean(logits[0]) + 2 * np.mean(layers)
+                               + 0.5 * np.mean(np.abs(x.astype(np.float64) - y)), rtol=1e-5)
+    # scales or layers that do not pair up are an error, not silently truncated
+    with pytest.raises(ValueError, match="zip"):
+        feature_matching_loss(real, fake[:1])
+    with pytest.raises(ValueError, match="zip"):
+        feature_matching_loss([real[0]], [fake[0][:1]])
+    with pytest.raises(ValueError, match="zip"):
+        hinge_discriminator_loss(logits * 2, logits)
     # the real features are targets: no gradient flows into them
     grad = jax.grad(lambda r: feature_matching_loss([[r]], [[jnp.zeros_like(r)]]))(jnp.ones((2, 3)))
     assert not np.any(np.asarray(grad))
@@ -222,3 +235,50 @@ def test_non_finite_loss_stops_training(tmp_path):
     batch["image"] = np.where(batch["label"][..., None] == 255, np.nan, batch["image"] / 255.0).astype(np.float32)
     with pytest.raises(NonFiniteLossError, match="at step 1: training stopped"):
         _train(tmp_path, 2, iter([batch, batch]))
+
+
+def numpy_adam(grads, lr, b1, b2, eps=1e-8):
+    """Kingma & Ba's Adam with bias correction: the parameter after each gradient of ``grads``."""
+    p, m, v = 0.0, 0.0, 0.0
+    out = []
+    for t, g in enumerate(grads, start=1):
+        m, v = b1 * m + (1 - b1) * g, b2 * v + (1 - b2) * g * g
+        p -= lr * (m / (1 - b1**t)) / (np.sqrt(v / (1 - b2**t)) + eps)
+        out.append(p)
+    return out
+
+
+def test_both_optimizers_are_adam_with_the_configs_rates_and_betas():
+    from jaxanom.mmf.gan_train import _optimizers
+
+    config = GANConfig(run_dir="unused", g_lr=0.1, d_lr=0.3, betas=(0.5, 0.6))
+    grads = [1.0, -3.0, 0.5]
+    for tx, lr in zip(_optimizers(config), (config.g_lr, config.d_lr)):
+        p, got = jnp.zeros(()), []
+        state = tx.init(p)
+        for g in grads:
+            update, state = tx.update(jnp.asarray(g, jnp.float32), state)
+            p = p + update
+            got.append(float(p))
+        np.testing.assert_allclose(got, numpy_adam(grads, lr, 0.5, 0.6), rtol=1e-5)
+
+
+def test_step_losses_are_those_of_separate_critic_calls(state):
+    """One step's metrics against the loss formulas in NumPy on the critic applied to the real and
+    the generated image separately (its instance norm is per example, so batching them is exact)."""
+    from jaxanom.mmf.gan_train import _inputs, make_gan_step
+
+    image, semantic = _inputs(_batch())
+    _, metrics = jax.jit(make_gan_step(GANConfig("unused"), GENERATOR, CRITIC))(state, image, semantic)
+    (out, _) = GENERATOR.apply({"params": state.g_params, "batch_stats": state.g_batch_stats}, semantic,
+                               train=True, mutable=["batch_stats"])
+    real, fake = (CRITIC.apply({"params": state.d_params}, x, semantic) for x in (image, out["image"]))
+    f64 = lambda x: np.asarray(x, np.float64)  # noqa: E731
+    fm = np.mean([np.mean(np.abs(f64(r) - f64(f))) for rs, fs in zip(real["features"], fake["features"])
+                  for r, f in zip(rs, fs)])
+    d = np.mean([np.mean(np.maximum(0, 1 - f64(r))) + np.mean(np.maximum(0, 1 + f64(f)))
+                 for r, f in zip(real["logits"], fake["logits"])])
+    g = np.mean([-np.mean(f64(f)) for f in fake["logits"]])
+    np.testing.assert_allclose([metrics["feature_matching"], metrics["d_loss"], metrics["g_hinge"]], [fm, d, g],
+                               rtol=1e-4, atol=1e-6)
+    assert fm > 1e-3  # the features differ: a feature term of zero would show

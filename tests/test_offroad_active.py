@@ -71,6 +71,12 @@ def test_uniform_frames():
     np.testing.assert_array_equal(active.uniform_frames(10, 2), [2, 7])
     np.testing.assert_array_equal(active.uniform_frames(100, 4), [12, 37, 62, 87])
     np.testing.assert_array_equal(active.uniform_frames(3, 3), [0, 1, 2])
+    np.testing.assert_array_equal(active.uniform_frames(1, 1), [0])  # a one-frame sequence: floor(1/2)
+
+
+def test_a_one_frame_sequence_gives_that_frame():
+    np.testing.assert_array_equal(active.random_frames(jax.random.key(0), 1, 1), [0])
+    np.testing.assert_array_equal(active.select_hard_frames(np.array([0.3]), 1, 0), [0])
 
 
 def test_bad_input_raises_naming_the_argument():

@@ -57,3 +57,10 @@ def test_empty_annotations_and_mismatched_inputs_raise():
         stack_annotations([], [], slots=4)
     with pytest.raises(ValueError, match="images, centers"):
         embed(None, np.zeros((2, 8, 8, 3)), np.zeros((3, 1, 2)), CONFIG)
+
+
+@pytest.mark.parametrize("field", ["lr", "temperature"])
+def test_config_refuses_a_zero_rate_or_temperature(field):
+    with pytest.raises(ValueError, match=rf"{field} must be a finite number in \(0.0, inf\], got 0.0"):
+        EncoderConfig(**{field: 0.0})
+    EncoderConfig(**{field: 1e-9})  # any positive value is accepted

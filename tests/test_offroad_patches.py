@@ -1,4 +1,6 @@
 """Six-channel patches, neighbours, augmentation, sliding windows and InfoNCE pairs."""
+import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -80,6 +82,22 @@ def test_greyscale_gives_equal_channels_with_itu_601_weights():
     np.testing.assert_array_equal(out[..., 0], out[..., 2])
 
 
+def numpy_colour_jitter(rgb, brightness, contrast, saturation, to_grey):
+    """The augment docstring's recipe: scale; blend with the mean grey; blend with each pixel's grey."""
+    grey = lambda x: x @ np.array([0.299, 0.587, 0.114])  # noqa: E731
+    x = np.clip(rgb * brightness, 0, 1)
+    x = np.clip(contrast * x + (1 - contrast) * grey(x).mean(), 0, 1)
+    x = np.clip(saturation * x + (1 - saturation) * grey(x)[..., None], 0, 1)
+    return np.repeat(grey(x)[..., None], 3, -1) if to_grey else x
+
+
+@pytest.mark.parametrize("factors", [(1.3, 0.7, 1.4, False), (0.6, 1.3, 0.8, True), (1.0, 1.0, 1.0, False)])
+def test_colour_jitter_matches_numpy(factors):
+    rgb = np.random.default_rng(2).uniform(size=(5, 6, 3)).astype(np.float32)
+    got = np.asarray(_colour_jitter(jnp.asarray(rgb), *factors))
+    np.testing.assert_allclose(got, numpy_colour_jitter(rgb.astype(np.float64), *factors), atol=1e-6)
+
+
 @pytest.mark.parametrize("h,w,size,stride", [(128, 256, 32, 8), (37, 50, 8, 5), (8, 9, 8, 3)])
 def test_sliding_windows_cover_the_image_and_touch_the_borders(h, w, size, stride):
     centers = sliding_centers(h, w, size, stride)
@@ -89,6 +107,8 @@ def test_sliding_windows_cover_the_image_and_touch_the_borders(h, w, size, strid
         assert top >= 0 and left >= 0 and top + size <= h and left + size <= w
         covered[top:top + size, left:left + size] += 1
     assert covered.min() >= 1
+    per_dim = lambda dim: math.ceil((dim - size) / stride) + 1  # noqa: E731  (the grid, plus a flush last window)
+    assert len(centers) == len({tuple(c) for c in centers}) == per_dim(h) * per_dim(w)
     with pytest.raises(ValueError, match="size"):
         sliding_centers(4, 40, 8, 2)
 

@@ -197,8 +197,9 @@ def test_bad_input_raises_naming_the_argument():
         rk.classify(np.zeros((4, 3)), mixture, 0.5, np.ones(3), risk="density")
     with pytest.raises(ValueError, match="train_risks must be a non-empty"):
         rk.risk_bound([], 0.9)
-    with pytest.raises(ValueError, match="delta must be in"):
-        rk.risk_bound([0.1], 1.5)
+    for delta in (1.5, 0.0, -0.1):  # (0, 1]: delta = 0 would bound nothing
+        with pytest.raises(ValueError, match=r"delta must be in \(0, 1\]"):
+            rk.risk_bound([0.1], delta)
     with pytest.raises(ValueError, match="labels must lie in"):
         rk.vote(np.array([[1, 1]]), np.array([3]), patch_size=2, height=4, width=4, num_labels=3)
     with pytest.raises(ValueError, match="centers must hold integer"):

@@ -76,14 +76,16 @@ def test_shrinkage_limits_pooled_at_zero_pixels_own_estimate_at_many():
     np.testing.assert_allclose([got.mean[0], got.std[0]], [big.mean(), big.std(ddof=1)], rtol=1e-3)
 
 
-def test_min_count_pools_exactly_the_classes_below_it():
+@pytest.mark.parametrize("min_count", [120, 0])
+def test_min_count_pools_exactly_the_classes_below_it(min_count):
+    """Below min_count, or below 2 pixels (no variance) whatever it is: 0 pools only the empty class."""
     rng = np.random.default_rng(2)
     logits = scarce_logits(rng, [0, 7, 30, 120, 400], 5)
     stats = sml.stats_update(sml.stats_init(5), logits)
     values = max_logits_per_class(logits, 5)
     pooled = np.concatenate(values)
-    got = sml.stats_finalize_report(stats, policy="min_count", min_count=120)
-    scarce = np.array([len(v) < 120 for v in values])
+    got = sml.stats_finalize_report(stats, policy="min_count", min_count=min_count)
+    scarce = np.array([len(v) < max(min_count, 2) for v in values])
     assert got.status == tuple("pooled" if s else "fitted" for s in scarce)
     for c, v in enumerate(values):
         want = (pooled.mean(), pooled.std(ddof=1)) if scarce[c] else (v.mean(), v.std(ddof=1))

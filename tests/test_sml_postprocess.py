@@ -23,14 +23,16 @@ def cases():
     yield "one-pixel-wide", stripes
     yield "single-class", np.full((7, 9), 4)
     yield "checkerboard", np.indices((6, 7)).sum(0) % 2
+    yield "two-halves", (np.arange(16) >= 7)[None, :].repeat(15, 0)  # distances up to 8: every radius shows
 
 
 CASES = list(cases())
 DEFAULTS = [(4, 4, "geodesic"), (4, 4, "sml_official")]
 OTHER_SETTINGS = [(4, 2, "geodesic"), (6, 3, "sml_official"), (0, 2, "geodesic"), (3, 1, "geodesic")]
-# every map with the paper's settings in both border modes; the other settings on the first map
+# every map with the paper's settings in both border modes; the other settings on the first and
+# last maps (on the first, a band of radius >= 2 already covers every pixel)
 SUPPRESSION_CASES = [(name, label, *setting) for name, label in CASES for setting in DEFAULTS]
-SUPPRESSION_CASES += [(*CASES[0], *setting) for setting in OTHER_SETTINGS]
+SUPPRESSION_CASES += [(*case, *setting) for case in (CASES[0], CASES[-1]) for setting in OTHER_SETTINGS]
 
 
 @pytest.mark.parametrize("name,label,width,iterations,border", SUPPRESSION_CASES,

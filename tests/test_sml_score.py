@@ -49,6 +49,25 @@ def test_sml_score_matches_reference_pipeline(suppress, smooth, border):
     np.testing.assert_allclose(np.asarray(got), -s, rtol=1e-5, atol=1e-5)
 
 
+def test_sml_score_passes_every_option_through():
+    rng = np.random.default_rng(7)
+    coarse = rng.normal(size=(2, 2, 5))
+    coarse[[0, 0, 1, 1], [0, 1, 0, 1], [0, 1, 2, 3]] += 10  # four 8x8 regions: bands of every radius differ
+    logits = (np.kron(coarse, np.ones((8, 8, 1))) + rng.normal(size=(16, 16, 5)) * 0.3).astype(np.float32)
+    mean, std = rng.normal(size=5).astype(np.float32), (0.5 + rng.random(5)).astype(np.float32)
+    s, pred = ref.standardize(logits, mean.astype(np.float64), std.astype(np.float64))
+    options = dict(width=2, iterations=2, border="sml_official", kernel_size=5, sigma=2.0, dilation=2)
+    want = ref.smooth(ref.suppress(s, pred, 2, 2, "sml_official"), 5, 2.0, 2)
+    got = sml.sml_score(logits, mean, std, **options)
+    np.testing.assert_allclose(np.asarray(got), -want, rtol=1e-5, atol=1e-5)
+    batch = sml.sml_score_batch(logits[None], mean, std, **options)
+    np.testing.assert_allclose(np.asarray(batch[0]), -want, rtol=1e-5, atol=1e-5)
+    # each option matters here: the defaults' reference is far from this one
+    for default in (ref.suppress(s, pred, 4, 2, "sml_official"), ref.suppress(s, pred, 2, 2, "geodesic")):
+        assert np.abs(ref.smooth(default, 5, 2.0, 2) - want).max() > 1e-3
+    assert np.abs(ref.smooth(ref.suppress(s, pred, 2, 2, "sml_official")) - want).max() > 1e-3
+
+
 def test_single_class_logits():
     logits = np.random.default_rng(2).normal(size=(6, 5, 1)).astype(np.float32)
     got = sml.sml_score(logits, np.array([0.5], np.float32), np.array([2.0], np.float32))

@@ -105,7 +105,7 @@ def _pixel_points(scores, labels):
 
 
 def summary_to_metrics(summary: dict, counts: dict, fpr_convention: str, ap_convention: str,
-                       tpr: float, float64_keys: bool, conventions: bool = False) -> dict:
+                       tpr: float, float64_keys: bool, conventions: bool) -> dict:
     """The ``curve_summary`` of the chosen conventions as a dict of Python numbers; with
     ``conventions``, also ``ap_conventions`` / ``fpr_conventions``: every convention's value."""
     to_score = lambda key: float(keys_to_scores(np.asarray([key]), float64_keys)[0])  # noqa: E731

@@ -13,7 +13,7 @@ import numpy as np
 from jaxanom._validate import check_finite, check_rank, is_concrete
 
 
-def info_nce_per_query(z: jax.Array, z_pos: jax.Array, z_neg: jax.Array, temperature=0.1) -> jax.Array:
+def info_nce_per_query(z: jax.Array, z_pos: jax.Array, z_neg: jax.Array, temperature) -> jax.Array:
     """Eq. 2 per query: ``(Q, D), (Q, D), (Q, n, D) -> (Q,)`` float32. Pure (no checks)."""
     pos = jnp.sum(z * z_pos, axis=-1) / temperature
     neg = jnp.einsum("qd,qnd->qn", z, z_neg) / temperature

@@ -21,7 +21,7 @@ def _box3_sum(x: jax.Array) -> jax.Array:
     return rows[:, :-2] + rows[:, 1:-1] + rows[:, 2:]
 
 
-def _suppress(score, prediction, width: int = 4, iterations: int = 4, border: str = "geodesic"):
+def _suppress(score, prediction, width: int, iterations: int, border: str):
     step = width // iterations
     max_radius = width - 1 if (iterations > 1 and width > 0) else 0
     distance = _boundary_distance(_find_boundaries(prediction, border), max_radius)
@@ -45,7 +45,7 @@ def gaussian_kernel_1d(kernel_size: int = 7, sigma: float = 1.0) -> np.ndarray:
     return g / g.sum()
 
 
-def _smooth(score, kernel_size: int = 7, sigma: float = 1.0, dilation: int = 6):
+def _smooth(score, kernel_size: int, sigma: float, dilation: int):
     weights = gaussian_kernel_1d(kernel_size, sigma).astype(np.float32)
     reach = dilation * (kernel_size // 2)
     out = score.astype(jnp.float32)

@@ -23,8 +23,8 @@ def _standardized_max_logit(logits, mean, std):
     return sml, prediction
 
 
-def _postprocess(score, prediction, *, suppress=True, smooth=True, width=4, iterations=4,
-                 border="geodesic", kernel_size=7, sigma=1.0, dilation=6):
+def _postprocess(score, prediction, *, suppress, smooth, width, iterations, border, kernel_size, sigma,
+                 dilation):
     out = score.astype(jnp.float32)
     if suppress:
         out = _suppress(out, prediction, width, iterations, border)
