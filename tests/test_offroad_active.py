@@ -96,3 +96,11 @@ def test_bad_input_raises_naming_the_argument():
         active.select_hard_frames([], 1, 0)
     with pytest.raises(ValueError, match="method must be"):
         active.select_hard_frames(np.zeros(3), 1, 0, method="beam")
+
+
+@pytest.mark.parametrize("num_frames", [0, -2, 2.5, True])
+def test_frame_counts_are_checked_under_their_own_name(num_frames):
+    with pytest.raises(ValueError, match=f"num_frames must be an integer >= 1, got {num_frames!r}"):
+        active.uniform_frames(num_frames, 1)
+    with pytest.raises(ValueError, match=f"num_frames must be an integer >= 1, got {num_frames!r}"):
+        active.random_frames(jax.random.key(0), num_frames, 1)

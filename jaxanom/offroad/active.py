@@ -31,6 +31,13 @@ def _check(flr, budget: int, gap: int) -> np.ndarray:
     return values
 
 
+def _frames(num_frames) -> np.ndarray:
+    """Zeros standing for ``num_frames`` frames; ValueError naming ``num_frames`` unless it is an integer >= 1."""
+    if isinstance(num_frames, bool) or int(num_frames) != num_frames or num_frames < 1:
+        raise ValueError(f"num_frames must be an integer >= 1, got {num_frames!r}")
+    return np.zeros(int(num_frames))
+
+
 def min_frames(budget: int, gap: int) -> int:
     """The shortest sequence that holds ``budget`` frames pairwise more than ``gap`` apart."""
     return (budget - 1) * (gap + 1) + 1
@@ -87,7 +94,7 @@ def random_frames(key, num_frames: int, budget: int, gap: int = 0) -> np.ndarray
     A uniform B-subset s_1 < ... < s_B of ``range(T - (B-1) gap)`` maps one-to-one onto the valid
     sets by ``u_i = s_i + (i-1) gap``.
     """
-    _check(np.zeros(int(num_frames)) if num_frames >= 1 else [], budget, gap)
+    _check(_frames(num_frames), budget, gap)
     slots = int(num_frames) - (int(budget) - 1) * int(gap)
     picks = np.sort(np.asarray(jax.random.choice(key, slots, (int(budget),), replace=False)))
     return picks + np.arange(int(budget)) * int(gap)
@@ -95,5 +102,5 @@ def random_frames(key, num_frames: int, budget: int, gap: int = 0) -> np.ndarray
 
 def uniform_frames(num_frames: int, budget: int) -> np.ndarray:
     """The "Unif" baseline: ``floor((i + 1/2) T / B)`` for i = 0..B-1 (evenly spread, centred)."""
-    _check(np.zeros(int(num_frames)) if num_frames >= 1 else [], budget, 0)
+    _check(_frames(num_frames), budget, 0)
     return np.asarray([math.floor((i + 0.5) * num_frames / budget) for i in range(int(budget))], np.int64)
