@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxanom.nn.batch_norm import BatchNorm
 from jaxanom.nn.conv import Conv2D
 
 Dtype = Any
@@ -40,14 +41,7 @@ class ConvBN(nn.Module):
     @nn.compact
     def __call__(self, x: jax.Array, train: bool) -> jax.Array:
         x = Conv2D(self.features, self.kernel_size, self.stride, self.dilation, self.dtype, name="conv")(x)
-        x = nn.BatchNorm(
-            use_running_average=not train,
-            momentum=BN_MOMENTUM,
-            epsilon=BN_EPSILON,
-            dtype=self.dtype,
-            param_dtype=jnp.float32,
-            name="bn",
-        )(x)
+        x = BatchNorm(not train, BN_MOMENTUM, BN_EPSILON, self.dtype, name="bn")(x)
         return nn.relu(x) if self.relu else x
 
 
