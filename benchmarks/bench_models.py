@@ -13,7 +13,7 @@ preset without the peer: a smoke test of the code paths, not a measurement of Re
 Parameters are filled on the host from ``jax.eval_shape`` shapes: ``init`` is not timed.
 Both jaxanom steps are jitted with ``conv_compiler_options()`` and the train step donates its
 state only off the CPU (``state_donation``), as the library's trainer's steps
-(docs/decisions/cpu-speed.md; one thread each, CPU time: ``bench_models_cpu.py``).
+(docs/decisions/cpu-speed.md; one thread each, CPU time: ``cpu_models_one_thread.py``).
 
     PYTHONPATH=. python benchmarks/bench_models.py [--quick]
 """

@@ -84,6 +84,6 @@ def profile_table(run, hlo_text: str, calls: int = 3) -> str:
             count[kinds[event["name"]]] += 1
     total = sum(ms.values())
     lines = ["| pass | kind | ms per call | share | ops |", "|---|---|---|---|---|"]
-    lines += [f"| {p} | {k} | {v:.1f} | {100 * v / total:.1f}% | {count[(p, k)] // calls} |"
+    lines += [f"| {p} | {k} | {v:.3g} | {100 * v / total:.1f}% | {count[(p, k)] // calls} |"
               for (p, k), v in ms.most_common()]
-    return "\n".join(lines + [f"| all | | {total:.1f} | 100% | {sum(count.values()) // calls} |"])
+    return "\n".join(lines + [f"| all | | {total:.3g} | 100% | {sum(count.values()) // calls} |"])

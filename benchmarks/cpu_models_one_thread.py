@@ -7,9 +7,11 @@ is the median ``getrusage`` CPU time of ``repeats`` calls. Sizes, weights and st
 ``bench_models.py``'s (forward 1x64x128, train step 2x64x64 with CuDAM, SGD + momentum, float32);
 jaxanom's steps are jitted as the trainer's are (``conv_compiler_options``, ``state_donation``).
 ``--profile`` also prints XLA's per-op times of the train step, summed by kind
-(``benchmarks/xla_cpu_profile.py``). docs/decisions/cpu-speed.md has the analysis.
+(``benchmarks/xla_cpu_profile.py``). docs/decisions/cpu-speed.md has the analysis. Not a
+``bench_*`` module: ``python -m benchmarks`` runs those in one process, where XLA's thread
+option set here (before JAX starts) could not apply; run this script on its own.
 
-    PYTHONPATH=. python benchmarks/bench_models_cpu.py [--repeats N] [--profile]
+    PYTHONPATH=. python benchmarks/cpu_models_one_thread.py [--repeats N] [--profile]
 """
 from __future__ import annotations
 
