@@ -62,3 +62,22 @@ def test_conv2d_module_computes_in_its_dtype():
     params = module.init(jax.random.key(0), x)
     assert params["params"]["kernel"].dtype == jnp.float32
     assert module.apply(params, x).dtype == jnp.bfloat16
+
+
+def test_backward_keeps_the_input_not_its_patches():
+    x, kernel = jnp.ones((2, 16, 16, 8)), jnp.ones((3, 3, 8, 4))
+    _, backward = jax.vjp(lambda a, b: conv2d_patches(a, b, 1, 2, 2), x, kernel)
+    kept = sum(leaf.size for leaf in jax.tree.leaves(backward) if hasattr(leaf, "size"))
+    assert kept <= x.size + kernel.size  # the patches alone would be 9 * x.size
+
+
+def test_conv2d_module_falls_back_to_lax_when_patches_would_be_too_large(monkeypatch):
+    x = jnp.asarray(np.random.default_rng(1).normal(size=(1, 6, 7, 4)).astype(np.float32))
+    module = Conv2D(3, 3, dilation=2)
+    params = module.init(jax.random.key(0), x)
+    primitives = lambda: {str(e.primitive) for e in jax.make_jaxpr(module.apply)(params, x).jaxpr.eqns}  # noqa: E731
+    small = module.apply(params, x)
+    assert "conv_general_dilated" not in primitives()
+    monkeypatch.setattr("jaxanom.nn.conv.MAX_PATCH_BYTES", x.nbytes * 9 - 1)
+    assert "conv_general_dilated" in primitives()
+    np.testing.assert_allclose(module.apply(params, x), small, rtol=1e-5, atol=1e-5)

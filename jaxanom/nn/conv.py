@@ -10,11 +10,14 @@ TPU) ``lax.conv_general_dilated``, which cuDNN and the TPU compiler do well.
 """
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+
+MAX_PATCH_BYTES = 2**30  # the most memory one convolution's patches may take on the CPU path
 
 
 def _live_taps(size: int, kernel: int, stride: int, dilation: int, pad: int) -> tuple[int, int, int]:
@@ -32,7 +35,14 @@ def conv2d_patches(x: jax.Array, kernel: jax.Array, stride: int = 1, dilation: i
     The same as ``lax.conv_general_dilated`` (NHWC, HWIO) up to float rounding: the patches of
     the taps that touch the image, concatenated along channels (B, Ho, Wo, taps * Cin), times the
     matching rows of the kernel. Taps that read only padding add exact zeros and are left out.
+    Rematerialised: the backward pass keeps ``x``, not its patches (taps times larger), and
+    gathers them again. The forward pass still holds one layer's patches at a time.
     """
+    product = functools.partial(_patch_product, stride=stride, dilation=dilation, pad=pad)
+    return jax.checkpoint(product)(x, kernel)
+
+
+def _patch_product(x, kernel, stride, dilation, pad):
     kh, kw, _, cout = kernel.shape
     ho, i0, i1 = _live_taps(x.shape[1], kh, stride, dilation, pad)
     wo, j0, j1 = _live_taps(x.shape[2], kw, stride, dilation, pad)
@@ -48,8 +58,10 @@ class Conv2D(nn.Module):
     """``k x k`` convolution without bias, symmetric padding ``dilation * (k - 1) // 2`` (PyTorch's).
 
     Parameters as ``flax.linen.Conv``'s (``kernel`` (k, k, Cin, Cout), float32), so weights and
-    checkpoints carry over. On the CPU (``jax.default_backend()`` when traced) ``conv2d_patches``,
-    elsewhere ``lax.conv_general_dilated``; ``dtype`` is the compute dtype.
+    checkpoints carry over. On the CPU (``jax.default_backend()`` when traced) ``conv2d_patches``
+    while its patches take at most ``MAX_PATCH_BYTES`` (e.g. DeepLab's ASPP on a full 1024x2048
+    frame would need 2.4 GB), else and elsewhere ``lax.conv_general_dilated``; ``dtype`` is the
+    compute dtype.
     """
 
     features: int
@@ -65,7 +77,8 @@ class Conv2D(nn.Module):
                             (k, k, x.shape[-1], self.features), jnp.float32)
         x, kernel = x.astype(self.dtype), kernel.astype(self.dtype)
         pad = self.dilation * (k - 1) // 2
-        if jax.default_backend() == "cpu":
+        patch_bytes = x.size * k * k * x.dtype.itemsize // self.stride**2
+        if jax.default_backend() == "cpu" and patch_bytes <= MAX_PATCH_BYTES:
             return conv2d_patches(x, kernel, self.stride, self.dilation, pad)
         return jax.lax.conv_general_dilated(x, kernel, (self.stride,) * 2, [(pad, pad)] * 2,
                                             rhs_dilation=(self.dilation,) * 2,
