@@ -9,9 +9,9 @@ needs taken in one pass:
     dx = scale / sigma * (g - mean(g) - x_hat * mean(g * x_hat)),
     dscale = sum(g * x_hat),  dbias = sum(g),
 
-where autodiff of the forward pass leaves XLA four or more reductions per layer, each recomputing
-the incoming gradient (on the CPU about 11% of DeepLabV3+ R101's training step:
-docs/decisions/cpu-speed.md).
+where autodiff of the forward pass leaves XLA three reductions per layer in the backward pass
+(and two in the forward), each recomputing the incoming gradient (on the CPU, writing it out saved
+about 11% of DeepLabV3+ R101's training step: docs/decisions/cpu-speed.md).
 """
 from __future__ import annotations
 
