@@ -11,8 +11,9 @@ autocast bfloat16, channels-last) when a GPU is present; on a CPU small inputs i
 bfloat16 is emulated in both libraries, so its timings say nothing). ``quick`` runs the tiny
 preset without the peer: a smoke test of the code paths, not a measurement of ResNet-101.
 Parameters are filled on the host from ``jax.eval_shape`` shapes: ``init`` is not timed.
-Both jaxanom steps are jitted with ``conv_compiler_options()``, as the library's trainer's steps
-are (on a CPU: XLA's own convolutions, not YNNPACK's; docs/decisions/cpu-speed.md).
+Both jaxanom steps are jitted with ``conv_compiler_options()`` and the train step donates its
+state only off the CPU (``state_donation``), as the library's trainer's steps
+(docs/decisions/cpu-speed.md; one thread each, CPU time: ``cpu_models_one_thread.py``).
 
     PYTHONPATH=. python benchmarks/bench_models.py [--quick]
 """
@@ -28,7 +29,7 @@ import optax
 
 from benchmarks.timing import environment, flop_rate, markdown_table, median_ms
 from jaxanom.models import build_model
-from jaxanom.xla_options import conv_compiler_options
+from jaxanom.xla_options import conv_compiler_options, state_donation
 
 NUM_CLASSES = 19
 
@@ -97,7 +98,7 @@ def _jax_train_ms(name, shape, dtype, repeats):
         updates, opt_state = tx.update(grads, opt_state, params)
         return optax.apply_updates(params, updates), batch_stats, opt_state, loss
 
-    step = jax.jit(step, donate_argnums=(0, 1, 2), compiler_options=conv_compiler_options())
+    step = jax.jit(step, donate_argnums=(0, 1, 2) if state_donation() else (), compiler_options=conv_compiler_options())
     state = [variables["params"], variables["batch_stats"], tx.init(variables["params"])]
 
     def run():

@@ -60,7 +60,7 @@ def test_four_devices_step_equals_one_device_step():
     np.testing.assert_allclose(l1, l4, rtol=1e-5)
 
 
-def test_cudam_step_compiles_once_donates_the_state_and_draws_study_iterations():
+def test_cudam_step_compiles_once_donates_the_state_off_the_cpu_and_draws_study_iterations():
     model, mesh, tx, cfg, state, _, _ = setup("cudam")
 
     @chex.assert_max_traces(n=1)
@@ -72,7 +72,7 @@ def test_cudam_step_compiles_once_donates_the_state_and_draws_study_iterations()
     for seed in range(30):
         old = state
         state, metrics = train(state, global_batch(make_batch(seed % 3), mesh))  # a second trace raises
-        assert jax.tree.leaves(old.params)[0].is_deleted()
+        assert jax.tree.leaves(old.params)[0].is_deleted() == (jax.default_backend() != "cpu")
         assert all(np.isfinite(float(v)) for v in metrics.values())
         assert 0.0 <= float(metrics["lambda"]) <= 1.0
         studies.append(float(metrics["study"]))

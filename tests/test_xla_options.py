@@ -4,7 +4,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxanom.xla_options import conv_compiler_options
+from jaxanom.xla_options import conv_compiler_options, state_donation
 
 
 def _conv(x, k, dilation):
@@ -31,3 +31,7 @@ def test_cpu_convolution_matches_torch_without_ynnpack(dilation):
                                       torch.from_numpy(k.astype(np.float64)).permute(3, 2, 0, 1),
                                       padding=dilation, dilation=dilation).permute(0, 2, 3, 1).numpy()
     np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5 * np.abs(want).max())
+
+
+def test_state_is_donated_off_the_cpu_only():
+    assert state_donation("cpu") == () and state_donation("gpu") == (0,) and state_donation("tpu") == (0,)

@@ -12,6 +12,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxanom.nn.batch_norm import BatchNorm
+from jaxanom.nn.conv import Conv2D
+
 Dtype = Any
 
 # PyTorch's BatchNorm defaults (momentum 0.1 on the new value = 0.9 on the running value).
@@ -37,27 +40,8 @@ class ConvBN(nn.Module):
 
     @nn.compact
     def __call__(self, x: jax.Array, train: bool) -> jax.Array:
-        pad = self.dilation * (self.kernel_size - 1) // 2
-        x = nn.Conv(
-            self.features,
-            (self.kernel_size, self.kernel_size),
-            strides=self.stride,
-            padding=((pad, pad), (pad, pad)),
-            kernel_dilation=self.dilation,
-            use_bias=False,
-            dtype=self.dtype,
-            param_dtype=jnp.float32,
-            kernel_init=nn.initializers.variance_scaling(2.0, "fan_out", "normal"),
-            name="conv",
-        )(x)
-        x = nn.BatchNorm(
-            use_running_average=not train,
-            momentum=BN_MOMENTUM,
-            epsilon=BN_EPSILON,
-            dtype=self.dtype,
-            param_dtype=jnp.float32,
-            name="bn",
-        )(x)
+        x = Conv2D(self.features, self.kernel_size, self.stride, self.dilation, self.dtype, name="conv")(x)
+        x = BatchNorm(not train, BN_MOMENTUM, BN_EPSILON, self.dtype, name="bn")(x)
         return nn.relu(x) if self.relu else x
 
 

@@ -26,7 +26,7 @@ from jaxanom.metrics.segmentation import confusion_counts
 from jaxanom.train.running_sml import running_sml_score, running_stats_update
 from jaxanom.train.sharding import batch_sharding, replicated
 from jaxanom.train.state import TrainState
-from jaxanom.xla_options import conv_compiler_options
+from jaxanom.xla_options import conv_compiler_options, state_donation
 
 METHODS = ("plain", "cudam", "msaam")
 COMPUTE_DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
@@ -173,16 +173,21 @@ def eval_step(variables: dict, batch: dict, *, model, cfg: LossConfig) -> jax.Ar
     return confusion_counts(jnp.argmax(logits, axis=-1), batch["label"], logits.shape[-1], cfg.ignore)
 
 
+def _platform(mesh: jax.sharding.Mesh) -> str:
+    return mesh.devices.flat[0].platform
+
+
 def _options(mesh: jax.sharding.Mesh) -> dict[str, str]:
     """The convolution compiler options for the platform of ``mesh``'s devices."""
-    return conv_compiler_options(mesh.devices.flat[0].platform)
+    return conv_compiler_options(_platform(mesh))
 
 
 def jit_train_step(fn: Callable, mesh: jax.sharding.Mesh) -> Callable:
-    """``fn(state, batch)`` jitted: state replicated and donated, batch split along "data"."""
+    """``fn(state, batch)`` jitted: state replicated (and donated, except on the CPU:
+    ``xla_options.state_donation``), batch split along "data"."""
     rep = replicated(mesh)
-    return jax.jit(fn, in_shardings=(rep, batch_sharding(mesh)), out_shardings=(rep, rep), donate_argnums=0,
-                   compiler_options=_options(mesh))
+    return jax.jit(fn, in_shardings=(rep, batch_sharding(mesh)), out_shardings=(rep, rep),
+                   donate_argnums=state_donation(_platform(mesh)), compiler_options=_options(mesh))
 
 
 def make_steps(model, tx, cfg: LossConfig, mesh: jax.sharding.Mesh) -> tuple[Callable, Callable]:

@@ -1,6 +1,6 @@
 """Filling Flax variables from a PyTorch state dict, all or nothing.
 
-A *naming* maps the path of each Flax ``nn.Conv`` / ``nn.BatchNorm`` module (e.g.
+A *naming* maps the path of each convolution or BatchNorm module (flax's or ``jaxanom.nn``'s; e.g.
 ``("backbone", "layer1_0", "conv1", "conv")``) to the PyTorch module that holds its weights
 (``"layer1.0.conv1"``), or to None when the checkpoint does not provide it. Leaves map as
 
