@@ -42,7 +42,8 @@ def test_conv2d_patches_matches_torch_values_and_gradients(h, w, k, stride, dila
     np.testing.assert_allclose(np.asarray(dk), k_t.grad.numpy(), rtol=1e-12, atol=1e-6)
 
 
-def test_conv2d_module_keeps_nn_conv_parameters_and_matches_it_in_float32():
+def test_conv2d_module_keeps_nn_conv_parameters_and_matches_it_in_float32(monkeypatch):
+    monkeypatch.setattr("jaxanom.nn.conv.MIN_PATCH_CHANNELS", 1)  # the patch path, at any width
     rng = np.random.default_rng(0)
     x = jnp.asarray(rng.normal(size=(2, 9, 11, 16)).astype(np.float32))
     ours = Conv2D(8, 3, stride=2, dilation=1)
@@ -71,13 +72,15 @@ def test_backward_keeps_the_input_not_its_patches():
     assert kept <= x.size + kernel.size  # the patches alone would be 9 * x.size
 
 
-def test_conv2d_module_falls_back_to_lax_when_patches_would_be_too_large(monkeypatch):
+def test_conv2d_module_takes_patches_only_for_wide_inputs_whose_patches_fit(monkeypatch):
     x = jnp.asarray(np.random.default_rng(1).normal(size=(1, 6, 7, 4)).astype(np.float32))
     module = Conv2D(3, 3, dilation=2)
     params = module.init(jax.random.key(0), x)
     primitives = lambda: {str(e.primitive) for e in jax.make_jaxpr(module.apply)(params, x).jaxpr.eqns}  # noqa: E731
-    small = module.apply(params, x)
+    assert "conv_general_dilated" in primitives()  # 4 input channels: narrower than MIN_PATCH_CHANNELS
+    narrow = module.apply(params, x)
+    monkeypatch.setattr("jaxanom.nn.conv.MIN_PATCH_CHANNELS", 4)
     assert "conv_general_dilated" not in primitives()
+    np.testing.assert_allclose(module.apply(params, x), narrow, rtol=1e-5, atol=1e-5)
     monkeypatch.setattr("jaxanom.nn.conv.MAX_PATCH_BYTES", x.nbytes * 9 - 1)
     assert "conv_general_dilated" in primitives()
-    np.testing.assert_allclose(module.apply(params, x), small, rtol=1e-5, atol=1e-5)

@@ -18,6 +18,9 @@ import jax
 import jax.numpy as jnp
 
 MAX_PATCH_BYTES = 2**30  # the most memory one convolution's patches may take on the CPU path
+# Narrower inputs keep XLA's convolution: their patch products are slower than it and compile
+# slower (measured per threshold in docs/decisions/cpu-speed.md, "Which convolutions").
+MIN_PATCH_CHANNELS = 128
 
 
 def _live_taps(size: int, kernel: int, stride: int, dilation: int, pad: int) -> tuple[int, int, int]:
@@ -59,9 +62,9 @@ class Conv2D(nn.Module):
 
     Parameters as ``flax.linen.Conv``'s (``kernel`` (k, k, Cin, Cout), float32), so weights and
     checkpoints carry over. On the CPU (``jax.default_backend()`` when traced) ``conv2d_patches``
-    while its patches take at most ``MAX_PATCH_BYTES`` (e.g. DeepLab's ASPP on a full 1024x2048
-    frame would need 2.4 GB), else and elsewhere ``lax.conv_general_dilated``; ``dtype`` is the
-    compute dtype.
+    for inputs of at least ``MIN_PATCH_CHANNELS`` channels whose patches take at most
+    ``MAX_PATCH_BYTES`` (e.g. DeepLab's ASPP on a full 1024x2048 frame would need 2.4 GB), else and
+    elsewhere ``lax.conv_general_dilated``; ``dtype`` is the compute dtype.
     """
 
     features: int
@@ -78,7 +81,7 @@ class Conv2D(nn.Module):
         x, kernel = x.astype(self.dtype), kernel.astype(self.dtype)
         pad = self.dilation * (k - 1) // 2
         patch_bytes = x.size * k * k * x.dtype.itemsize // self.stride**2
-        if jax.default_backend() == "cpu" and patch_bytes <= MAX_PATCH_BYTES:
+        if jax.default_backend() == "cpu" and x.shape[-1] >= MIN_PATCH_CHANNELS and patch_bytes <= MAX_PATCH_BYTES:
             return conv2d_patches(x, kernel, self.stride, self.dilation, pad)
         return jax.lax.conv_general_dilated(x, kernel, (self.stride,) * 2, [(pad, pad)] * 2,
                                             rhs_dilation=(self.dilation,) * 2,
