@@ -52,7 +52,8 @@ def _backward(epsilon, residuals, cotangents):
 @functools.partial(jax.custom_vjp, nondiff_argnums=(3,))
 def batch_norm_train(x: jax.Array, scale: jax.Array, bias: jax.Array, epsilon: float
                      ) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """``x`` (..., C) float normalised with its own statistics: ``(y, mean (C,), biased var (C,))``."""
+    """``x`` (..., C) float normalised with its own statistics: ``(y, mean (C,), biased var (C,))``.
+    Only ``y`` carries gradients: the statistics feed the running averages, so their cotangents are dropped."""
     return _forward(x, scale, bias, epsilon)[0]
 
 
