@@ -79,14 +79,9 @@ def _jax_forward_ms(name, attention, shape, dtype, repeats):
     return ms, flop_rate(forward, variables, images, ms=ms)
 
 
-def _jax_train_ms(name, shape, dtype, repeats):
-    model = build_model(name, NUM_CLASSES, attention="cudam", dtype=jnp.dtype(dtype))
-    variables = _host_variables(model, shape)
-    tx = optax.sgd(0.01, momentum=0.9)
-    rng = np.random.default_rng(1)
-    images = jnp.asarray(rng.normal(size=(*shape, 3)).astype(np.float32))
-    labels = jnp.asarray(rng.integers(0, NUM_CLASSES, shape).astype(np.int32))
-
+def jitted_train_step(model, tx):
+    """One jitted optimizer step of ``model``: ``(params, batch_stats, opt_state, images, labels)`` ->
+    ``(params, batch_stats, opt_state, loss)``, the state donated where the trainer donates it."""
     def step(params, batch_stats, opt_state, images, labels):
         def loss_fn(p):
             out, state = model.apply({"params": p, "batch_stats": batch_stats}, images, train=True,
@@ -98,7 +93,18 @@ def _jax_train_ms(name, shape, dtype, repeats):
         updates, opt_state = tx.update(grads, opt_state, params)
         return optax.apply_updates(params, updates), batch_stats, opt_state, loss
 
-    step = jax.jit(step, donate_argnums=(0, 1, 2) if state_donation() else (), compiler_options=conv_compiler_options())
+    return jax.jit(step, donate_argnums=(0, 1, 2) if state_donation() else (), compiler_options=conv_compiler_options())
+
+
+def _jax_train_ms(name, shape, dtype, repeats):
+    model = build_model(name, NUM_CLASSES, attention="cudam", dtype=jnp.dtype(dtype))
+    variables = _host_variables(model, shape)
+    tx = optax.sgd(0.01, momentum=0.9)
+    rng = np.random.default_rng(1)
+    images = jnp.asarray(rng.normal(size=(*shape, 3)).astype(np.float32))
+    labels = jnp.asarray(rng.integers(0, NUM_CLASSES, shape).astype(np.int32))
+
+    step = jitted_train_step(model, tx)
     state = [variables["params"], variables["batch_stats"], tx.init(variables["params"])]
 
     def run():

@@ -28,10 +28,10 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import optax  # noqa: E402
 
-from benchmarks.bench_models import NUM_CLASSES, _host_variables, _torch_deeplab  # noqa: E402
+from benchmarks.bench_models import NUM_CLASSES, _host_variables, _torch_deeplab, jitted_train_step  # noqa: E402
 from benchmarks.timing import environment, markdown_table  # noqa: E402
 from jaxanom.models import build_model  # noqa: E402
-from jaxanom.xla_options import conv_compiler_options, state_donation  # noqa: E402
+from jaxanom.xla_options import conv_compiler_options  # noqa: E402
 
 FORWARD, TRAIN = (1, 64, 128), (2, 64, 64)
 
@@ -59,24 +59,11 @@ def jax_train_step():
     images = jnp.asarray(rng.normal(size=(*TRAIN, 3)).astype(np.float32))
     labels = jnp.asarray(rng.integers(0, NUM_CLASSES, TRAIN).astype(np.int32))
 
-    def step(state, images, labels):
-        params, batch_stats, opt_state = state
-
-        def loss_fn(p):
-            out, new = model.apply({"params": p, "batch_stats": batch_stats}, images, train=True,
-                                   mutable=["batch_stats"])
-            loss = optax.softmax_cross_entropy_with_integer_labels(out["logits"], labels).mean()
-            return loss, new["batch_stats"]
-
-        (loss, batch_stats), grads = jax.value_and_grad(loss_fn, has_aux=True)(params)
-        updates, opt_state = tx.update(grads, opt_state, params)
-        return (optax.apply_updates(params, updates), batch_stats, opt_state), loss
-
-    jitted = jax.jit(step, donate_argnums=state_donation(), compiler_options=conv_compiler_options())
-    state = [(variables["params"], variables["batch_stats"], tx.init(variables["params"]))]
+    jitted = jitted_train_step(model, tx)
+    state = [variables["params"], variables["batch_stats"], tx.init(variables["params"])]
 
     def run():
-        state[0], loss = jitted(state[0], images, labels)
+        *state[:], loss = jitted(*state, images, labels)
         return jax.block_until_ready(loss)
 
     return run, jitted, (state, images, labels)
@@ -155,5 +142,5 @@ if __name__ == "__main__":
         from benchmarks.xla_cpu_profile import profile_table
 
         step, jitted, step_args = jax_train_step()
-        print(profile_table(step, jitted.lower(step_args[0][0], *step_args[1:]).compile().as_text()))
+        print(profile_table(step, jitted.lower(*step_args[0], *step_args[1:]).compile().as_text()))
     print("load after:", os.getloadavg())
