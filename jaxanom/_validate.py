@@ -31,15 +31,20 @@ def _all_finite(x) -> jax.Array:
 
 
 def check_finite(name: str, x) -> None:
-    """No NaN or Inf in ``x`` (skipped for tracers); one compiled reduction, no host copy.
+    """No NaN or Inf in ``x`` (skipped for tracers), with no host copy: a host array (NumPy, a
+    list) is checked by NumPy, a JAX array by one compiled reduction on its device (compiled
+    once per shape, so host inputs never compile).
 
     A concrete array closed over by a caller's ``jax.jit`` / ``vmap`` / ``grad`` is checked
     too: the reduction runs eagerly (``ensure_compile_time_eval``) instead of being traced.
     """
     if not is_concrete(x) or not jnp.issubdtype(dtype_of(x), jnp.inexact):
         return
-    with jax.ensure_compile_time_eval():
-        finite = bool(_all_finite(jnp.asarray(x)))
+    if not isinstance(x, jax.Array):
+        finite = bool(np.isfinite(x).all())
+    else:
+        with jax.ensure_compile_time_eval():
+            finite = bool(_all_finite(x))
     if not finite:
         bad = int(np.size(x) - np.count_nonzero(np.isfinite(np.asarray(x))))
         raise ValueError(f"{name} must be finite, got {bad} NaN/Inf value(s)")

@@ -107,7 +107,8 @@ def test_grad_through_sml_score_in_logits_and_statistics():
 
 @pytest.mark.parametrize("size", [4097, 70_000])
 @pytest.mark.parametrize("where", ["one", "all", "inf"])
-def test_nan_is_seen_at_any_size(size, where):
+@pytest.mark.parametrize("array", [np.asarray, jnp.asarray])  # checked by NumPy / by a compiled reduction
+def test_nan_is_seen_at_any_size(size, where, array):
     logits = np.ones((1, size, 2), np.float32)
     if where == "one":
         logits[0, size - 7, 1] = np.nan
@@ -115,6 +116,7 @@ def test_nan_is_seen_at_any_size(size, where):
         logits[:] = np.nan
     else:
         logits[0, size // 2, 0] = -np.inf
+    logits = array(logits)
     for f in (scores.max_logit, scores.msp, lambda x: sml.sml_score(x, MEAN[:2], STD[:2], smooth=False)):
         with pytest.raises(ValueError, match="finite"):
             f(logits)
