@@ -135,7 +135,7 @@ def _sort(codes: jax.Array) -> jax.Array:
 def lattice_keys(features: jax.Array) -> LatticeKeys:
     """Simplex vertices and barycentric weights of ``features (N, d)`` (already divided by their
     std devs), their codes sorted once; ``.count`` sizes the tables of ``lattice_tables``."""
-    n, d = features.shape
+    d = features.shape[1]
     elevated = _elevate(features)
     rem0 = jnp.round(elevated / (d + 1)) * (d + 1)
     total = jnp.sum(rem0, axis=-1) / (d + 1)
@@ -149,9 +149,9 @@ def lattice_keys(features: jax.Array) -> LatticeKeys:
     rem0 = jnp.where(low, rem0 + d + 1, jnp.where(high, rem0 - d - 1, rem0))
     v = (elevated - rem0) / (d + 1)
     # barycentric weights: b[p] = v[the coordinate of rank d - p] - v[the one of rank d - p + 1], b[0] += 1 + b[d+1]
-    by_rank = jnp.sum(jnp.where(rank[:, None, :] == d - jnp.arange(d + 1)[:, None], v[:, None, :], 0.0), axis=-1)
-    bary = jnp.concatenate([by_rank, jnp.zeros((n, 1), v.dtype)], -1) - jnp.concatenate([jnp.zeros((n, 1), v.dtype), by_rank], -1)
-    bary = bary.at[:, 0].add(1.0 + bary[:, d + 1])[:, : d + 1]
+    # (summed coordinate by coordinate: 2x faster on CPU than an (N, d+1, d+1) select and reduce)
+    by_rank = sum(jnp.where(rank[:, i:i + 1] == d - np.arange(d + 1), v[:, i:i + 1], 0.0) for i in range(d + 1))
+    bary = by_rank - jnp.concatenate([by_rank[:, d:] - 1.0, by_rank[:, :d]], axis=-1)  # b[0] = by_rank[0] + 1 - by_rank[d]
 
     # vertex r of the simplex: rem0 + canonical[r][rank], with canonical[r][j] = r - (d+1) [j > d - r]
     r = np.arange(d + 1)[:, None]
