@@ -207,10 +207,10 @@ def _walks(neighbours: jax.Array) -> jax.Array:
     moves = jnp.concatenate([neighbours, jnp.full((dp1, 2, 1), size, jnp.int32)], axis=-1)
     exists = []
     for sense in (0, 1):  # +1 moves, -1 moves
-        at = jnp.arange(size + 1, dtype=jnp.int32)[:, None]  # column m: where the walk of mask m is so far
+        at = [jnp.arange(size + 1, dtype=jnp.int32)]  # at[m]: where the walk of mask m is so far
         for j in range(dp1):
-            at = jnp.concatenate([at, moves[j, sense][at]], axis=1)  # columns with bit j set moved along j
-        exists.append(jnp.pad(at < size, ((0, 0), (0, -(2**dp1) % 64))).reshape(size + 1, -1, 4, 16))
+            at = at + [moves[j, sense][column] for column in at]  # masks with bit j set moved along j
+        exists.append(jnp.pad(jnp.stack(at, axis=1) < size, ((0, 0), (0, -(2**dp1) % 64))).reshape(size + 1, -1, 4, 16))
     # 16-bit pieces by a matmul (exact in float32), which XLA does not fuse into the per-point
     # gather of the rows (a fused packing, recomputed per point, was 5x slower), then whole words
     pieces = (jnp.stack(exists, axis=1).astype(jnp.float32) @ (2.0 ** np.arange(16, dtype=np.float32))).astype(jnp.int64)
@@ -240,7 +240,7 @@ def _self_weights(vertex, weight, rank, neighbours):
         word = sum(jnp.where(mask >> 6 == k, words[:, b, sense, k], 0) for k in range(words.shape[-1]))
         return ((word >> (mask & 63)) & 1).astype(weight.dtype)
 
-    total = jnp.zeros_like(weight[:, 0])
+    terms = []
     for a in range(dp1):
         for b in range(dp1):
             if a == b:
@@ -249,8 +249,9 @@ def _self_weights(vertex, weight, rank, neighbours):
                 ranks = below[:, dp1 - min(a, b)] - below[:, dp1 - max(a, b)]
                 m, moved = (ranks, b - a) if a < b else (full - ranks, dp1 - (a - b))
                 gains = 0.5**moved * walk(b, 0, m) + 0.5 ** (dp1 - moved) * walk(b, 1, full - m)
-            total = total + weight[:, a] * weight[:, b] * gains
-    return _alpha(dp1) * total
+            terms.append(weight[:, a] * weight[:, b] * gains)
+    # one reduction: its result is stored once (XLA would copy a sum of terms into every consumer)
+    return _alpha(dp1) * jnp.sum(jnp.stack(terms, axis=-1), axis=-1)
 
 
 def _alpha(dp1: int) -> float:
