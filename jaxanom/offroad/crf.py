@@ -282,7 +282,9 @@ def lattice_filter(lattice: Lattice, values: jax.Array) -> jax.Array:
         return grid.at[:size].add(0.5 * (grid[pair[0]] + grid[pair[1]])), None
 
     grid, _ = jax.lax.scan(blur, splat, lattice.neighbours, unroll=True)
-    return _alpha(dp1) * jnp.einsum("nr,nrl->nl", lattice.weight, grid[lattice.vertex])
+    # the slice as a sum of d+1 gathered rows: one fused loop, 5x faster on CPU than an einsum
+    # over the gathered (N, d+1, L) block (a batch of N tiny matrix products)
+    return _alpha(dp1) * sum(lattice.weight[:, r:r + 1] * grid[lattice.vertex[:, r]] for r in range(dp1))
 
 
 # ---- mean field --------------------------------------------------------------------------------
