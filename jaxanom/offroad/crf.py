@@ -143,7 +143,7 @@ def lattice_keys(features: jax.Array) -> LatticeKeys:
     # rank[i] = position of coordinate i in descending order of diff (ties: the lower index first)
     greater = (diff[:, None, :] > diff[:, :, None]) | ((diff[:, None, :] == diff[:, :, None])
                                                      & (jnp.arange(d + 1)[None, :] < jnp.arange(d + 1)[:, None]))
-    rank = jnp.sum(greater, axis=-1) + total[:, None].astype(jnp.int32)
+    rank = jnp.sum(greater, axis=-1, dtype=jnp.int32) + total[:, None].astype(jnp.int32)
     low, high = rank < 0, rank > d
     rank = jnp.where(low, rank + d + 1, jnp.where(high, rank - d - 1, rank))
     rem0 = jnp.where(low, rem0 + d + 1, jnp.where(high, rem0 - d - 1, rem0))
@@ -154,7 +154,7 @@ def lattice_keys(features: jax.Array) -> LatticeKeys:
     bary = by_rank - jnp.concatenate([by_rank[:, d:] - 1.0, by_rank[:, :d]], axis=-1)  # b[0] = by_rank[0] + 1 - by_rank[d]
 
     # vertex r of the simplex: rem0 + canonical[r][rank], with canonical[r][j] = r - (d+1) [j > d - r]
-    r = np.arange(d + 1)[:, None]
+    r = np.arange(d + 1, dtype=np.int32)[:, None]
     keys = rem0[:, None, :d] + (r - (d + 1) * (rank[:, None, :d] > d - r)).astype(features.dtype)  # (N, d+1, d), integers
     base, half = _packing(d)
     # digits (also neighbours') in their field: over r, canonical[r][k] takes every value in [-k, d - k]
