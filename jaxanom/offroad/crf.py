@@ -233,8 +233,7 @@ def _self_weights(vertex, weight, rank, neighbours):
     dp1 = weight.shape[1]
     full = 2**dp1 - 1
     # below[:, k]: the mask of the directions of rank < k, k = 0..d+1
-    by_rank = jnp.sum(jnp.where(rank[:, :, None] == np.arange(dp1), 1 << np.arange(dp1, dtype=np.int64)[:, None], 0), axis=1)
-    below = jnp.pad(jnp.cumsum(by_rank, axis=1), ((0, 0), (1, 0)))
+    below = sum(jnp.where(rank[:, j:j + 1] < np.arange(dp1 + 1), np.int64(1) << j, 0) for j in range(dp1))
     words = _walks(neighbours)[vertex]  # (N, d+1, 2, K): the rows of the vertices
 
     def walk(b, sense, mask):  # 0 / 1: whether the walk `sense` of `mask` from v_b exists
