@@ -305,8 +305,8 @@ def positional_filter(height: int, width: int, sigma: float) -> Callable[[jax.Ar
 def _gaussian_rows(x: jax.Array, sigma: float) -> jax.Array:
     """``y_i = sum_j exp(-(i - j)^2 / 2 sigma^2) x_j`` along axis 0 of ``x (n, M)``, keeping the taps
     ``|i - j| <= r = ceil(6 sigma)``: those dropped sum to at most ``int_r^inf exp(-t^2 / 2 sigma^2) dt
-    <= sigma sqrt(pi / 2) erfc(6 / sqrt 2) < 2.5e-9 sigma`` on each side (absolute error <= 5e-9 sigma
-    max|x|; every tap kept is >= exp(-18)). Blocks of ``_TILE`` outputs read ``_TILE + 2r`` inputs:
+    <= sigma sqrt(pi / 2) erfc(6 / sqrt 2) < 2.5e-9 sigma`` on each side, so ``|y - y_exact| <= 5e-9
+    sigma max|x|`` (the centre tap alone is 1). Blocks of ``_TILE`` outputs read ``_TILE + 2r`` inputs:
     O(n (_TILE + 2r) M) instead of the dense O(n^2 M); where the band covers the image
     (``r >= n - 1``), one dense n x n matrix with every tap."""
     n = x.shape[0]
@@ -442,7 +442,7 @@ def _run(fn, probs, image, batched, sxy_b, srgb, w_b, sxy_g, w_g, iters, normali
     scale = 1.0 if reference_width is None else np.shape(probs)[-2] / float(reference_width)
     with jax.enable_x64(True):
         image = jnp.asarray(image, jnp.float32)
-        sigmas = jnp.float32(sxy_b * scale), jnp.float32(srgb), float(np.float32(sxy_g * scale))  # sxy_g: static
+        sigmas = jnp.float32(sxy_b * scale), jnp.float32(srgb), float(np.float32(sxy_g * scale))  # static: sizes the smoothness band
         keys, size = None, None
         if method == "permutohedral":  # the bilateral lattice is built once: sorted keys, then tables of its size
             keys = (_keys_batch if batched else _keys_jit)(image, sigmas[0], sigmas[1])
