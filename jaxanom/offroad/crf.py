@@ -211,10 +211,12 @@ def _walks(neighbours: jax.Array) -> jax.Array:
         at = [jnp.arange(size + 1, dtype=jnp.int32)]  # at[m]: where the walk of mask m is so far
         for j in range(dp1):
             at = at + [moves[j, sense][column] for column in at]  # masks with bit j set moved along j
-        exists.append(jnp.pad(jnp.stack(at, axis=1) < size, ((0, 0), (0, -(2**dp1) % 64))).reshape(size + 1, -1, 4, 16))
+        # compared before stacking: XLA fuses the gathers into the stack (3x faster than stacking int32 columns)
+        exists.append(jnp.stack([column < size for column in at], axis=1))
     # 16-bit pieces by a matmul (exact in float32), which XLA does not fuse into the per-point
     # gather of the rows (fused, the packing ran per point: 5x slower than 36 float look-ups), then words
-    pieces = (jnp.stack(exists, axis=1).astype(jnp.float32) @ (2.0 ** np.arange(16, dtype=np.float32))).astype(jnp.int64)
+    exists = jnp.pad(jnp.stack(exists, axis=1), ((0, 0), (0, 0), (0, -(2**dp1) % 64))).reshape(size + 1, 2, -1, 4, 16)
+    pieces = (exists.astype(jnp.float32) @ (2.0 ** np.arange(16, dtype=np.float32))).astype(jnp.int64)
     return jnp.sum(pieces << np.arange(0, 64, 16), axis=-1)
 
 
