@@ -189,6 +189,21 @@ def test_positional_filter_is_the_exact_gaussian_sum():
     np.testing.assert_allclose(positional_filter(h, w, sigma)(values), kernel @ values, rtol=1e-5)
 
 
+@pytest.mark.parametrize("h, w, sigma", [
+    (150, 1, 1.7), (1, 131, 3.0), (1, 1, 2.0),  # one pixel wide; 150 rows: three 64-row blocks and a ragged one
+    (67, 45, 0.4),  # sub-pixel: a 3-tap band
+    (150, 3, 20.0),  # a 121-tap band, still narrower than the 150 rows
+    (40, 23, 25.0)])  # the band wider than the image: the dense matrix
+def test_banded_positional_filter_matches_the_gaussian_sum_on_awkward_sizes(h, w, sigma):
+    from jaxanom.offroad.crf import positional_filter
+
+    rng = np.random.default_rng(h * w)
+    values = rng.random((h * w, 3))
+    pos = np.stack(np.mgrid[0:h, 0:w], -1).reshape(-1, 2).astype(np.float64)
+    expected = np.exp(-np.sum((pos[:, None] - pos[None]) ** 2, -1) / (2 * sigma**2)) @ values
+    np.testing.assert_allclose(positional_filter(h, w, sigma)(values.astype(np.float32)), expected, rtol=1e-5)
+
+
 def test_mass_scale_makes_lattice_messages_match_the_exact_ones():
     import jax
     import jax.numpy as jnp
