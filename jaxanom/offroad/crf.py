@@ -31,6 +31,7 @@ The public ``dense_crf`` computes in float32 (the lattice keys in int64 under a 
 """
 from __future__ import annotations
 
+import functools
 import math
 from typing import Callable, NamedTuple
 
@@ -60,6 +61,7 @@ def crf_features(image: jax.Array, sxy_b, srgb, sxy_g) -> tuple[jax.Array, jax.A
 # ---- exact filter ------------------------------------------------------------------------------
 
 
+@jax.jit
 def exact_filter(features: jax.Array, values: jax.Array) -> jax.Array:
     """``sum_j exp(-|f_i - f_j|^2 / 2) v_j`` (self included), ``(N, d), (N, L) -> (N, L)``, in row blocks."""
     n = features.shape[0]
@@ -132,6 +134,7 @@ def _sort(codes: jax.Array) -> jax.Array:
     return jax.lax.bitcast_convert_type(ordered, jnp.int64)
 
 
+@jax.jit
 def lattice_keys(features: jax.Array) -> LatticeKeys:
     """Simplex vertices and barycentric weights of ``features (N, d)`` (already divided by their
     std devs), their codes sorted once; ``.count`` sizes the tables of ``lattice_tables``."""
@@ -165,6 +168,7 @@ def lattice_keys(features: jax.Array) -> LatticeKeys:
     return LatticeKeys(codes, ordered, count, bary, rank.astype(jnp.int32), fits)
 
 
+@functools.partial(jax.jit, static_argnames="size")
 def lattice_tables(keys: LatticeKeys, size: int) -> Lattice:
     """The vertex tables of ``keys`` with room for ``size`` (static) distinct vertices: blur and
     neighbour search cost O(size); with fewer than ``keys.count``, ``fits`` is false."""
@@ -261,6 +265,7 @@ def _alpha(dp1: int) -> float:
     return 1.0 / (1.0 + 2.0 ** (-(dp1 - 1)))
 
 
+@functools.partial(jax.jit, static_argnames="size")
 def build_lattice(features: jax.Array, size: int | None = None) -> Lattice:
     """The permutohedral lattice of ``features (N, d)`` (already divided by their std devs), with
     room for ``size`` (static) vertices (default ``N (d+1)``, always enough)."""
@@ -268,11 +273,13 @@ def build_lattice(features: jax.Array, size: int | None = None) -> Lattice:
     return lattice_tables(keys, keys.codes.shape[0] if size is None else size)
 
 
+@jax.jit
 def vertex_count(features: jax.Array) -> jax.Array:
     """The number of distinct lattice vertices of ``features (N, d)`` (int32 scalar)."""
     return lattice_keys(features).count
 
 
+@jax.jit
 def lattice_filter(lattice: Lattice, values: jax.Array) -> jax.Array:
     """Approximate ``sum_j exp(-|f_i - f_j|^2 / 2) v_j``: splat, blur along d+1 directions, slice."""
     n, dp1 = lattice.vertex.shape
@@ -322,6 +329,7 @@ def _gaussian_rows(x: jax.Array, sigma: float) -> jax.Array:
     return jnp.einsum("ab,tbm->tam", band, window).reshape(count * tile, -1)[:n]
 
 
+@functools.partial(jax.jit, static_argnames="rows")
 def mass_scale(lattice: Lattice, features: jax.Array, rows: int = 64) -> jax.Array:
     """``c`` with ``K~_lattice ~ c K~``: the lattice's off-diagonal mass over the exact kernel's,
     both summed over ``rows`` (static) evenly strided points (O(rows N)); 1 if the exact is 0."""
