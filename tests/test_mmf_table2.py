@@ -1,6 +1,7 @@
 """``experiments/mmf_table2.py``: seeds, findings on the right rows, and the whole table path with
 untrained parts (the training itself is covered by ``test_mmf_demo``)."""
 import dataclasses
+import functools
 import json
 import types
 
@@ -156,24 +157,43 @@ def test_score_routes_each_row_to_its_net_with_auroc_and_mean_f1():
     assert len(seen) == 2  # the maps are computed once per batch, whatever the number of nets
 
 
+def _random_variables(seed: int, init, *args, **kwargs) -> dict:
+    """Variables shaped as ``init(key, *args, **kwargs)`` makes them, drawn by NumPy (no compile: an
+    eager ``init`` compiles every primitive of every network): kernels N(0, 1 / fan-in), biases and
+    running means 0, scales and running variances 1; another seed, other weights."""
+    rng = np.random.default_rng(seed)
+
+    def draw(path, leaf):
+        name = jax.tree_util.keystr(path[-1:])
+        if any(k in name for k in ("bias", "mean")):
+            return np.zeros(leaf.shape, leaf.dtype)
+        if any(k in name for k in ("scale", "var")):
+            return np.ones(leaf.shape, leaf.dtype)
+        fan_in = max(1, int(np.prod(leaf.shape[:-1])))
+        return rng.normal(0, fan_in**-0.5, leaf.shape).astype(leaf.dtype)
+
+    return jax.tree_util.tree_map_with_path(draw, jax.eval_shape(init, jax.random.key(seed), *args, **kwargs))
+
+
 @pytest.fixture
 def untrained_parts(monkeypatch):
-    """The pipeline's parts at their initial weights: every training call replaced by ``init``."""
+    """The pipeline's parts at random weights: every training call replaced by ``_random_variables``."""
 
     def run_training(experiment, run_dir, **_):
         image = np.zeros((1, experiment.height, experiment.width, 3), np.float32)
-        return build_network(experiment).init(jax.random.key(experiment.train.seed), image, train=False)
+        return _random_variables(experiment.train.seed, functools.partial(build_network(experiment).init, train=False),
+                                 image)
 
     def train(config, model, stream):
         batch = next(iter(stream))
         extras = {k: np.asarray(batch[k][:1]) for k in model.extra_inputs}
-        variables = model.init(jax.random.key(config.seed), model_input(np.asarray(batch["image"][:1])), train=False,
-                               **extras)
+        variables = _random_variables(config.seed, functools.partial(model.init, train=False),
+                                      model_input(np.asarray(batch["image"][:1])), **extras)
         return types.SimpleNamespace(variables=variables)
 
     def train_gan(config, generator, critic, stream):
         label = np.asarray(next(iter(stream))["label"][:1])
-        return types.SimpleNamespace(generator_variables=generator.init(jax.random.key(config.seed), label))
+        return types.SimpleNamespace(generator_variables=_random_variables(config.seed, generator.init, label))
 
     monkeypatch.setattr(pipeline, "run_training", run_training)
     monkeypatch.setattr(pipeline, "train", train)
