@@ -51,9 +51,9 @@ def road_anomaly_sample() -> Path:
 # each worker a whole file at a time in collection order (``--no-loadscope-reorder`` in pyproject
 # keeps this order instead of sorting by test count), so these start first and the short files
 # fill in around them; a long file left to the end would keep one worker busy while the other idles.
-LONGEST_FIRST = ("test_cli.py", "test_offroad_pipeline.py", "test_mmf_demo.py", "test_mmf_table2.py",
-                 "test_mixture.py", "test_experiments_offroad.py", "test_nn_afc_rgbd.py",
-                 "test_nn_spade_dissimilarity.py")
+LONGEST_FIRST = ("test_offroad_crf.py", "test_mmf_demo.py", "test_experiments_offroad.py", "test_cli.py",
+                 "test_mmf_table2.py", "test_offroad_pipeline.py", "test_nn_spade_dissimilarity.py", "test_weights.py",
+                 "test_mmf_spade.py", "test_nn_afc_rgbd.py", "test_superpixels.py", "test_mmf_postprocess.py")
 
 
 def pytest_collection_modifyitems(items):
