@@ -9,6 +9,7 @@ recomputed each step: no memory bank) and takes one optax update; the step is on
 from __future__ import annotations
 
 import dataclasses
+import functools
 from functools import partial
 from typing import Callable, NamedTuple
 
@@ -101,7 +102,13 @@ def concat_frames(a: AnnotatedFrames, b: AnnotatedFrames) -> AnnotatedFrames:
 
 def init_encoder(key, config: EncoderConfig):
     """Encoder parameters for (size, size, 6) patches."""
-    return config.model().init(key, jnp.zeros((1, config.size, config.size, 6)))["params"]
+    return _jitted_init(config.model())(key, jnp.zeros((1, config.size, config.size, 6)))["params"]
+
+
+@functools.lru_cache(maxsize=8)
+def _jitted_init(model):
+    """``model.init`` compiled once per (hashable) network; called eagerly it compiles every primitive."""
+    return jax.jit(model.init)
 
 
 def _optimizer(config: EncoderConfig) -> optax.GradientTransformation:
