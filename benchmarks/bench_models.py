@@ -96,7 +96,9 @@ def jitted_train_step(model, tx):
     return jax.jit(step, donate_argnums=(0, 1, 2) if state_donation() else (), compiler_options=conv_compiler_options())
 
 
-def _jax_train_ms(name, shape, dtype, repeats):
+def train_step_run(name: str, shape: tuple, dtype: str = "float32"):
+    """``(run, jitted step, (state, images, labels))`` for ``name`` with CuDAM on random ``shape``
+    ``(B, H, W)`` frames: one call of ``run`` is one SGD step (it updates ``state`` in place)."""
     model = build_model(name, NUM_CLASSES, attention="cudam", dtype=jnp.dtype(dtype))
     variables = _host_variables(model, shape)
     tx = optax.sgd(0.01, momentum=0.9)
@@ -109,8 +111,13 @@ def _jax_train_ms(name, shape, dtype, repeats):
 
     def run():
         *state[:], loss = step(*state, images, labels)
-        return loss
+        return jax.block_until_ready(loss)
 
+    return run, step, (state, images, labels)
+
+
+def _jax_train_ms(name, shape, dtype, repeats):
+    run, step, (state, images, labels) = train_step_run(name, shape, dtype)
     ms = median_ms(run, repeats=repeats, warmup=2)
     return ms, flop_rate(step, *state, images, labels, ms=ms)
 

@@ -26,9 +26,8 @@ import statistics  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-import optax  # noqa: E402
 
-from benchmarks.bench_models import NUM_CLASSES, _host_variables, _torch_deeplab, jitted_train_step  # noqa: E402
+from benchmarks.bench_models import NUM_CLASSES, _host_variables, _torch_deeplab, train_step_run  # noqa: E402
 from benchmarks.timing import environment, markdown_table  # noqa: E402
 from jaxanom.models import build_model  # noqa: E402
 from jaxanom.xla_options import conv_compiler_options  # noqa: E402
@@ -52,21 +51,7 @@ def jax_forward():
 
 def jax_train_step():
     """``(run, jitted step, its arguments)``: one call of ``run`` is one SGD step of the CuDAM network."""
-    model = build_model("deeplabv3plus_r101", NUM_CLASSES, attention="cudam")
-    variables = _host_variables(model, TRAIN)
-    tx = optax.sgd(0.01, momentum=0.9)
-    rng = np.random.default_rng(1)
-    images = jnp.asarray(rng.normal(size=(*TRAIN, 3)).astype(np.float32))
-    labels = jnp.asarray(rng.integers(0, NUM_CLASSES, TRAIN).astype(np.int32))
-
-    jitted = jitted_train_step(model, tx)
-    state = [variables["params"], variables["batch_stats"], tx.init(variables["params"])]
-
-    def run():
-        *state[:], loss = jitted(*state, images, labels)
-        return jax.block_until_ready(loss)
-
-    return run, jitted, (state, images, labels)
+    return train_step_run("deeplabv3plus_r101", TRAIN)
 
 
 def torch_forward():
