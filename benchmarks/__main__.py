@@ -45,11 +45,12 @@ def load(name: str, directory: Path = HERE) -> ModuleType:
     return module
 
 
-def run_all(names: list[str], quick: bool, directory: Path = HERE, log=print) -> dict[str, dict]:
+def run_all(names: list[str], quick: bool, directory: Path = HERE, log=print, after=None) -> dict[str, dict]:
     """``{name: {"rows", "reader", "seconds"}}`` or ``{name: {"error", "seconds"}}`` per module.
 
     ``reader(rows) -> str`` reads one table in a line: the module's own ``interpret`` if it has
-    one, else ``interpret`` here.
+    one, else ``interpret`` here. ``after(results)``, if given, is called after each module (so a
+    run killed at a time limit keeps what it measured).
     """
     results = {}
     for name in names:
@@ -64,6 +65,8 @@ def run_all(names: list[str], quick: bool, directory: Path = HERE, log=print) ->
             results[name] = {"error": traceback.format_exc(limit=3).strip()}
         results[name]["seconds"] = time.perf_counter() - start
         log(f"  {time.perf_counter() - start:.0f} s")
+        if after is not None:
+            after(results)
     return results
 
 
@@ -162,14 +165,17 @@ def main(argv=None, directory: Path = HERE) -> int:
 
     env = environment()
     print(", ".join(f"{k}: {v}" for k, v in env.items()))
-    results = run_all(args.only or available, args.quick, directory)
     path = args.results
-    text = results_markdown(results, env, args.quick, kept_notes(path))
-    print(text)
-    if args.write:
+    notes = kept_notes(path)
+
+    def write(results):
         from jaxanom.io import write_bytes_atomic
 
-        write_bytes_atomic(path, text.encode())
+        write_bytes_atomic(path, results_markdown(results, env, args.quick, notes).encode())
+
+    results = run_all(args.only or available, args.quick, directory, after=write if args.write else None)
+    print(results_markdown(results, env, args.quick, notes))
+    if args.write:
         print(f"wrote {path}")
     return 1 if any("error" in r for r in results.values()) else 0
 

@@ -185,6 +185,18 @@ def test_benchmark_runner_tables_and_results_file(tmp_path, capsys):
     capsys.readouterr()
 
 
+def test_benchmark_runner_writes_each_module_as_it_ends(tmp_path, capsys):
+    """A run stopped at a time limit (here: interrupted in its second module) keeps the first."""
+    (tmp_path / "bench_a_first.py").write_text(
+        "def run(quick=False):\n    return [dict(benchmark='first', case='c', impl='jaxanom', median_ms=2.0)]\n")
+    (tmp_path / "bench_b_killed.py").write_text("def run(quick=False):\n    raise KeyboardInterrupt\n")
+    with pytest.raises(KeyboardInterrupt):
+        bench_main(["--write"], directory=tmp_path)
+    text = (tmp_path / "RESULTS.md").read_text()
+    assert "## bench_a_first" in text and "| first | c | jaxanom | 2 |" in text and "b_killed" not in text
+    capsys.readouterr()
+
+
 def test_interpret_mixed_and_slower_peers():
     rows = [dict(case="a", impl="jaxanom", median_ms=10.0), dict(case="a", impl="torch", median_ms=5.0),
             dict(case="b", impl="jaxanom", median_ms=10.0), dict(case="b", impl="torch", median_ms=20.0),
