@@ -23,7 +23,7 @@ from pathlib import Path
 
 import jax.numpy as jnp
 
-from benchmarks.timing import Unavailable, environment, markdown_table, median_ms
+from benchmarks.timing import Unavailable, environment, markdown_table, median_ms, require
 
 ROOT = Path(__file__).resolve().parent.parent
 REALDATA = Path(os.environ.get("JAXANOM_REALDATA", ROOT.parent / "shared" / "realdata"))
@@ -43,8 +43,9 @@ def _seconds(args: list[str]) -> float:
 def run(quick: bool = False) -> list[dict]:
     checkpoint = REALDATA / "espnet" / "espnet_p_2_q_8.pth"
     images = sorted((REALDATA / "RoadAnomaly21" / "images").glob("*.png"))
-    if not checkpoint.is_file() or len(images) < 3:
-        raise Unavailable(f"needs the ESPNet checkpoint and RoadAnomaly21 frames under {REALDATA}")
+    if not checkpoint.is_file() or len(images) < 3 or not (REALDATA / "cityscapes8").is_dir():
+        raise Unavailable(f"needs the ESPNet checkpoint, cityscapes8 and RoadAnomaly21 frames under {REALDATA}")
+    require("grain")  # fit-stats reads the Cityscapes frames through the data pipeline
     images = images[:3] if quick else images
     with tempfile.TemporaryDirectory() as folder:
         run_dir, stats, out = Path(folder) / "espnet", Path(folder) / "stats.npz", Path(folder) / "out"
