@@ -30,18 +30,23 @@ def _all_finite(x) -> jax.Array:
     return jnp.all(jnp.isfinite(x))
 
 
+def in_host_memory(x) -> bool:
+    """Whether NumPy reads ``x`` where it lies: a host array, or a JAX array on CPU devices only."""
+    return not isinstance(x, jax.Array) or all(device.platform == "cpu" for device in x.devices())
+
+
 def check_finite(name: str, x) -> None:
-    """No NaN or Inf in ``x`` (skipped for tracers), with no host copy: a host array (NumPy, a
-    list) is checked by NumPy, a JAX array by one compiled reduction on its device (compiled
-    once per shape, so host inputs never compile).
+    """No NaN or Inf in ``x`` (skipped for tracers), with no copy to the host: an array in host
+    memory (NumPy, a list, a JAX array on the CPU) is checked by NumPy, which compiles nothing;
+    an array on an accelerator by one compiled reduction there (compiled once per shape).
 
     A concrete array closed over by a caller's ``jax.jit`` / ``vmap`` / ``grad`` is checked
     too: the reduction runs eagerly (``ensure_compile_time_eval``) instead of being traced.
     """
     if not is_concrete(x) or not jnp.issubdtype(dtype_of(x), jnp.inexact):
         return
-    if not isinstance(x, jax.Array):
-        finite = bool(np.isfinite(x).all())
+    if in_host_memory(x):
+        finite = bool(np.isfinite(np.asarray(x)).all())
     else:
         with jax.ensure_compile_time_eval():
             finite = bool(_all_finite(x))

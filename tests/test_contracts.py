@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from jaxanom import scores, sml
+from jaxanom import _validate, scores, sml
 from jaxanom.app import methods
 from jaxanom.cudam_score import cudam_score, upsample_attention
 
@@ -107,8 +107,10 @@ def test_grad_through_sml_score_in_logits_and_statistics():
 
 @pytest.mark.parametrize("size", [4097, 70_000])
 @pytest.mark.parametrize("where", ["one", "all", "inf"])
-@pytest.mark.parametrize("array", [np.asarray, jnp.asarray])  # checked by NumPy / by a compiled reduction
-def test_nan_is_seen_at_any_size(size, where, array):
+@pytest.mark.parametrize("array", ["numpy", "jax", "accelerator"])  # NumPy reads the first two
+def test_nan_is_seen_at_any_size(size, where, array, monkeypatch):
+    if array == "accelerator":  # the compiled reduction that checks arrays on a GPU, taken here on the CPU
+        monkeypatch.setattr(_validate, "in_host_memory", lambda x: not isinstance(x, jax.Array))
     logits = np.ones((1, size, 2), np.float32)
     if where == "one":
         logits[0, size - 7, 1] = np.nan
@@ -116,7 +118,7 @@ def test_nan_is_seen_at_any_size(size, where, array):
         logits[:] = np.nan
     else:
         logits[0, size // 2, 0] = -np.inf
-    logits = array(logits)
+    logits = logits if array == "numpy" else jnp.asarray(logits)
     for f in (scores.max_logit, scores.msp, lambda x: sml.sml_score(x, MEAN[:2], STD[:2], smooth=False)):
         with pytest.raises(ValueError, match="finite"):
             f(logits)

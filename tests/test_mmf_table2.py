@@ -15,6 +15,7 @@ from experiments.common import Scale
 from jaxanom.app.experiment import build_network
 from jaxanom.app import mmf_pipeline as pipeline
 from jaxanom.train.step import model_input
+from tiny_models import random_variables
 
 
 def test_seeds_sizes_and_smoke_detection():
@@ -157,43 +158,25 @@ def test_score_routes_each_row_to_its_net_with_auroc_and_mean_f1():
     assert len(seen) == 2  # the maps are computed once per batch, whatever the number of nets
 
 
-def _random_variables(seed: int, init, *args, **kwargs) -> dict:
-    """Variables shaped as ``init(key, *args, **kwargs)`` makes them, drawn by NumPy (no compile: an
-    eager ``init`` compiles every primitive of every network): kernels N(0, 1 / fan-in), biases and
-    running means 0, scales and running variances 1; another seed, other weights."""
-    rng = np.random.default_rng(seed)
-
-    def draw(path, leaf):
-        name = jax.tree_util.keystr(path[-1:])
-        if any(k in name for k in ("bias", "mean")):
-            return np.zeros(leaf.shape, leaf.dtype)
-        if any(k in name for k in ("scale", "var")):
-            return np.ones(leaf.shape, leaf.dtype)
-        fan_in = max(1, int(np.prod(leaf.shape[:-1])))
-        return rng.normal(0, fan_in**-0.5, leaf.shape).astype(leaf.dtype)
-
-    return jax.tree_util.tree_map_with_path(draw, jax.eval_shape(init, jax.random.key(seed), *args, **kwargs))
-
-
 @pytest.fixture
 def untrained_parts(monkeypatch):
-    """The pipeline's parts at random weights: every training call replaced by ``_random_variables``."""
+    """The pipeline's parts at random weights: every training call replaced by ``random_variables``."""
 
     def run_training(experiment, run_dir, **_):
         image = np.zeros((1, experiment.height, experiment.width, 3), np.float32)
-        return _random_variables(experiment.train.seed, functools.partial(build_network(experiment).init, train=False),
+        return random_variables(experiment.train.seed, functools.partial(build_network(experiment).init, train=False),
                                  image)
 
     def train(config, model, stream):
         batch = next(iter(stream))
         extras = {k: np.asarray(batch[k][:1]) for k in model.extra_inputs}
-        variables = _random_variables(config.seed, functools.partial(model.init, train=False),
+        variables = random_variables(config.seed, functools.partial(model.init, train=False),
                                       model_input(np.asarray(batch["image"][:1])), **extras)
         return types.SimpleNamespace(variables=variables)
 
     def train_gan(config, generator, critic, stream):
         label = np.asarray(next(iter(stream))["label"][:1])
-        return types.SimpleNamespace(generator_variables=_random_variables(config.seed, generator.init, label))
+        return types.SimpleNamespace(generator_variables=random_variables(config.seed, generator.init, label))
 
     monkeypatch.setattr(pipeline, "run_training", run_training)
     monkeypatch.setattr(pipeline, "train", train)

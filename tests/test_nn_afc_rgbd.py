@@ -9,6 +9,7 @@ import torch
 from jaxanom.models.rgbd import RGBDNet, depth_input
 from jaxanom.nn.afc import AFC
 from jaxanom.nn.spp import adaptive_avg_pool
+from tiny_models import random_variables
 
 
 def _afc_numpy(o, d, w1, b1, w2, b2):
@@ -68,7 +69,7 @@ def test_rgbdnet_shapes_depth_matters_and_compiles_once():
     rng = np.random.default_rng(0)
     images = jnp.asarray(rng.normal(size=(2, 32, 48, 3)), jnp.float32)
     depth = jnp.asarray(rng.uniform(size=(2, 32, 48, 1)), jnp.float32)
-    variables = model.init(jax.random.key(0), images, depth=depth)
+    variables = random_variables(0, model.init, images, depth=depth)  # NumPy draws: an eager init compiles for seconds
 
     @jax.jit
     @chex.assert_max_traces(n=1)

@@ -7,6 +7,7 @@ import pytest
 
 from jaxanom.models.dissimilarity import DissimilarityNet, anomaly_probability
 from jaxanom.nn.spade import SPADE, resize_nearest
+from tiny_models import random_variables
 
 
 def _conv3x3(x, kernel, bias):
@@ -59,7 +60,7 @@ def test_dissimilarity_net_shapes_inputs_and_compiles_once():
     rng = np.random.default_rng(0)
     inputs = _inputs(rng)
     model = DissimilarityNet(3, width=1 / 16)
-    variables = model.init(jax.random.key(0), **inputs)
+    variables = random_variables(0, model.init, **inputs)  # NumPy draws: an eager init compiles for seconds
 
     @jax.jit
     @chex.assert_max_traces(n=1)
@@ -75,7 +76,7 @@ def test_dissimilarity_net_shapes_inputs_and_compiles_once():
 
     plain = DissimilarityNet(3, uncertainty_channels=0, use_depth=False, width=1 / 16)
     assert plain.extra_inputs == ("resynthesis", "semantic")
-    v = plain.init(jax.random.key(0), inputs["images"], inputs["resynthesis"], inputs["semantic"])
+    v = jax.eval_shape(plain.init, jax.random.key(0), inputs["images"], inputs["resynthesis"], inputs["semantic"])
     assert "prior_encoder" not in v["params"] and "depth_encoder" not in v["params"]
     with pytest.raises(ValueError, match="divisible by 8"):
         model.init(jax.random.key(0), **_inputs(rng, h=12))

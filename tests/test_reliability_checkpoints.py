@@ -39,10 +39,15 @@ def test_a_reader_creates_no_folder(tmp_path):
         assert reader.latest_step() == 1
 
 
-def test_nan_in_restored_parameters_is_a_checkpoint_error(tmp_path):
-    folder = _saved(tmp_path, jnp.array([1.0, jnp.nan, 3.0]))
-    with pytest.raises(ValueError, match=r"step 1 holds NaN/Inf in 1 array\(s\).*'w'.*delete that step"):
-        restore_checkpoint(folder, {"w": jnp.zeros(3)})
+@pytest.mark.parametrize("where", ["host", "accelerator"])  # read by NumPy / by one compiled reduction
+def test_nan_in_restored_parameters_is_a_checkpoint_error(tmp_path, monkeypatch, where):
+    import jaxanom.train.checkpoint as checkpoint
+
+    if where == "accelerator":  # the path of arrays restored onto a GPU, taken here on the CPU
+        monkeypatch.setattr(checkpoint, "in_host_memory", lambda x: False)
+    folder = _saved(tmp_path, {"a": jnp.ones(2), "w": jnp.array([1.0, jnp.nan, 3.0]), "z": jnp.zeros(4)})
+    with pytest.raises(ValueError, match=r"step 1 holds NaN/Inf in 1 array\(s\).*\['w'\]\['w'\].*delete that step"):
+        restore_checkpoint(folder, {"w": {"a": jnp.ones(2), "w": jnp.zeros(3), "z": jnp.zeros(4)}})
 
 
 def test_truncated_checkpoint_data_is_a_one_line_checkpoint_error(tmp_path):

@@ -57,6 +57,24 @@ def numpy_variables(model, size: int = 8) -> dict:
     return jax.tree_util.tree_map_with_path(fill, shapes)
 
 
+def random_variables(seed: int, init, *args, **kwargs) -> dict:
+    """Variables shaped as ``init(key, *args, **kwargs)`` makes them, drawn by NumPy (no compile: an
+    eager ``init`` compiles every primitive of every network): kernels N(0, 1 / fan-in), biases and
+    running means 0, scales and running variances 1; another seed, other weights."""
+    rng = np.random.default_rng(seed)
+
+    def draw(path, leaf):
+        name = jax.tree_util.keystr(path[-1:])
+        if any(k in name for k in ("bias", "mean")):
+            return np.zeros(leaf.shape, leaf.dtype)
+        if any(k in name for k in ("scale", "var")):
+            return np.ones(leaf.shape, leaf.dtype)
+        fan_in = max(1, int(np.prod(leaf.shape[:-1])))
+        return rng.normal(0, fan_in**-0.5, leaf.shape).astype(leaf.dtype)
+
+    return jax.tree_util.tree_map_with_path(draw, jax.eval_shape(init, jax.random.key(seed), *args, **kwargs))
+
+
 @functools.lru_cache(maxsize=None)
 def init_variables(head: str = "plain") -> dict:
     """``numpy_variables`` of ``TinySegNet(head=head)``, computed once."""

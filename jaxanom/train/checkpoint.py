@@ -17,6 +17,8 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
+from jaxanom._validate import in_host_memory
+
 # orbax splits a replicated array among its replicas (each device writes a slice), which compiles
 # one slice per array shape and device: 216 compiles on the first save of the MMF quick demo's
 # small networks on 4 CPU devices. Below this size one replica writes the whole array.
@@ -45,6 +47,15 @@ def _abstract(tree):
 def _all_finite(leaves: list) -> list:
     """Per leaf, whether it holds no NaN/Inf: one compiled call for a whole state."""
     return [jnp.all(jnp.isfinite(leaf)) for leaf in leaves]
+
+
+def _finite(leaves: list) -> list[bool]:
+    """Per leaf, whether it holds no NaN/Inf: NumPy reads the leaves in host memory (no compile),
+    one compiled call checks those on accelerators where they lie."""
+    on_device = [leaf for leaf in leaves if not in_host_memory(leaf)]
+    device_finite = iter(jax.device_get(_all_finite(on_device)) if on_device else ())
+    return [bool(np.isfinite(np.asarray(leaf)).all()) if in_host_memory(leaf) else bool(next(device_finite))
+            for leaf in leaves]
 
 
 class Checkpointer:
@@ -108,8 +119,8 @@ class Checkpointer:
                                                  f"{_first_line(error)})")) from error
         leaves = [(path, leaf) for path, leaf in jax.tree_util.tree_leaves_with_path(restored["state"])
                   if jnp.issubdtype(leaf.dtype, jnp.inexact)]
-        finite = jax.device_get(_all_finite([leaf for _, leaf in leaves]))
-        bad = [jax.tree_util.keystr(path) for (path, _), ok in zip(leaves, finite) if not ok]
+        bad = [jax.tree_util.keystr(path) for (path, _), ok in zip(leaves, _finite([leaf for _, leaf in leaves]))
+               if not ok]
         if bad:
             raise ValueError(self._damaged(step, f"holds NaN/Inf in {len(bad)} array(s), e.g. {bad[0]}"))
         return restored["state"], restored["data"]["iterator"]
