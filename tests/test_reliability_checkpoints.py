@@ -4,6 +4,7 @@ import pytest
 
 import jax.numpy as jnp
 
+from compiles import compiled_during
 from jaxanom.train.checkpoint import Checkpointer, restore_checkpoint
 
 
@@ -63,24 +64,17 @@ def test_a_replicated_state_saves_and_restores_without_a_compile_per_array_and_d
     """orbax's replica-parallel writes sliced each small replicated array per device (one compile
     per shape and device: 216 in the MMF quick demo) and the NaN check compiled per leaf."""
     import jax
-    import jax.monitoring
 
     from jaxanom.train.sharding import make_mesh, replicated
 
     state = jax.device_put({f"w{i}": jnp.full((3, i + 1), float(i)) for i in range(6)}, replicated(make_mesh(jax.devices())))
-    compiles = []
+    def save():
+        with Checkpointer(tmp_path, save_every=1) as checkpointer:
+            checkpointer.save(1, state)
 
-    def count(event, _, **__):
-        if event == "/jax/core/compile/backend_compile_duration":
-            compiles.append(event)
-
-    jax.monitoring.register_event_duration_secs_listener(count)
-    with Checkpointer(tmp_path, save_every=1) as checkpointer:
-        checkpointer.save(1, state)
-    saved = len(compiles)
-    restored, _ = restore_checkpoint(tmp_path, state)
-    jax.monitoring.unregister_event_duration_listener(count)
-    assert saved == 0 and len(compiles) - saved <= 1, (saved, len(compiles) - saved)
+    _, on_save = compiled_during(save)
+    (restored, _), on_restore = compiled_during(lambda: restore_checkpoint(tmp_path, state))
+    assert on_save == [] and len(on_restore) <= 1, (on_save, on_restore)
     for key, value in state.items():
         assert restored[key].sharding == value.sharding
         np.testing.assert_array_equal(restored[key], value)

@@ -14,6 +14,7 @@ import pytest
 from jaxanom.train.checkpoint import Checkpointer, restore_checkpoint
 from jaxanom.train.loop import NonFiniteLossError, TrainConfig, train
 from jaxanom.train.optim import OptimConfig
+from compiles import compiled_during
 from tiny_models import TinySegNet, init_variables, make_batch
 
 TESTS = Path(__file__).parent
@@ -59,6 +60,23 @@ def test_crash_and_resume_of_a_plain_iterable_is_bitwise_equal(tmp_path):
     assert [line["step"] for line in val_lines] == [3, 6] and all(0 <= l["val/miou"] <= 1 for l in val_lines)
     assert any(name.startswith("events.out.tfevents") for name in os.listdir(tmp_path / "full" / "tensorboard"))
     assert steps_on_disk(tmp_path / "full" / "checkpoints") == [3, 6]  # keep=2
+
+
+def test_a_resumed_run_restores_without_compiling_its_init(tmp_path):
+    """Restoring needs only the state's shapes (``jax.eval_shape``): the initial variables of a run
+    with a checkpoint were computed, compiled and thrown away (seconds per network, more for big ones)."""
+    full = train(config(tmp_path / "full", steps=4, save_every=2), TinySegNet(), batches(4))
+    with pytest.raises(RuntimeError, match="simulated crash"):
+        train(config(tmp_path / "crash", steps=4, save_every=2), TinySegNet(), batches(4, crash_at=3))
+    resumed = train(config(tmp_path / "crash", steps=4, save_every=2), TinySegNet(), batches(4))
+    for a, b in zip(flat_params(full), flat_params(resumed)):
+        np.testing.assert_array_equal(a, b)
+
+    again, compiles = compiled_during(  # a finished run: restored, nothing computed
+        lambda: train(config(tmp_path / "crash", steps=4, save_every=2), TinySegNet(), batches(4)))
+    assert int(again.step) == 4 and compiles == [], compiles
+    for a, b in zip(flat_params(full), flat_params(again)):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_nan_loss_stops_and_keeps_the_last_good_checkpoint(tmp_path):

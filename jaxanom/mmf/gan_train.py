@@ -170,15 +170,16 @@ def train_gan(config: GANConfig, generator, discriminator, batches: Iterable[dic
     first = next(source)
     check_batch(first, generator.num_classes, UNKNOWN)
     generator.check(np.asarray(first["label"]))
-    state = init_gan_state(config, generator, discriminator, first)
     # the step depends on the losses and optimisers only: runs that differ elsewhere share it
     step_fn = _jitted_step(dataclasses.replace(config, run_dir="", steps=1, seed=0, save_every=1, keep=1,
                                                progress=False), generator, discriminator)
 
     checkpointer = Checkpointer(os.path.join(config.run_dir, "checkpoints"), config.save_every, config.keep)
     pending = [first]
-    if checkpointer.latest_step() is not None:
-        state, _ = checkpointer.restore(state)
+    if checkpointer.latest_step() is None:
+        state = init_gan_state(config, generator, discriminator, first)
+    else:  # restored into the state's shapes alone: a resumed or finished run compiles no init
+        state, _ = checkpointer.restore(jax.eval_shape(lambda: init_gan_state(config, generator, discriminator, first)))
         pending = []
         for _ in range(int(state.step) - 1 if int(state.step) < config.steps else 0):  # a finished run reads none
             next(source)

@@ -170,16 +170,22 @@ def _run(config: TrainConfig, model, train_data, val_data, variables, mesh, tx, 
     check_batch(first, num_classes, config.loss.ignore)
 
     init_key, state_key = jax.random.split(jax.random.key(config.seed))
-    if variables is None:
-        images, extras = init_inputs(model, first)
-        variables = jax.jit(model.init, static_argnames="train")(init_key, images, train=False, **extras)
     sml_classes = running_sml_classes(config.loss, num_classes)
-    state = jax.device_put(TrainState.create(variables, tx, state_key, sml_classes), replicated(mesh))
+
+    def new_state(variables):
+        if variables is None:
+            images, extras = init_inputs(model, first)
+            variables = model.init(init_key, images, train=False, **extras)
+        return TrainState.create(variables, tx, state_key, sml_classes)
 
     checkpointer = Checkpointer(os.path.join(config.run_dir, "checkpoints"), config.save_every, config.keep)
     pending = [first]
-    if checkpointer.latest_step() is not None:
-        state, data_state = checkpointer.restore(state)
+    if checkpointer.latest_step() is None:
+        state = jax.device_put(jax.jit(new_state)(variables), replicated(mesh))
+    else:  # restored into the state's shapes alone: a resumed or finished run compiles no init
+        shapes = jax.eval_shape(new_state, variables)
+        template = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=replicated(mesh)), shapes)
+        state, data_state = checkpointer.restore(template)
         pending = []
         if resumable and data_state is not None:
             _set_data_state(source, data_state)
