@@ -438,7 +438,7 @@ def run(scale: Scale, seeds: int, out_dir: Path = HERE, runs: Path = RUNS, log: 
               "table": [{"label": k, **v} for k, v in values.items()], "scale": dataclasses.asdict(used[0]),
               "findings": findings(values, same, better), "identical_rows": same,
               "networks": {k: {"part": part, "mmf_config": i["config"]} for i in infos for part, k in i["keys"].items()},
-              "seeds": seeds_text(used), "num_seeds": len(used), "steps_text": steps,
+              "seeds": seeds_text(used, paired=False), "num_seeds": len(used), "steps_text": steps,
               "quality": {k: [i["quality"][k] for i in infos] for k in quality_keys},
               "timings": infos[0].get("timings"), "size": f"{seg.height} x {seg.width}", "minutes": total}
     result["report"] = report(result)

@@ -189,6 +189,8 @@ def test_table_over_two_seeds_is_written_and_summarised(tmp_path, untrained_part
     assert sorted(p.name for p in out.iterdir()) == [f"{exp.NAME}{s}" for s in (".json", ".md", "_pr.png", "_roc.png")]
     saved = json.loads((out / f"{exp.NAME}.json").read_text())
     assert saved["num_seeds"] == 2 and saved["scale"]["height"] == 32 and saved["scale"]["width"] == 64
+    # its findings compare means against the std over seeds: the report must not claim paired intervals
+    assert "no paired intervals" in saved["seeds"] and "bootstrap" not in saved["seeds"]
     rows = {row["label"]: row for row in saved["table"]}
     assert list(rows) == [row.label for row in exp.ROWS]
     for spec in exp.ROWS:
