@@ -30,7 +30,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from experiments.common import HERE, RUNS, Scale, _batches, _thin, aggregate, seed_scales, seeds_text
+from experiments.common import (COMPETENT_MIOU, HERE, RUNS, Scale, _batches, _thin, aggregate, seed_scales,
+                                seeds_text)
 from jaxanom import sml
 from jaxanom.app.demos.mmf import MMFDemoConfig, evaluation_frames
 from jaxanom.app.evaluate import anomaly_results, class_statistics, predictions, predictor, segmentation_results
@@ -300,7 +301,8 @@ def best(v, winner, among, metric, claim) -> tuple:
 
 def findings(v: dict, identical: Sequence[Sequence[str]] = (), better_synthesizer: str = "class_mean") -> list[dict]:
     """The paper's claims (Tables 1, 2, 4; §IV-C) and the control, each ``{claim, holds, evidence,
-    status, control}``; ``status`` is ``"untested"`` (and ``holds`` False) where two of the rows a
+    status, control, tested, untested_because}`` (``tested``: the segmenter, whose maps feed every row,
+    reaches ``COMPETENT_MIOU``; None without its mIoU); ``status`` is ``"untested"`` (and ``holds`` False) where two of the rows a
     claim compares are in one group of ``identical`` (same outputs in every seed: nothing changed).
     ``better_synthesizer``: the one with the lower resynthesis error (``quality``)."""
     better, lighter = (FULL, SPADE_FULL) if better_synthesizer == "class_mean" else (SPADE_FULL, FULL)
@@ -322,6 +324,10 @@ def findings(v: dict, identical: Sequence[Sequence[str]] = (), better_synthesize
     ]
     control = improves(v, CONTROL, BASE, ("ap",), "control: the resynthesis net fed the ground truth's resynthesis "
                                                   "beats it fed the prediction's (must hold)")
+    segmenter = v.get(ENTROPY, {}).get("miou")  # every row carries its pipeline's segmenter mIoU
+    tested = None if segmenter is None else bool(segmenter >= COMPETENT_MIOU)
+    why = "" if tested is not False else (f"the pipeline's segmenter reaches {segmenter:.1f}% mIoU (< "
+                                          f"{COMPETENT_MIOU:.0f}%), and its maps and resynthesis feed every row")
     out = []
     for (claim, holds, evidence, rows), is_control in [(c, False) for c in checks] + [(control, True)]:
         same = [g for g in identical if sum(label in g for label in rows) >= 2]
@@ -329,7 +335,7 @@ def findings(v: dict, identical: Sequence[Sequence[str]] = (), better_synthesize
         if same:
             evidence = f"untested: {' = '.join(same[0])} have identical outputs in every seed; {evidence}"
         out.append({"claim": claim, "holds": status == "holds", "evidence": evidence, "status": status,
-                    "control": is_control})
+                    "control": is_control, "tested": tested, "untested_because": why})
     return out
 
 
@@ -373,7 +379,7 @@ def report(result: dict) -> str:
     lines += ["", "| paper's finding | holds here? | evidence |", "|---|---|---|"]
     marks = {"holds": "yes", "fails": "**no**", "untested": "untested"}
     lines += [f"| {'**' + f['claim'] + '**' if f['control'] else f['claim']} | {marks[f['status']]} | {f['evidence']} |"
-              for f in result["findings"]]
+              for f in result["findings"] + result["controls"]]
     same = result["identical_rows"]
     lines += ["", "Rows with identical outputs in every seed (their comparisons are untested): "
               + ("; ".join(" = ".join(g) for g in same) if same else "none") + "."]
@@ -434,9 +440,11 @@ def run(scale: Scale, seeds: int, out_dir: Path = HERE, runs: Path = RUNS, log: 
     quality_keys = infos[0]["quality"]
     better = "class_mean" if (np.mean([i["quality"]["class_mean_error"] for i in infos])
                               <= np.mean([i["quality"]["spade_error"] for i in infos])) else "spade"
+    claims = findings(values, same, better)  # the paper's findings, then the control (counted apart)
     result = {"name": NAME, "title": TITLE, "description": description.strip(),
               "table": [{"label": k, **v} for k, v in values.items()], "scale": dataclasses.asdict(used[0]),
-              "findings": findings(values, same, better), "identical_rows": same,
+              "findings": [f for f in claims if not f["control"]], "controls": [f for f in claims if f["control"]],
+              "identical_rows": same,
               "networks": {k: {"part": part, "mmf_config": i["config"]} for i in infos for part, k in i["keys"].items()},
               "seeds": seeds_text(used, paired=False), "num_seeds": len(used), "steps_text": steps,
               "quality": {k: [i["quality"][k] for i in infos] for k in quality_keys},

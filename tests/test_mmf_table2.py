@@ -211,9 +211,13 @@ def test_table_over_two_seeds_is_written_and_summarised(tmp_path, untrained_part
     assert len({nets[label] for label in ablation}) == len(ablation)
     assert not [g for g in saved["identical_rows"] if len(set(g) & set(ablation)) > 1], saved["identical_rows"]
     assert set(saved["networks"]) >= {n for row in saved["table"] for n in row["networks"]}
-    assert saved["findings"] == exp.findings(result_values(saved), saved["identical_rows"],
-                                             "class_mean" if np.mean(saved["quality"]["class_mean_error"])
-                                             <= np.mean(saved["quality"]["spade_error"]) else "spade")
+    claims = exp.findings(result_values(saved), saved["identical_rows"],
+                          "class_mean" if np.mean(saved["quality"]["class_mean_error"])
+                          <= np.mean(saved["quality"]["spade_error"]) else "spade")
+    assert saved["findings"] + saved["controls"] == claims and [c["control"] for c in saved["controls"]] == [True]
+    assert not any(f["control"] for f in saved["findings"])  # the control is not one of the paper's findings
+    # a segmenter of random weights: nothing it feeds is a test of the paper (issue 21's bar)
+    assert all(f["tested"] is False and "% mIoU (< 60%)" in f["untested_because"] for f in claims)
     assert len(saved["quality"]["segmenter_miou"]) == 2 and len(saved["quality"]["rgbd_miou"]) == 2
     assert saved["description"].startswith("MMF smoke. Sizes: 32 x 64")
     table_text = (out / f"{exp.NAME}.md").read_text()  # each network's own step count, not one for all
@@ -222,6 +226,8 @@ def test_table_over_two_seeds_is_written_and_summarised(tmp_path, untrained_part
     assert "RGB-D net mIoU" in table_text and "mean F1" in table_text and "OT 70.93 / 4.16 / 39.64" in table_text
     text = write_results(out).read_text()
     assert exp.TITLE in text and "| MMF (assistant maps + post-processor) | `mmf` |" in text
+    control = f"{int(saved['controls'][0]['holds'])} / 1"
+    assert f"| 0 | 0 | {len(saved['findings'])} | {control} |" in text  # untested, and the control counted apart
 
 
 def result_values(saved: dict) -> dict:
