@@ -9,8 +9,7 @@ recomputed each step: no memory bank) and takes one optax update; the step is on
 from __future__ import annotations
 
 import dataclasses
-import functools
-from functools import partial
+from functools import lru_cache, partial
 from typing import Callable, NamedTuple
 
 import jax
@@ -105,7 +104,7 @@ def init_encoder(key, config: EncoderConfig):
     return _jitted_init(config.model())(key, jnp.zeros((1, config.size, config.size, 6)))["params"]
 
 
-@functools.lru_cache(maxsize=8)
+@lru_cache(maxsize=8)
 def _jitted_init(model):
     """``model.init`` compiled once per (hashable) network; called eagerly it compiles every primitive."""
     return jax.jit(model.init)

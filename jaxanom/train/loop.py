@@ -178,14 +178,13 @@ def _run(config: TrainConfig, model, train_data, val_data, variables, mesh, tx, 
             variables = model.init(init_key, images, train=False, **extras)
         return TrainState.create(variables, tx, state_key, sml_classes)
 
+    make_state = jax.jit(new_state, out_shardings=replicated(mesh))
     checkpointer = Checkpointer(os.path.join(config.run_dir, "checkpoints"), config.save_every, config.keep)
     pending = [first]
     if checkpointer.latest_step() is None:
-        state = jax.device_put(jax.jit(new_state)(variables), replicated(mesh))
-    else:  # restored into the state's shapes alone: a resumed or finished run compiles no init
-        shapes = jax.eval_shape(new_state, variables)
-        template = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=replicated(mesh)), shapes)
-        state, data_state = checkpointer.restore(template)
+        state = make_state(variables)
+    else:  # restored into the state's shapes and shardings alone: a resumed or finished run compiles no init
+        state, data_state = checkpointer.restore(jax.eval_shape(make_state, variables))
         pending = []
         if resumable and data_state is not None:
             _set_data_state(source, data_state)
