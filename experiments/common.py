@@ -671,7 +671,7 @@ def control_lines(controls: Sequence[dict]) -> list[str]:
 # ---------------------------------------------------------------- findings
 
 LOWER_IS_BETTER = {"fpr95"}
-NAMES = {"ap": "AP", "auroc": "AUROC", "fpr95": "FPR95", "miou": "mIoU"}
+NAMES = {"ap": "AP", "auroc": "AUROC", "fpr95": "FPR95", "miou": "mIoU", "f1": "mean F1"}
 
 
 def comparison(values: dict, a: str, b: str, metric: str) -> dict:

@@ -15,8 +15,11 @@
 
 Every part is trained by ``jaxanom.app.mmf_pipeline`` with the budget of ``PRESET`` (below
 ``jaxanom demo mmf``'s). AP is Eq. 7's envelope (VOC all-point) AP; FPR95 and AUROC as elsewhere;
-mean F1 is ``metrics.components`` on the obstacle track. A comparison whose rows have identical
-outputs in every seed (identical ROC and PR curves) is reported as untested, never as holding.
+mean F1 is ``metrics.components`` on the obstacle track. Rows are compared paired, as in the other
+tables: one hierarchical bootstrap over seeds and scored frames resamples every row's per-frame
+histograms (AP, FPR95, AUROC) and per-frame component counts (mean F1, at each row's pooled best-F1
+threshold). A comparison whose rows have identical outputs in every seed (identical ROC and PR curves)
+is reported as untested, never as holding.
 
     python -m experiments --only mmf_table2
 """
@@ -30,8 +33,10 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from experiments.common import (COMPETENT_MIOU, HERE, RUNS, Scale, _batches, _thin, aggregate, seed_scales,
-                                seeds_text)
+from experiments.common import (COMPETENT_MIOU, HERE, RUNS, TABLE_BINS, Scale, _batches, _cell, _row_json, _thin,
+                                aggregate, best, improves, not_better, seed_scales, seeds_text)
+from experiments.stats import (bin_edges, binned_auroc, binned_metrics, frame_histograms, hierarchical,
+                               hierarchical_draws)
 from jaxanom import sml
 from jaxanom.app.demos.mmf import MMFDemoConfig, evaluation_frames
 from jaxanom.app.evaluate import anomaly_results, class_statistics, predictions, predictor, segmentation_results
@@ -109,8 +114,6 @@ ROWS = (Row(ENTROPY, "entropy", paper="Softmax Entropy"),
 TABLE2 = (BASE, POST, ASSISTED, FULL)
 TABLE1 = (ENTROPY, BASE, FULL, "MSP", "max logit", "SML")
 METRICS = ("ap", "fpr95", "auroc", "f1")
-LOWER_IS_BETTER = {"fpr95"}
-NAMES = {"ap": "AP", "fpr95": "FPR95", "auroc": "AUROC", "f1": "mean F1"}
 
 
 def is_smoke(scale: Scale) -> bool:
@@ -163,6 +166,41 @@ def _row_values(metrics: dict, miou_value: float, network: str, score: str) -> d
     return {"ap": 100 * metrics["ap"], "auroc": 100 * metrics["auroc"], "fpr95": 100 * metrics["fpr_at_tpr"],
             "f1": float("nan") if f1 is None else 100 * f1, "miou": 100 * miou_value, "network": network,
             "score": score}
+
+
+def frame_counts(metrics: dict, curves: dict) -> dict:
+    """One row's per-frame counts for the paired bootstrap, from ``anomaly_results`` with ``track`` and
+    ``keep_curves``: ``histograms`` (F, TABLE_BINS + 1, 2) of its scores (``experiments.stats``) and
+    ``components`` (F, T, 3): TP, FN, FP of each frame at each sIoU threshold."""
+    scores, labels = curves["scores"], curves["labels"]
+    histograms = frame_histograms(scores, labels, bin_edges(scores, labels, TABLE_BINS))
+    components = np.array([[f["components"][k] for k in ("tp", "fn", "fp")] for f in metrics["frames"]], np.int64)
+    return {"histograms": histograms, "components": components.transpose(0, 2, 1)}
+
+
+def _pixel_metrics(histograms: np.ndarray) -> dict[str, np.ndarray]:
+    """Percent envelope AP (Eq. 7), FPR95 and AUROC of pooled histograms (..., bins, 2)."""
+    binned = binned_metrics(histograms)
+    return {"ap": 100 * binned["ap_envelope"], "fpr95": 100 * binned["fpr_at_tpr"],
+            "auroc": 100 * binned_auroc(histograms)}
+
+
+def _mean_f1(counts: np.ndarray) -> dict[str, np.ndarray]:
+    """Percent mean F1 over the sIoU thresholds of pooled (..., T, 3) TP, FN, FP counts: F1 = 2 TP /
+    (2 TP + FN + FP), NaN where that is 0 / 0 (``metrics.components.component_summary``)."""
+    tp, fn, fp = (counts[..., k].astype(np.float64) for k in range(3))
+    denominator = 2 * tp + fn + fp
+    return {"f1": 100 * np.where(denominator > 0, 2 * tp / np.maximum(denominator, 1), np.nan).mean(-1)}
+
+
+def paired_replicates(per_seed: Sequence[dict]) -> dict:
+    """``{label: {metric: (R,)}}``: the bootstrap replicates of every row (``per_seed[s][label]``: its
+    ``frame_counts`` in seed s), all drawn with one ``stats.hierarchical_draws`` over seeds and frames."""
+    first = next(iter(per_seed[0]))
+    draws = hierarchical_draws({"anomaly": [len(seed[first]["histograms"]) for seed in per_seed]})
+    return {label: {**hierarchical([seed[label]["histograms"] for seed in per_seed], draws, "anomaly", _pixel_metrics),
+                    **hierarchical([seed[label]["components"] for seed in per_seed], draws, "anomaly", _mean_f1)}
+            for label in per_seed[0]}
 
 
 def quality(cached: list, pipe: MMFPipeline, spade: MMFPipeline, num_classes: int) -> dict:
@@ -250,15 +288,19 @@ def seed_values(scale: Scale, runs: Path, log: Callable, time_modules: bool = Fa
                for name in ("mmf", "resynthesis", *pipe_config.dissim_variants)},
             **{f"spade {name}": f"dissimilarity-{name}-{spade.config.part_key('dissimilarity')}"
                for name in ("mmf", "resynthesis")}}
-    values, thin, prints = {}, {}, {}
+    values, thin, prints, counts = {}, {}, {}, {}
     for row in ROWS:
         net = {"resynthesis": "resynthesis", "resynthesis_post": "resynthesis"}.get(row.method, row.net)
         part = "segmenter" if row.method in ("entropy", "msp", "max_logit", "sml") else (
             f"spade {net}" if row.synthesizer == "spade" else net)
         values[row.label] = _row_values(metrics[row.label], miou_value, keys[part], row.method)
+        counts[row.label] = frame_counts(metrics[row.label], curves[row.label])
+        values[row.label]["binning"] = max(abs(_pixel_metrics(counts[row.label]["histograms"].sum(0))[k]
+                                               - values[row.label][k]) for k in ("ap", "fpr95", "auroc"))
         thin[row.label] = {"roc": _thin(*curves[row.label]["roc"]), "pr": _thin(*curves[row.label]["pr"])}
         prints[row.label] = fingerprint(curves[row.label])
-    info = {"keys": keys, "config": pipe_config.to_dict(), "fingerprints": prints, "quality": network_quality}
+    info = {"keys": keys, "config": pipe_config.to_dict(), "fingerprints": prints, "quality": network_quality,
+            "frames": counts}
     if time_modules:
         stamp("module timings")
         info["timings"] = timings(pipe, spade, source[0], TIMING_REPEATS)
@@ -269,39 +311,10 @@ def seed_values(scale: Scale, runs: Path, log: Callable, time_modules: bool = Fa
 
 # ---------------------------------------------------------------- findings
 
-def _cell(v: dict, metric: str) -> str:
-    spread = v.get(f"{metric}_std")
-    return f"{v[metric]:.2f}" if not spread else f"{v[metric]:.2f} ± {spread:.2f}"
-
-
-def _beats(v: dict, a: str, b: str, metric: str) -> bool:
-    """``a`` beats ``b`` by more than the larger std over seeds of the two (NaN never beats)."""
-    margin = v[a][metric] - v[b][metric]
-    margin = -margin if metric in LOWER_IS_BETTER else margin
-    return bool(margin > max(v[a].get(f"{metric}_std", 0.0), v[b].get(f"{metric}_std", 0.0)))
-
-
-def _pair(v: dict, a: str, b: str, metric: str) -> str:
-    return f"{NAMES[metric]} {_cell(v[a], metric)} vs {_cell(v[b], metric)}"
-
-
-def improves(v, new, old, metrics, claim) -> tuple:
-    return (claim, all(_beats(v, new, old, m) for m in metrics), ", ".join(_pair(v, new, old, m) for m in metrics),
-            (new, old))
-
-
-def not_better(v, new, old, metric, claim) -> tuple:
-    return claim, not _beats(v, new, old, metric), _pair(v, new, old, metric), (new, old)
-
-
-def best(v, winner, among, metric, claim) -> tuple:
-    evidence = f"{NAMES[metric]}: " + ", ".join(f"{label} {_cell(v[label], metric)}" for label in among)
-    return claim, all(_beats(v, winner, o, metric) for o in among if o != winner), evidence, tuple(among)
-
-
 def findings(v: dict, identical: Sequence[Sequence[str]] = (), better_synthesizer: str = "class_mean") -> list[dict]:
-    """The paper's claims (Tables 1, 2, 4; §IV-C) and the control, each ``{claim, holds, evidence,
-    status, control, tested, untested_because}`` (``tested``: the segmenter, whose maps feed every row,
+    """The paper's claims (Tables 1, 2, 4; §IV-C) and the control, each ``{claim, holds, evidence, rows,
+    intervals, status, control, tested, untested_because}`` (``common.Finding``'s fields, paired where the
+    rows carry ``"replicates"``; ``tested``: the segmenter, whose maps feed every row,
     reaches ``COMPETENT_MIOU``; None without its mIoU); ``status`` is ``"untested"`` (and ``holds`` False) where two of the rows a
     claim compares are in one group of ``identical`` (same outputs in every seed: nothing changed).
     ``better_synthesizer``: the one with the lower resynthesis error (``quality``)."""
@@ -329,12 +342,11 @@ def findings(v: dict, identical: Sequence[Sequence[str]] = (), better_synthesize
     why = "" if tested is not False else (f"the pipeline's segmenter reaches {segmenter:.1f}% mIoU (< "
                                           f"{COMPETENT_MIOU:.0f}%), and its maps and resynthesis feed every row")
     out = []
-    for (claim, holds, evidence, rows), is_control in [(c, False) for c in checks] + [(control, True)]:
-        same = [g for g in identical if sum(label in g for label in rows) >= 2]
-        status = "untested" if same else ("holds" if holds else "fails")
-        if same:
-            evidence = f"untested: {' = '.join(same[0])} have identical outputs in every seed; {evidence}"
-        out.append({"claim": claim, "holds": status == "holds", "evidence": evidence, "status": status,
+    for finding, is_control in [(c, False) for c in checks] + [(control, True)]:
+        same = [g for g in identical if sum(label in g for label in finding.rows) >= 2]
+        status = "untested" if same else ("holds" if finding.holds else "fails")
+        evidence = (f"untested: {' = '.join(same[0])} have identical outputs in every seed; " if same else "") + finding.evidence
+        out.append({**dataclasses.asdict(finding), "holds": status == "holds", "evidence": evidence, "status": status,
                     "control": is_control, "tested": tested, "untested_because": why})
     return out
 
@@ -363,7 +375,9 @@ def report(result: dict) -> str:
         lines.append(f"| {v['label']} | `{v['score']}` | `{v['network']}` | {_cell(v, 'ap')} | {_cell(v, 'fpr95')} | "
                      f"{_cell(v, 'auroc')} | {_cell(v, 'f1')} | {_paper_cell(rows[v['label']])} |")
     q = result["quality"]
-    lines += ["", f"`{result['name']}`; {result['steps_text']}; {result['seeds']}.", "",
+    lines += ["", f"`{result['name']}`; {result['steps_text']}; {result['seeds']}. Intervals use per-frame "
+              f"histograms over {TABLE_BINS} bins (their AP, FPR95 and AUROC of all frames are within "
+              f"{result['binning']:.2f} points of the exact ones) and per-frame component counts.", "",
               "Each network's quality (mean ± std over seeds): the segmenter's mIoU on "
               f"{result['scale']['val_frames']} validation frames {_cell(result['table'][0], 'miou')}% (issue 21's bar "
               f"for a competent baseline is 60%: {'met' if result['table'][0]['miou'] >= 60 else '**not met**'}); on "
@@ -413,6 +427,8 @@ def run(scale: Scale, seeds: int, out_dir: Path = HERE, runs: Path = RUNS, log: 
     # one architecture: its modules are timed once, in the first seed (not at the smoke scale: compiling only)
     results = [seed_values(s, runs, log, time_modules=i == 0 and not is_smoke(s)) for i, s in enumerate(scales)]
     values, curves, infos = aggregate([r[0] for r in results], (*METRICS, "miou")), results[0][1], [r[2] for r in results]
+    for label, replicates in paired_replicates([i["frames"] for i in infos]).items():
+        values[label]["replicates"] = replicates
     config = demo_config(scales[0])
     seg, p = config.pipeline.segmenter, config.pipeline
     used = [dataclasses.replace(s, height=seg.height, width=seg.width, train_frames=seg.train_frames,
@@ -442,11 +458,12 @@ def run(scale: Scale, seeds: int, out_dir: Path = HERE, runs: Path = RUNS, log: 
                               <= np.mean([i["quality"]["spade_error"] for i in infos])) else "spade"
     claims = findings(values, same, better)  # the paper's findings, then the control (counted apart)
     result = {"name": NAME, "title": TITLE, "description": description.strip(),
-              "table": [{"label": k, **v} for k, v in values.items()], "scale": dataclasses.asdict(used[0]),
+              "table": [_row_json(k, v) for k, v in values.items()], "scale": dataclasses.asdict(used[0]),
               "findings": [f for f in claims if not f["control"]], "controls": [f for f in claims if f["control"]],
               "identical_rows": same,
               "networks": {k: {"part": part, "mmf_config": i["config"]} for i in infos for part, k in i["keys"].items()},
-              "seeds": seeds_text(used, paired=False), "num_seeds": len(used), "steps_text": steps,
+              "seeds": seeds_text(used), "num_seeds": len(used), "paired": True, "steps_text": steps,
+              "binning": max(v["binning"] for v in values.values()),
               "quality": {k: [i["quality"][k] for i in infos] for k in quality_keys},
               "timings": infos[0].get("timings"), "size": f"{seg.height} x {seg.width}", "minutes": total}
     result["report"] = report(result)

@@ -156,6 +156,41 @@ def test_score_routes_each_row_to_its_net_with_auroc_and_mean_f1():
         row = exp._row_values(metrics[label], 0.5, "net", "mmf_raw")
         assert np.isclose(row["f1"], 100 * expected) and np.isclose(row["auroc"], 100 * metrics[label]["auroc"])
     assert len(seen) == 2  # the maps are computed once per batch, whatever the number of nets
+    # each row's per-frame maps and counts for the paired bootstrap
+    for label, key in (("a", "mmf"), ("b", "dissim_no_depth")):
+        np.testing.assert_array_equal(np.stack(curves[label]["scores"]), np.concatenate([m[key] for m in seen]))
+        np.testing.assert_array_equal(np.stack(curves[label]["labels"]), np.where(roi, labels, 255))
+        counts = exp.frame_counts(metrics[label], curves[label])
+        assert counts["histograms"].shape[0] == counts["components"].shape[0] == 3
+        assert counts["histograms"].sum() == np.sum(roi)  # every non-void pixel of the ROI, once
+        pooled = exp._pixel_metrics(counts["histograms"].sum(0))
+        assert abs(pooled["auroc"] - 100 * metrics[label]["auroc"]) < 0.5
+        assert np.isclose(exp._mean_f1(counts["components"].sum(0))["f1"], 100 * metrics[label]["components"]["f1_mean"])
+
+
+def test_mean_f1_of_pooled_counts_is_the_benchmarks():
+    from jaxanom.metrics.components import component_summary
+
+    rng = np.random.default_rng(1)
+    frames = [(rng.random(int(rng.integers(0, 6))), rng.random(int(rng.integers(0, 6)))) for _ in range(7)]
+    counts = np.array([[component_summary(s, p)[k] for k in ("tp", "fn", "fp")] for s, p in frames]).transpose(0, 2, 1)
+    pooled = component_summary(np.concatenate([s for s, _ in frames]), np.concatenate([p for _, p in frames]))
+    assert np.isclose(exp._mean_f1(counts.sum(0))["f1"], 100 * pooled["f1_mean"])
+    assert np.isnan(exp._mean_f1(np.zeros((5, 3)))["f1"])  # no component at all: 0 / 0
+
+
+def test_findings_use_the_paired_interval_when_rows_carry_replicates():
+    ap, fpr, f1 = _favourable()
+    values = _values(ap, fpr, std=100.0, f1=f1)  # a spread over seeds larger than every difference
+    rng = np.random.default_rng(0)
+    shared = {m: rng.normal(0.0, 30.0, 500) for m in ("ap", "fpr95", "auroc", "f1")}  # what the rows share
+    for label, row in values.items():
+        row["replicates"] = {m: row.get(m, 50.0) + shared[m] + rng.normal(0.0, 0.1, 500) for m in shared}
+    got = {f["claim"]: f for f in exp.findings(values)}
+    assert all(f["holds"] for f in got.values()), [c for c, f in got.items() if not f["holds"]]
+    assert "Δ +20.00 [" in got["the assistant maps raise the resynthesis net's AP"]["evidence"]
+    unpaired = {f["claim"]: f["holds"] for f in exp.findings(_values(ap, fpr, std=100.0, f1=f1))}
+    assert [c for c, h in unpaired.items() if h] == ["the assistant maps do not clearly lower FPR95"]
 
 
 @pytest.fixture
@@ -189,9 +224,12 @@ def test_table_over_two_seeds_is_written_and_summarised(tmp_path, untrained_part
     assert sorted(p.name for p in out.iterdir()) == [f"{exp.NAME}{s}" for s in (".json", ".md", "_pr.png", "_roc.png")]
     saved = json.loads((out / f"{exp.NAME}.json").read_text())
     assert saved["num_seeds"] == 2 and saved["scale"]["height"] == 32 and saved["scale"]["width"] == 64
-    # its findings compare means against the std over seeds: the report must not claim paired intervals
-    assert "no paired intervals" in saved["seeds"] and "bootstrap" not in saved["seeds"]
+    # paired intervals over both seeds and their frames, for every metric the findings compare
+    assert "paired difference (a bootstrap of 1000" in saved["seeds"] and saved["paired"]
     rows = {row["label"]: row for row in saved["table"]}
+    assert all("replicates" not in row and len(row[f"{m}_interval"]) == 2 for row in rows.values()
+               for m in ("ap", "fpr95", "auroc", "f1"))
+    assert all(any(c["low"] is not None for c in f["intervals"]) for f in saved["findings"])
     assert list(rows) == [row.label for row in exp.ROWS]
     for spec in exp.ROWS:
         row = rows[spec.label]
@@ -214,7 +252,12 @@ def test_table_over_two_seeds_is_written_and_summarised(tmp_path, untrained_part
     claims = exp.findings(result_values(saved), saved["identical_rows"],
                           "class_mean" if np.mean(saved["quality"]["class_mean_error"])
                           <= np.mean(saved["quality"]["spade_error"]) else "spade")
-    assert saved["findings"] + saved["controls"] == claims and [c["control"] for c in saved["controls"]] == [True]
+    saved_claims = saved["findings"] + saved["controls"]
+    assert [(f["claim"], f["rows"]) for f in saved_claims] == [(c["claim"], c["rows"]) for c in claims]
+    assert [c["control"] for c in saved["controls"]] == [True]
+    for f in saved_claims:  # each verdict is its paired intervals' (only "do not clearly lower" asks for no gain)
+        better = all(c["better"] for c in f["intervals"])
+        assert f["holds"] == (f["status"] == "holds") == (better != ("do not" in f["claim"])) or f["status"] == "untested"
     assert not any(f["control"] for f in saved["findings"])  # the control is not one of the paper's findings
     # a segmenter of random weights: nothing it feeds is a test of the paper (issue 21's bar)
     assert all(f["tested"] is False and "% mIoU (< 60%)" in f["untested_because"] for f in claims)

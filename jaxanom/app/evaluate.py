@@ -70,8 +70,9 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, cudam_
     metrics (None where the frame lacks a class) and component metrics
     (``metrics[name]["frames"]``); score maps wait in a temporary folder between the passes.
     Returns ``(metrics[name], curves[name])``; ``curves[name] = {"roc": (fpr, tpr), "pr":
-    (recall, precision)}`` when ``keep_curves`` (it keeps every score on the host: small sets
-    only). ``mode="binned"`` is not offered here because score ranges differ per method.
+    (recall, precision), "scores": [(H, W) per frame], "labels": [(H, W) per frame, outside the
+    ROI 255]}`` when ``keep_curves`` (it keeps every score on the host: small sets only).
+    ``mode="binned"`` is not offered here because score ranges differ per method.
     """
     import tempfile
 
@@ -100,7 +101,7 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, cudam_
                                         cudam_sigma=sigma, mmf_maps=batch.get("mmf_maps"), images=batch.get("image"))
             accumulators.setdefault(name, AnomalyMetricAccumulator(mode)).update(score, labels)
             if keep_curves:
-                kept.setdefault(name, []).append((np.asarray(score).ravel(), labels.ravel()))
+                kept.setdefault(name, []).extend(zip(np.asarray(score), labels))
             if spill is not None:
                 for index, (one, label) in enumerate(zip(np.asarray(score), labels)):
                     np.save(Path(spill.name) / f"{name}_{first + index}.npy", one)
@@ -118,11 +119,12 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, cudam_
                 values["components"], values["frames"] = _component_pass(Path(spill.name), name, frames, track,
                                                                          values["best_f1_threshold"])
     curves = {}
-    for name, parts in kept.items():
-        scores, labels = (np.concatenate(x) for x in zip(*parts))
+    for name, per_frame in kept.items():
+        maps, truths = (list(x) for x in zip(*per_frame))
+        scores, labels = (np.concatenate([x.ravel() for x in xs]) for xs in (maps, truths))
         fpr, tpr, _ = roc_curve(scores, labels)
         precision, recall, _ = pr_curve(scores, labels)
-        curves[name] = {"roc": (fpr, tpr), "pr": (recall, precision)}
+        curves[name] = {"roc": (fpr, tpr), "pr": (recall, precision), "scores": maps, "labels": truths}
     return metrics, curves
 
 
