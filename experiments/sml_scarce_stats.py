@@ -2,7 +2,10 @@
 finalised under each policy of ``jaxanom.sml.stats_finalize`` (``none``: the original, classes with
 < 2 pixels pooled; ``min_count``: classes under 10 000 pixels pooled; ``shrink``: shrinkage toward
 the pooled statistics with a prior of 10 000 pixels), SML (Eq. 5 alone, and with boundary
-suppression + smoothing) against max logit on the same plain network, per seed.
+suppression + smoothing) against max logit on the same plain network, per seed. Positive control: the
+same network with each pixel's logits multiplied by a factor of its predicted class, 1/4 to 4 over the
+classes (``common.scaled_logits``), its statistics fitted here on 256 frames of those logits (policy
+``none``), where SML must beat max logit: this table's own statistics path then divides the scales out.
 
     python -m experiments --only sml_scarce_stats
 """
@@ -13,9 +16,9 @@ from typing import Callable
 
 import numpy as np
 
-from experiments.common import (HERE, RUNS, Finding, Scale, _batches, _thin, anomaly_source, frame_confusions,
-                                improves, over_seeds, paired_replicates, plain, score_histograms, trained,
-                                write_table)
+from experiments.common import (HERE, LOGIT_SCALE_CONTROL, RUNS, Finding, Scale, _batches, _scaled, _thin,
+                                anomaly_source, control_scales, frame_confusions, improves, logit_scale_control,
+                                over_seeds, paired_replicates, plain, score_histograms, trained, write_table)
 from jaxanom.app import methods as scoring
 from jaxanom import sml
 from jaxanom.app.evaluate import class_statistics, predictions, predictor
@@ -28,6 +31,7 @@ STATS_FRAMES = (8, 32, 256)
 POLICIES = {"none": dict(policy="none", missing="pooled"), "min_count": dict(policy="min_count", min_count=10_000),
             "shrink": dict(policy="shrink", strength=10_000)}
 SCORES = ("sml", "sml_post")
+CONTROL_FRAMES = 256  # statistics frames of the positive control
 
 
 def label(score: str, policy: str | None = None, count: int | None = None) -> str:
@@ -40,8 +44,10 @@ def seed_values(scale: Scale, runs: Path, log: Callable) -> tuple[dict, dict, di
     net = plain(scale)
     e = net.experiment
     predict = predictor(net.module(), trained(net, runs, log))
-    outputs = [{"logits": np.asarray(o["logits"]), "label": np.asarray(o["label"])}
-               for o in predictions(predict, _batches(anomaly_source(scale, e), e.batch_size))]
+    control = _scaled(predict, control_scales(e.num_classes))
+    outputs, control_outputs = ([{"logits": np.asarray(o["logits"]), "label": np.asarray(o["label"])}
+                                 for o in predictions(p, _batches(anomaly_source(scale, e), e.batch_size))]
+                                for p in (predict, control))
     confusions = frame_confusions(predictions(predict, _batches(frames(e, "val", scale.val_frames), e.batch_size)),
                                   e.num_classes)
     segmentation = miou(confusions.sum(0))
@@ -51,13 +57,18 @@ def seed_values(scale: Scale, runs: Path, log: Callable) -> tuple[dict, dict, di
         scarce[count] = int((np.asarray(stats.count) < 10_000).sum())
         for policy, options in POLICIES.items():
             finals[(policy, count)] = sml.stats_finalize(stats, **options)
-    runs_of = {label("max_logit"): ("max_logit", None), label("max_logit_post"): ("max_logit_post", None)}
-    runs_of.update({label(s, p, c): (s, finals[(p, c)]) for s in SCORES for (p, c) in finals})
+    control_stats = sml.stats_finalize(class_statistics(control, _batches(frames(e, "train", CONTROL_FRAMES),
+                                                                          e.batch_size)), **POLICIES["none"])
+    runs_of = {label("max_logit"): ("max_logit", None, outputs),
+               label("max_logit_post"): ("max_logit_post", None, outputs)}
+    runs_of.update({label(s, p, c): (s, finals[(p, c)], outputs) for s in SCORES for (p, c) in finals})
+    runs_of.update({LOGIT_SCALE_CONTROL + "max logit": ("max_logit", None, control_outputs),
+                    LOGIT_SCALE_CONTROL + "SML": ("sml", control_stats, control_outputs)})
     values, curves, kept_frames = {}, {}, {}
     labels = [frame_label for out in outputs for frame_label in out["label"]]
-    for name, (score, stats) in runs_of.items():
+    for name, (score, stats, scored) in runs_of.items():
         accumulator, per_frame = AnomalyMetricAccumulator(), []
-        for out in outputs:
+        for out in scored:
             result = np.asarray(scoring.score_batch(score, out["logits"], stats=stats))
             accumulator.update(result, out["label"])
             per_frame.extend(result)
@@ -100,7 +111,11 @@ def run(scale: Scale, seeds: int, out_dir: Path = HERE, runs: Path = RUNS, log: 
     description = f"{description} Classes under 10 000 predicted pixels, per seed: {counts}."
     networks = {plain(s).key: plain(s).to_dict() for s in scales}
     return write_table(NAME, TITLE, values, curves, findings, scales, networks, out_dir,
-                       description.strip())
+                       description.strip(), controls=controls)
+
+
+def controls(v: dict) -> list[Finding]:
+    return [logit_scale_control(v)]
 
 
 if __name__ == "__main__":
