@@ -301,3 +301,25 @@ def test_timed_modules_compute_the_pipelines_maps(tmp_path, untrained_parts):
     close(anomaly_probability(calls["dissimilarity"]()), maps["mmf"])
     batch = pipeline.scored_batch(frames, maps)
     close(calls["post-processor"](), score_batch("mmf", batch["logits"], mmf_maps=batch["mmf_maps"]))
+
+
+def test_claims_reading_the_depth_semantics_need_a_competent_rgbd_net():
+    ap, fpr, f1 = _favourable()
+    values = _values(ap, fpr, f1=f1)
+    for row in values.values():
+        row["miou"] = 65.0  # a competent segmenter
+    assert exp.DEPTH_ROWS == (exp.ASSISTED, exp.FULL, exp.NO_UNCERTAINTY, "MMF, connected superpixels",
+                              "MMF, SLIC on the anomaly map a", exp.SPADE_FULL)
+    competent = exp.findings(values, rgbd_miou=61.0)
+    assert all(f["tested"] is True and f["untested_because"] == "" for f in competent)
+    weak = {f["claim"]: f for f in exp.findings(values, rgbd_miou=21.0)}
+    untested = [c for c, f in weak.items() if f["tested"] is False]
+    assert untested == [c for c, f in weak.items() if set(f["rows"]) & set(exp.DEPTH_ROWS)]
+    assert "Table 1: entropy beats the plain resynthesis net in AP" not in untested and len(untested) == 11
+    assert all(weak[c]["untested_because"].startswith("the RGB-D net, whose semantics") for c in untested)
+    # a weak segmenter fails every claim, with both reasons where both apply
+    for row in values.values():
+        row["miou"] = 30.0
+    both = {f["claim"]: f for f in exp.findings(values, rgbd_miou=21.0)}
+    assert all(f["tested"] is False for f in both.values())
+    assert both[untested[0]]["untested_because"].count("mIoU (< 60%)") == 2
