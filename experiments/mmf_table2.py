@@ -33,8 +33,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from experiments.common import (COMPETENT_MIOU, HERE, RUNS, TABLE_BINS, Scale, _batches, _cell, _row_json, _thin,
-                                aggregate, best, improves, not_better, seed_scales, seeds_text)
+from experiments.common import (COMPETENT_MIOU, HERE, RUNS, TABLE_BINS, Scale, _batches, _cell, _row_json, _tested,
+                                _thin, aggregate, best, improves, not_better, seed_scales, seeds_text)
 from experiments.stats import (bin_edges, binned_auroc, binned_metrics, frame_histograms, hierarchical,
                                hierarchical_draws)
 from jaxanom import sml
@@ -425,10 +425,10 @@ def report(result: dict) -> str:
         lines += ["", "Table 3 (module timings): not measured at the smoke scale."]
     else:
         lines += table3(t, result["size"])
-    lines += ["", "| paper's finding | holds here? | evidence |", "|---|---|---|"]
+    lines += ["", "| paper's finding | holds here? | tested? | evidence |", "|---|---|---|---|"]
     marks = {"holds": "yes", "fails": "**no**", "untested": "untested"}
-    lines += [f"| {'**' + f['claim'] + '**' if f['control'] else f['claim']} | {marks[f['status']]} | {f['evidence']} |"
-              for f in result["findings"] + result["controls"]]
+    lines += [f"| {'**' + f['claim'] + '**' if f['control'] else f['claim']} | {marks[f['status']]} | {_tested(f)} | "
+              f"{f['evidence']} |" for f in result["findings"] + result["controls"]]
     same = result["identical_rows"]
     lines += ["", "Rows with identical outputs in every seed (their comparisons are untested): "
               + ("; ".join(" = ".join(g) for g in same) if same else "none") + "."]

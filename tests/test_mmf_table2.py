@@ -267,6 +267,8 @@ def test_table_over_two_seeds_is_written_and_summarised(tmp_path, untrained_part
     assert "training steps per network" not in table_text and "RGB-D net 2, SPADE GAN 2, every dissimilarity net 2" in table_text
     assert "SLIC step 1 px on the image" in saved["description"]  # scaled_step((32, 64)) = 1
     assert "RGB-D net mIoU" in table_text and "mean F1" in table_text and "OT 70.93 / 4.16 / 39.64" in table_text
+    assert "| paper's finding | holds here? | tested? | evidence |" in table_text
+    assert table_text.count("| **no**: the pipeline's segmenter reaches") == len(claims)  # each claim says why not
     text = write_results(out).read_text()
     assert exp.TITLE in text and "| MMF (assistant maps + post-processor) | `mmf` |" in text
     control = f"{int(saved['controls'][0]['holds'])} / 1"
