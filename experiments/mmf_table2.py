@@ -331,6 +331,19 @@ def seed_values(scale: Scale, runs: Path, log: Callable, time_modules: bool = Fa
 
 # ---------------------------------------------------------------- findings
 
+def competence(segmenter: float | None, rgbd: float | None) -> tuple[bool | None, str]:
+    """``(tested, why not)`` of a claim from the mIoU of the segmenter (None: unknown) and, where the claim
+    reads Ŝ_D, of the RGB-D net (None: it does not, or unknown)."""
+    if segmenter is None:
+        return None, ""
+    reasons = [f"the pipeline's segmenter reaches {segmenter:.1f}% mIoU (< {COMPETENT_MIOU:.0f}%), and its maps "
+               "and resynthesis feed every row"] if segmenter < COMPETENT_MIOU else []
+    if rgbd is not None and rgbd < COMPETENT_MIOU:
+        reasons.append(f"the RGB-D net, whose semantics Ŝ_D a compared row reads, reaches {rgbd:.1f}% mIoU (< "
+                       f"{COMPETENT_MIOU:.0f}%)")
+    return not reasons, "; ".join(reasons)
+
+
 def findings(v: dict, identical: Sequence[Sequence[str]] = (), better_synthesizer: str = "class_mean",
              rgbd_miou: float | None = None) -> list[dict]:
     """The paper's claims (Tables 1, 2, 4; §IV-C) and the control, each ``{claim, holds, evidence, rows,
@@ -339,8 +352,8 @@ def findings(v: dict, identical: Sequence[Sequence[str]] = (), better_synthesize
     reaches ``COMPETENT_MIOU``; None without its mIoU); ``status`` is ``"untested"`` (and ``holds`` False) where two of the rows a
     claim compares are in one group of ``identical`` (same outputs in every seed: nothing changed).
     ``better_synthesizer``: the one with the lower resynthesis error (``quality``). ``rgbd_miou``: the
-    RGB-D net's mIoU on the validation frames (``rgbd_validation_miou``); a claim comparing a row scored by a net fed its
-    semantics Ŝ_D (``DEPTH_ROWS``) is tested only where it too reaches ``COMPETENT_MIOU``."""
+    RGB-D net's mIoU on the validation frames (``rgbd_validation_miou``); a claim comparing a row scored
+    by a net fed its semantics Ŝ_D (``DEPTH_ROWS``) is tested only where it too reaches ``COMPETENT_MIOU``."""
     better, lighter = (FULL, SPADE_FULL) if better_synthesizer == "class_mean" else (SPADE_FULL, FULL)
     checks = [
         improves(v, ASSISTED, BASE, ("ap",), "the assistant maps raise the resynthesis net's AP"),
@@ -366,26 +379,13 @@ def findings(v: dict, identical: Sequence[Sequence[str]] = (), better_synthesize
         tested, why = competence(segmenter, rgbd_miou if set(finding.rows) & set(DEPTH_ROWS) else None)
         same = [g for g in identical if sum(label in g for label in finding.rows) >= 2]
         status = "untested" if same else ("holds" if finding.holds else "fails")
-        evidence = (f"untested: {' = '.join(same[0])} have identical outputs in every seed; " if same else "") + finding.evidence
-        out.append({**dataclasses.asdict(finding), "holds": status == "holds", "evidence": evidence, "status": status,
-                    "control": is_control, "tested": tested, "untested_because": why})
+        prefix = f"untested: {' = '.join(same[0])} have identical outputs in every seed; " if same else ""
+        out.append({**dataclasses.asdict(finding), "holds": status == "holds", "evidence": prefix + finding.evidence,
+                    "status": status, "control": is_control, "tested": tested, "untested_because": why})
     return out
 
 
 # ---------------------------------------------------------------- report
-
-def competence(segmenter: float | None, rgbd: float | None) -> tuple[bool | None, str]:
-    """``(tested, why not)`` of a claim from the mIoU of the segmenter (None: unknown) and, where the claim
-    reads Ŝ_D, of the RGB-D net (None: it does not, or unknown)."""
-    if segmenter is None:
-        return None, ""
-    reasons = [f"the pipeline's segmenter reaches {segmenter:.1f}% mIoU (< {COMPETENT_MIOU:.0f}%), and its maps "
-               "and resynthesis feed every row"] if segmenter < COMPETENT_MIOU else []
-    if rgbd is not None and rgbd < COMPETENT_MIOU:
-        reasons.append(f"the RGB-D net, whose semantics Ŝ_D a compared row reads, reaches {rgbd:.1f}% mIoU (< "
-                       f"{COMPETENT_MIOU:.0f}%)")
-    return not reasons, "; ".join(reasons)
-
 
 def _paper_cell(row: Row) -> str:
     if row.paper not in PAPER_TABLE1:
@@ -419,8 +419,9 @@ def report(result: dict) -> str:
               f"{'met' if np.mean(q['rgbd_val_miou']) >= COMPETENT_MIOU else '**not met**'}; a claim comparing a row "
               "whose net reads its semantics Ŝ_D is tested only where it is met); on the known-class pixels of the "
               f"scored frames, segmenter mIoU {_spread(q['segmenter_miou'])}% and RGB-D net mIoU "
-              f"{_spread(q['rgbd_miou'])}%; resynthesis of their ground-truth semantics, mean absolute RGB error: class means {_spread(q['class_mean_error'])}%, SPADE "
-              f"{_spread(q['spade_error'])}%; the dissimilarity nets' quality is their rows above."]
+              f"{_spread(q['rgbd_miou'])}%; resynthesis of their ground-truth semantics, mean absolute RGB error: "
+              f"class means {_spread(q['class_mean_error'])}%, SPADE {_spread(q['spade_error'])}%; the dissimilarity "
+              "nets' quality is their rows above."]
     t = result["timings"]
     if t is None:
         lines += ["", "Table 3 (module timings): not measured at the smoke scale."]
