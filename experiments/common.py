@@ -575,7 +575,7 @@ def run_table(name: str, title: str, rows, findings: Callable[[dict], list[Findi
     scales = seed_scales(scale, seeds)
     if not callable(rows) and seeds != 1:
         raise ValueError("rows: pass a function rows(scale) to run several seeds")
-    per_seed, per_seed_frames, curves, networks = [], [], None, {}
+    per_seed, per_seed_frames, curves, networks, run_keys = [], [], None, {}, set()
     for s in scales:
         seed_rows = rows(s) if callable(rows) else rows
         values, seed_curves, seed_frames = table(seed_rows, s, runs, log)
@@ -583,11 +583,31 @@ def run_table(name: str, title: str, rows, findings: Callable[[dict], list[Findi
         per_seed_frames.append(seed_frames)
         curves = curves or seed_curves
         networks.update({row.network.key: row.network.to_dict() for row in seed_rows})
+        run_keys.update(row.network.run_key for row in seed_rows)
     values = aggregate(per_seed)
     for label, replicates in paired_replicates(per_seed_frames).items():
         values[label]["replicates"] = replicates
+    minutes = training_minutes(runs, run_keys)
+    if minutes is not None:
+        description = (f"{description} Run time: {minutes:.1f} min to train the table's networks ({len(run_keys)} "
+                       "runs, from their logs, each under the load of the run that trained it); evaluating them takes "
+                       "seconds to minutes more.").strip()
     return write_table(name, title, values, curves, findings, scales, networks, out_dir, description,
                        controls=controls)
+
+
+def training_minutes(runs: Path, run_keys) -> float | None:
+    """Wall minutes that training the networks of ``run_keys`` took, from their ``runs/<key>/log.jsonl``: the
+    times between consecutive logged steps where the step grows (a restart's gap, where the step falls back,
+    is left out), summed over the runs; None when a run has no logged step."""
+    total = 0.0
+    for key in set(run_keys):
+        log = runs / key / "log.jsonl"
+        records = [json.loads(line) for line in log.read_text().splitlines()] if log.exists() else []
+        if not records:
+            return None
+        total += sum(b["time"] - a["time"] for a, b in zip(records, records[1:]) if b["step"] > a["step"])
+    return total / 60
 
 
 def competence(values: dict, rows: Sequence[str]) -> tuple[bool | None, str]:

@@ -97,7 +97,8 @@ def test_table_trains_once_evaluates_and_writes_results(tmp_path):
     assert saved["controls"][0]["claim"] == "SML beats max logit on scaled logits" and saved["paired"]
     assert "single seed" in saved["seeds"] and "95% interval of the paired difference" in saved["seeds"]
     markdown = (out / "smoke.md").read_text()
-    assert markdown.startswith("## Smoke table\n\nWhat the smoke table shows.\n")
+    assert markdown.startswith("## Smoke table\n\nWhat the smoke table shows. Run time: ")
+    assert " min to train the table's networks (1 runs, from their logs" in saved["description"]
     assert "| CuDAM + SML | `sml_post+att` |" in markdown and "| always | yes | n/a | by construction |" in markdown
     assert "| positive control | passes? | evidence |" in markdown and "SML beats max logit on scaled logits" in markdown
 

@@ -295,3 +295,21 @@ def test_summary_lists_per_paper_what_holds_what_fails_and_what_could_not_be_tes
     text = summary([old])
     assert "old claim — its networks reach 18.3% mIoU at the lowest (< 60%)" in text
     assert "and 1 could not be tested" in text
+
+
+def test_training_minutes_sum_the_logged_steps_and_leave_out_restarts(tmp_path):
+    import json
+
+    from experiments.common import training_minutes
+
+    def write(key, records):
+        (tmp_path / key).mkdir()
+        (tmp_path / key / "log.jsonl").write_text("".join(json.dumps({"step": s, "time": t}) + "\n" for s, t in records))
+
+    write("a", [(1, 100.0), (2, 130.0), (3, 160.0)])  # 60 s
+    write("b", [(1, 0.0), (2, 60.0), (1, 5000.0), (2, 5030.0), (3, 5090.0)])  # killed after step 2, rerun: 150 s
+    assert training_minutes(tmp_path, ["a", "b", "a"]) == pytest.approx(210 / 60)
+    assert training_minutes(tmp_path, []) == 0.0
+    assert training_minutes(tmp_path, ["a", "missing"]) is None
+    write("empty", [])
+    assert training_minutes(tmp_path, ["empty"]) is None
