@@ -34,9 +34,9 @@ from typing import Callable, Sequence
 import numpy as np
 
 from experiments.common import (COMPETENT_MIOU, HERE, RUNS, TABLE_BINS, Scale, _batches, _cell, _row_json, _tested,
-                                _thin, aggregate, best, improves, not_better, seed_scales, seeds_text)
-from experiments.stats import (bin_edges, binned_auroc, binned_metrics, frame_histograms, hierarchical,
-                               hierarchical_draws)
+                                _thin, aggregate, best, improves, not_better, score_histograms, seed_scales,
+                                seeds_text)
+from experiments.stats import binned_auroc, binned_metrics, hierarchical, hierarchical_draws
 from jaxanom import sml
 from jaxanom.app.demos.mmf import MMFDemoConfig, evaluation_frames
 from jaxanom.app.evaluate import anomaly_results, class_statistics, predictions, predictor, segmentation_results
@@ -176,10 +176,9 @@ def _row_values(metrics: dict, miou_value: float, network: str, score: str) -> d
 
 def frame_counts(metrics: dict, curves: dict) -> dict:
     """One row's per-frame counts for the paired bootstrap, from ``anomaly_results`` with ``track`` and
-    ``keep_curves``: ``histograms`` (F, TABLE_BINS + 1, 2) of its scores (``experiments.stats``) and
+    ``keep_curves``: ``histograms`` (F, TABLE_BINS + 1, 2) of its scores (``common.score_histograms``) and
     ``components`` (F, T, 3): TP, FN, FP of each frame at each sIoU threshold."""
-    scores, labels = curves["scores"], curves["labels"]
-    histograms = frame_histograms(scores, labels, bin_edges(scores, labels, TABLE_BINS))
+    histograms, _ = score_histograms(curves["scores"], curves["labels"])
     components = np.array([[f["components"][k] for k in ("tp", "fn", "fp")] for f in metrics["frames"]], np.int64)
     return {"histograms": histograms, "components": components.transpose(0, 2, 1)}
 
