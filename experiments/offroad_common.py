@@ -11,8 +11,13 @@ process (``model_on_a``) and reused by every experiment and row that starts from
 experiment caches its per-seed values in ``<runs>/offroad/<name>_<hash of sizes>.json``, so a rerun
 (or an interrupted run) recomputes only what is missing. Delete that folder after changing the code.
 
-Tables give the mean and sample std (ddof 1) over seeds; a finding holds only when the difference
-of means exceeds the larger std of the rows compared (the rule of ``experiments.common``).
+Tables give the mean and sample std (ddof 1) over seeds. Rows that keep per-frame values (``PER_FRAME``:
+each frame's FLR, each frame's confusion matrix) are compared paired: one hierarchical bootstrap over
+seeds and frames (``experiments.stats``) resamples every row, and a finding holds only when the 95%
+interval of the paired difference lies on the paper's side of 0. A comparison whose metric is the same
+in every replicate (e.g. scene coverage at 100% in every frame of both rows) cannot separate the rows:
+its finding is untested. Rows without per-frame values (Exp. 2's cluster counts) fall back to the
+difference of means against the larger std of the rows compared.
 """
 from __future__ import annotations
 
@@ -25,7 +30,10 @@ from typing import Callable, Sequence
 
 import jax
 
-from experiments.common import Finding, Scale, _cell, aggregate, control_lines, seed_scales
+import numpy as np
+
+from experiments.common import Finding, Scale, _cell, _tested, aggregate, control_lines, seed_scales
+from experiments.stats import hierarchical, hierarchical_draws, interval
 from jaxanom.io import write_bytes_atomic, write_json_atomic
 from jaxanom.app.demos.offroad import OffroadDemoConfig, annotated, source_frames
 from jaxanom.offroad.encoder import AnnotatedFrames
@@ -96,46 +104,112 @@ def model_on_a(config: OffroadDemoConfig, log: Callable = print) -> tuple[Offroa
     return _MODELS[config]
 
 
-def per_seed(name: str, sizes: OffroadSizes, runs: Path, compute: Callable[[], dict], log: Callable = print) -> dict:
-    """``compute()`` (the values ``{row: {metric: value, ...}}`` of one seed), cached in
-    ``<runs>/offroad/<name>_<hash of sizes>.json``."""
+def cache_path(name: str, sizes: OffroadSizes, runs: Path) -> Path:
+    """``<runs>/offroad/<name>_<hash of sizes>.json``: one seed's values of one experiment."""
     text = json.dumps(dataclasses.asdict(sizes), sort_keys=True, default=str)
-    path = Path(runs) / "offroad" / f"{name}_{hashlib.sha256(text.encode()).hexdigest()[:12]}.json"
+    return Path(runs) / "offroad" / f"{name}_{hashlib.sha256(text.encode()).hexdigest()[:12]}.json"
+
+
+def per_seed(name: str, sizes: OffroadSizes, runs: Path, compute: Callable[[], dict], log: Callable = print) -> dict:
+    """``compute()`` (the values ``{row: {metric: value, ...}}`` of one seed), cached in ``cache_path`` with
+    the seconds it took."""
+    path = cache_path(name, sizes, runs)
     if path.exists():
         log(f"  {name} seed {sizes.demo.seed}: cached in {path}")
         return dict(json.loads(path.read_text())["rows"])
     start = time.perf_counter()
     values = compute()
-    log(f"  {name} seed {sizes.demo.seed}: {time.perf_counter() - start:.0f} s")
-    write_json_atomic(path, {"rows": list(values.items())})  # a list keeps the rows' order (the file sorts keys)
+    seconds = time.perf_counter() - start
+    log(f"  {name} seed {sizes.demo.seed}: {seconds:.0f} s")
+    write_json_atomic(path, {"rows": list(values.items()), "seconds": seconds})  # a list keeps the rows' order
     return values
 
 
-def better(values: dict, a: str, b: str, metric: str, lower: bool = False) -> bool:
-    """Row ``a`` beats row ``b`` in ``metric`` by more than the larger std of the two."""
+def seed_minutes(name: str, sizes: Sequence[OffroadSizes], runs: Path) -> float | None:
+    """Minutes that computing these seeds took (their caches' ``seconds``); None where a cache lacks them."""
+    seconds = [json.loads(cache_path(name, z, runs).read_text()).get("seconds") for z in sizes]
+    return None if None in seconds else sum(seconds) / 60
+
+
+PER_FRAME = "per_frame"  # a row's per-frame values in a seed's cache: {kind: (F, ...) nested lists}
+
+
+def paired_replicates(per_seed: Sequence[dict], metrics: dict[str, Callable]) -> dict:
+    """``{label: {metric: (R,)}}``: one set of ``hierarchical_draws`` (seeds, then each seed's frames of every
+    kind) shared by every row. ``per_seed[s][label][kind]``: (F, ...) per-frame counts of seed s, the same F
+    for every row; ``metrics[kind](label)(pooled (n, ...)) -> {metric: (n,)}``: the metric of a row."""
+    labels = list(per_seed[0])
+    counts = {kind: [len(seed[labels[0]][kind]) for seed in per_seed] for kind in metrics}
+    for label in labels:
+        got = {kind: [len(seed[label][kind]) for seed in per_seed] for kind in metrics}
+        if got != counts:
+            raise ValueError(f"per_seed: row {label!r} has frames {got}, the first row {counts}")
+    draws = hierarchical_draws(counts)
+    return {label: {name: values for kind, metric in metrics.items()
+                    for name, values in hierarchical([np.asarray(seed[label][kind], np.float64) for seed in per_seed],
+                                                     draws, kind, metric(label)).items()}
+            for label in labels}
+
+
+def comparison(values: dict, a: str, b: str, metric: str, lower: bool = False) -> dict:
+    """``a`` against ``b`` in ``metric`` (``lower``: lower is better), as ``experiments.common.comparison``:
+    ``{a, b, metric, difference, low, high, better, separable}``. Paired (replicates on both rows): the 95%
+    interval of the difference must lie on the better side of 0, and ``separable`` is False where the two
+    rows' replicates are equal in every replicate. Else the difference of means must exceed the larger std."""
     x, y = values[a][metric], values[b][metric]
+    sign = -1.0 if lower else 1.0
+    out = {"a": a, "b": b, "metric": metric, "difference": x - y, "low": None, "high": None, "separable": True}
+    if "replicates" in values[a] and "replicates" in values[b]:
+        first, second = values[a]["replicates"][metric], values[b]["replicates"][metric]
+        low, high = interval(first - second)
+        return {**out, "low": low, "high": high, "better": bool(sign * low > 0 and sign * high > 0),
+                "separable": not np.array_equal(first, second, equal_nan=True)}
     spread = max(values[a].get(f"{metric}_std", 0.0), values[b].get(f"{metric}_std", 0.0))
-    return (y - x if lower else x - y) > spread
+    return {**out, "better": bool(sign * (x - y) > spread)}
+
+
+def better(values: dict, a: str, b: str, metric: str, lower: bool = False) -> bool:
+    """Row ``a`` beats row ``b`` in ``metric`` (``comparison``)."""
+    return comparison(values, a, b, metric, lower)["better"]
+
+
+def _pair_text(values: dict, c: dict, name: str) -> str:
+    text = f"{name} {_cell(values[c['a']], c['metric'])} vs {_cell(values[c['b']], c['metric'])}"
+    return text if c["low"] is None else f"{text}, Δ {c['difference']:+.2f} [{c['low']:+.2f}, {c['high']:+.2f}]"
+
+
+def _finding(claim: str, holds: bool, evidence: str, comparisons: Sequence[dict]) -> Finding:
+    """A finding with its rows and comparisons; untested where a comparison cannot separate its rows."""
+    rows = list(dict.fromkeys(x for c in comparisons for x in (c["a"], c["b"])))
+    same = [f"{c['a']} and {c['b']} have the same {c['metric']} in every bootstrap replicate" for c in comparisons
+            if not c["separable"]]
+    intervals = [{k: v for k, v in c.items() if k != "separable"} for c in comparisons if c["low"] is not None]
+    return Finding(claim, holds, evidence, rows, intervals, False if same else None,
+                   "; ".join(same) + " (the metric is saturated here)" if same else "")
 
 
 def beats(values: dict, a: str, b: str, metrics: dict[str, str], claim: str, lower: Sequence[str] = ()) -> Finding:
     """``a`` beats ``b`` in every metric of ``metrics`` (metric -> its name); ``lower``: lower is better."""
-    holds = all(better(values, a, b, m, m in lower) for m in metrics)
-    evidence = ", ".join(f"{name} {_cell(values[a], m)} vs {_cell(values[b], m)}" for m, name in metrics.items())
-    return Finding(claim, holds, evidence)
+    compared = [comparison(values, a, b, m, m in lower) for m in metrics]
+    return _finding(claim, all(c["better"] for c in compared),
+                    ", ".join(_pair_text(values, c, metrics[c["metric"]]) for c in compared), compared)
 
 
 def not_beaten(values: dict, a: str, b: str, metrics: dict[str, str], claim: str, lower: Sequence[str] = ()) -> Finding:
-    """``a`` is at ``b``'s level: ``b`` beats ``a`` (by more than the larger std) in none of ``metrics``."""
-    holds = not any(better(values, b, a, m, m in lower) for m in metrics)
-    evidence = ", ".join(f"{name} {_cell(values[a], m)} vs {_cell(values[b], m)}" for m, name in metrics.items())
-    return Finding(claim, holds, evidence)
+    """``a`` is at ``b``'s level: ``b`` beats ``a`` in none of ``metrics``."""
+    compared = [comparison(values, b, a, m, m in lower) for m in metrics]
+    evidence = ", ".join(_pair_text(values, comparison(values, a, b, m, m in lower), name) for m, name in metrics.items())
+    return _finding(claim, not any(c["better"] for c in compared), evidence, compared)
 
 
 def chain(values: dict, rows: Sequence[str], metric: str, name: str, claim: str, lower: bool = False) -> Finding:
     """Each row of ``rows`` beats the one before it in ``metric``."""
-    holds = all(better(values, b, a, metric, lower) for a, b in zip(rows, rows[1:]))
-    return Finding(claim, holds, f"{name}: " + ", ".join(f"{r} {_cell(values[r], metric)}" for r in rows))
+    compared = [comparison(values, b, a, metric, lower) for a, b in zip(rows, rows[1:])]
+    evidence = f"{name}: " + ", ".join(f"{r} {_cell(values[r], metric)}" for r in rows)
+    if all(c["low"] is not None for c in compared):
+        evidence += "; " + ", ".join(f"{c['a']} − {c['b']} Δ {c['difference']:+.2f} [{c['low']:+.2f}, {c['high']:+.2f}]"
+                                     for c in compared)
+    return _finding(claim, all(c["better"] for c in compared), evidence, compared)
 
 
 def markdown_table(values: dict, columns: dict[str, str]) -> str:
@@ -148,30 +222,44 @@ def markdown_table(values: dict, columns: dict[str, str]) -> str:
 def run_seeds(name: str, title: str, description: str, scale: Scale, seeds: int, out_dir: Path, runs: Path,
               seed_values: Callable[[OffroadSizes, Callable], dict], columns: dict[str, str],
               findings: Callable[[dict], list[Finding]], log: Callable = print,
-              controls: Callable[[dict], list[Finding]] | None = None) -> dict:
-    """Every seed's values (``seed_values(sizes, log)``, cached), aggregated; the findings and the positive
-    ``controls`` checked on the means against the spread; ``<name>.json`` and ``<name>.md`` written to
+              controls: Callable[[dict], list[Finding]] | None = None,
+              paired: dict[str, Callable] | None = None) -> dict:
+    """Every seed's values (``seed_values(sizes, log)``, cached), aggregated; with ``paired`` (kind -> row label
+    -> metric of pooled per-frame counts, ``paired_replicates``) every row's replicates attached from its ``PER_FRAME``
+    values; the findings and the positive ``controls`` checked; ``<name>.json`` and ``<name>.md`` written to
     ``out_dir``. Returns the result."""
     log(f"{name}: {title}")
     scales = seed_scales(scale, seeds)
     sizes = [offroad_sizes(s) for s in scales]
-    values = aggregate([per_seed(name, z, runs, lambda z=z: seed_values(z, log), log) for z in sizes], tuple(columns))
+    cached = [per_seed(name, z, runs, lambda z=z: seed_values(z, log), log) for z in sizes]
+    frames = [{label: row.pop(PER_FRAME) for label, row in seed.items() if PER_FRAME in row} for seed in cached]
+    values = aggregate(cached, tuple(columns))
+    if paired:
+        for label, replicates in paired_replicates(frames, paired).items():
+            values[label]["replicates"] = replicates
     checked = findings(values)
+    rule = ("rows are compared paired: one hierarchical bootstrap over seeds and frames resamples every row, and a "
+            "finding holds only when the 95% interval of the paired difference excludes 0 on the paper's side"
+            if paired else "a finding holds only when the difference of means exceeds the larger std of the rows it "
+            "compares")
     seed_text = (f"{len(scales)} seed(s) ({', '.join(str(s.seed) for s in scales)}), each setting the synthetic worlds, "
                  "the simulated annotator and the encoder's initialisation and batches; values are mean ± sample std "
-                 "(ddof 1) over seeds, and a finding holds only when the difference of means exceeds the larger std "
-                 "of the rows it compares")
-    lines = [f"## {title}", "", description, "", markdown_table(values, columns), "", f"`{name}`; {seed_text}.", "",
-             "| paper's finding | holds here? | evidence |", "|---|---|---|"]
-    lines += [f"| {f.claim} | {'yes' if f.holds else '**no**'} | {f.evidence} |" for f in checked]
+                 f"(ddof 1) over seeds; {rule}")
+    minutes = seed_minutes(name, sizes, runs)
+    timing = f" Run time: {minutes:.1f} min to compute its seeds (their caches' record)." if minutes else ""
+    lines = [f"## {title}", "", description + timing, "", markdown_table(values, columns), "", f"`{name}`; {seed_text}.",
+             "", "| paper's finding | holds here? | tested? | evidence |", "|---|---|---|---|"]
+    lines += [f"| {f.claim} | {'yes' if f.holds else '**no**'} | {_tested(dataclasses.asdict(f))} | {f.evidence} |"
+              for f in checked]
     checked_controls = [dataclasses.asdict(f) for f in (controls(values) if controls else [])]
     report = "\n".join(lines + control_lines(checked_controls))
-    result = {"name": name, "title": title, "description": description,
-              "table": [{"label": k, **v} for k, v in values.items()], "scale": dataclasses.asdict(scales[0]),
-              "sizes": json.loads(json.dumps(dataclasses.asdict(sizes[0]), default=str)),
-              "findings": [dataclasses.asdict(f) for f in checked],
-              "controls": checked_controls, "seeds": seed_text, "num_seeds": len(scales),
-              "report": report}
+    table = [{"label": k, **{m: x for m, x in v.items() if m != "replicates"},
+              **{f"{m}_interval": list(interval(r)) for m, r in v.get("replicates", {}).items()}}
+             for k, v in values.items()]
+    result = {"name": name, "title": title, "description": description, "table": table,
+              "scale": dataclasses.asdict(scales[0]), "sizes": json.loads(json.dumps(dataclasses.asdict(sizes[0]), default=str)),
+              "findings": [dataclasses.asdict(f) for f in checked], "controls": checked_controls, "seeds": seed_text,
+              "num_seeds": len(scales), "paired": bool(paired), "report": report}
     out_dir = Path(out_dir)
     write_json_atomic(out_dir / f"{name}.json", result)
     write_bytes_atomic(out_dir / f"{name}.md", (report + "\n").encode())

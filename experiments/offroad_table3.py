@@ -15,7 +15,9 @@ patches (D-B13; A's LV3 references mapped to DeepScene's classes). "supervised" 
 patch network with a c-class softmax output, trained from scratch with the dense labels of the
 frames the active rows of that budget annotate (A's and D's chosen ones) for the same number of
 steps, segmented by the same windows and votes (m = c). Positive control: the CRF on the ground
-truth plus independent per-pixel logit noise must beat the noise's argmax.
+truth plus independent per-pixel logit noise must beat the noise's argmax. Rows are compared
+paired: each row keeps its confusion matrix on every frame of E, and one hierarchical bootstrap over
+seeds and frames resamples every row.
 
     python -m experiments --only offroad_table3
 """
@@ -29,12 +31,12 @@ import jax
 import numpy as np
 
 from experiments.common import HERE, RUNS, Finding, Scale
-from experiments.offroad_common import OffroadSizes, beats, model_on_a, not_beaten, run_seeds
+from experiments.offroad_common import PER_FRAME, OffroadSizes, beats, model_on_a, not_beaten, run_seeds
 from jaxanom.data.offroad import GRANULARITIES
 from jaxanom.offroad.active import select_hard_frames
 from jaxanom.app.demos.offroad import Source, annotated, as_float, source_frames
 from jaxanom.offroad.encoder import AnnotatedFrames, concat_frames
-from jaxanom.app.offroad_pipeline import (crf_labels, fine_tune, fit_category_model, segment, segment_supervised,
+from jaxanom.app.offroad_pipeline import (confusion_scores, crf_labels, fine_tune, fit_category_model, segment, segment_supervised,
                                           segmentation_scores, sequence_risk_sweep, to_classes)
 from jaxanom.offroad.supervised import classifier_config, train_classifier
 
@@ -84,10 +86,10 @@ def seed_values(sizes: OffroadSizes, log: Callable = print) -> dict:
     key = jax.random.key(config.seed)
 
     def scores(predicted, classes, clusters, frames, network=f"seed {config.seed}"):
-        s = segmentation_scores(predicted, truth[classes], classes)
-        return {"pa": 100 * s["pixel_accuracy"], "iou": 100 * s["miou"], "pre": 100 * s["precision"],
-                "rec": 100 * s["recall"], "fpr": 100 * s["fpr"], "clusters": clusters,
-                "frames": [int(i) for i in frames], "network": network}
+        confusions = [segmentation_scores(p, t, classes)["confusion"] for p, t in zip(predicted, truth[classes])]
+        pooled = percent_scores(classes)(np.sum(confusions, 0))
+        return {**{k: float(x) for k, x in pooled.items()}, "clusters": clusters, "frames": [int(i) for i in frames],
+                "network": network, PER_FRAME: {"e": confusions}}
 
     values = {}
     for budget, paper in ((0, None), *zip(sizes.deepscene_budgets, (20, 40))):
@@ -115,6 +117,20 @@ def seed_values(sizes: OffroadSizes, log: Callable = print) -> dict:
     values[CONTROL_NOISY] = scores(noisy, 5, 5, [], "noisy ground truth")
     values[CONTROL_CRF] = scores(smoothed, 5, 5, [], "noisy ground truth")
     return dict(sorted(values.items(), key=lambda item: group(item[0])))
+
+
+def percent_scores(classes: int) -> Callable:
+    """PA, IoU, PRE, REC and FPR in percent of pooled confusion matrices (..., classes + 1, classes + 1)."""
+    def metric(pooled: np.ndarray) -> dict:
+        s = confusion_scores(pooled, classes)
+        return {name: 100 * s[key] for name, key in (("pa", "pixel_accuracy"), ("iou", "miou"), ("pre", "precision"),
+                                                      ("rec", "recall"), ("fpr", "fpr"))}
+    return metric
+
+
+def row_metric(label: str) -> Callable:
+    """The metric of a row's pooled per-frame confusions: 4-class rows have 4 classes, the others 5."""
+    return percent_scores(4 if label.startswith("4-class") else 5)
 
 
 def group(label: str) -> int:
@@ -203,7 +219,7 @@ def run(scale: Scale, seeds: int, out_dir: Path = HERE, runs: Path = RUNS, log: 
         description: str = "") -> dict:
     """Every seed, aggregated; writes ``offroad_table3.json/.md``."""
     return run_seeds(NAME, TITLE, description, scale, seeds, out_dir, runs, seed_values, COLUMNS, findings, log,
-                     controls=controls)
+                     controls=controls, paired={"e": row_metric})
 
 
 if __name__ == "__main__":

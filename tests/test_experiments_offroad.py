@@ -3,11 +3,12 @@ import json
 import math
 
 import numpy as np
+import pytest
 
 from experiments import offroad_exp2, offroad_table2, offroad_table3
 from experiments.__main__ import summary
 from experiments.common import Scale
-from experiments.offroad_common import OffroadSizes, offroad_sizes, per_seed
+from experiments.offroad_common import OffroadSizes, offroad_sizes, paired_replicates, per_seed
 
 
 def test_smoke_run_writes_tables_that_the_summary_includes(tmp_path):
@@ -18,10 +19,18 @@ def test_smoke_run_writes_tables_that_the_summary_includes(tmp_path):
     for result in results:
         saved = json.loads((out / f"{result['name']}.json").read_text())
         assert saved == json.loads(json.dumps(result)) and saved["num_seeds"] == 1
-        assert saved["findings"] and all(f["evidence"] and f["intervals"] == [] and f["tested"] is None
-                                         for f in saved["findings"])  # no paired intervals, no mIoU bar: none invented
+        assert saved["findings"] and all(f["evidence"] for f in saved["findings"])
         assert (out / f"{result['name']}.md").read_text() == saved["report"] + "\n"
-        assert saved["report"].startswith(f"## {saved['title']}\n\n{saved['name']} text.\n")
+        assert saved["report"].startswith(f"## {saved['title']}\n\n{saved['name']} text. Run time: ")
+        assert " min to compute its seeds" in saved["report"].splitlines()[2]
+    # Exp. 2 counts clusters per seed (no frames): no paired interval, no mIoU bar, none invented.
+    assert all(f["intervals"] == [] and f["tested"] is None for f in results[0]["findings"]) and not results[0]["paired"]
+    for result in results[1:]:  # Tables II and III: every comparison paired, untested only where saturated
+        assert result["paired"] and all(f["intervals"] for f in result["findings"])
+        assert all(f["tested"] is None or (f["tested"] is False and "saturated" in f["untested_because"])
+                   for f in result["findings"])
+    assert all(f["holds"] == all(c["better"] for c in f["intervals"]) for f in results[1]["findings"])  # verdicts
+    assert all(f"{m}_interval" in row for row in results[2]["table"] for m in ("pa", "iou", "pre", "rec", "fpr"))
     exp2, table2, table3 = ({row["label"]: row for row in r["table"]} for r in results)
     assert list(exp2) == ["LV1", "LV2", "LV3", offroad_exp2.CONTROL, offroad_exp2.REFERENCE]
     assert [exp2[k]["classes"] for k in exp2] == [4, 6, 10, 3, 3]
@@ -58,8 +67,11 @@ def test_smoke_run_writes_tables_that_the_summary_includes(tmp_path):
     # The summary renders each experiment's own table (no ROC/PR curve lines for them).
     text = summary([json.loads((out / f"{r['name']}.json").read_text()) for r in results])
     assert all(r["report"] in text for r in results) and "offroad_exp2_roc.png" not in text
-    per_paper = text[text.index("### off-road"):text.index("## Tables")]  # said to lack intervals, not given any
-    assert "no paired interval" in per_paper and "no segmenter mIoU" in per_paper and "Δ" not in per_paper
+    per_paper = text[text.index("### off-road"):text.index("## Tables")]
+    exp2_lines = [line for line in per_paper.splitlines() if line.startswith("- `offroad_exp2`")]
+    assert exp2_lines and all("no paired interval" in line and "Δ" not in line for line in exp2_lines)
+    paired_lines = [line for line in per_paper.splitlines() if line.startswith("- `offroad_table2`: hard frames")]
+    assert paired_lines and all("Δ" in line and "no paired interval" not in line for line in paired_lines)
     rows = [next(line for line in text.splitlines() if line.startswith(f"| [{r['title']}]")) for r in results]
     assert all(line.endswith("| 1 / 1 |") for line in rows)  # the summary counts their controls
     # A rerun reads every seed's values from the cache: same tables, nothing recomputed.
@@ -153,3 +165,59 @@ def test_controls_fail_when_their_mechanism_does_not_deliver():
     assert [f.holds for f in offroad_table3.controls(table3)] == [True]
     table3[offroad_table3.CONTROL_CRF]["iou"] = 30.5
     assert [f.holds for f in offroad_table3.controls(table3)] == [False]
+
+
+def test_risk_metrics_of_summed_frame_risks_are_mflr_and_scene_coverage():
+    from jaxanom.offroad.risk import mean_frame_risk, scene_coverage
+
+    rng = np.random.default_rng(0)
+    flr = np.concatenate([rng.uniform(0, 1, 9), [0.5, 0.5]])  # two frames exactly at epsilon: not risky (Eq. 14: >)
+    per_frame = np.asarray(offroad_table2.frame_risks(flr, 0.5))
+    weights = np.array([rng.integers(0, 3, len(flr)) for _ in range(4)])
+    weights[0] = 1
+    got = offroad_table2.risk_metrics("c")(weights @ per_frame)
+    for r, w in enumerate(weights):
+        drawn = np.repeat(flr, w)
+        assert got["mflr_c"][r] == pytest.approx(100 * mean_frame_risk(drawn))
+        assert got["sc_c"][r] == pytest.approx(100 * scene_coverage(drawn, 0.5))
+
+
+def _paired_table2(seed_flr: dict) -> dict:
+    """Table II values with paired replicates from per-frame FLRs ``{row: [(F,) per seed]}`` on B and C alike."""
+    per_seed = [{label: {k: offroad_table2.frame_risks(flrs[s], 0.5) for k in ("b", "c")} for label, flrs in seed_flr.items()}
+                for s in range(len(next(iter(seed_flr.values()))))]
+    metrics = {k: (lambda _, k=k: offroad_table2.risk_metrics(k)) for k in ("b", "c")}
+    values = {}
+    for label, flrs in seed_flr.items():
+        means = {f"{m}_{k}": [offroad_table2.risk_metrics(k)(np.sum(offroad_table2.frame_risks(f, 0.5), 0))[f"{m}_{k}"]
+                              for f in flrs] for m in ("mflr", "sc") for k in ("b", "c")}
+        values[label] = {**{k: float(np.mean(x)) for k, x in means.items()},
+                         **{f"{k}_std": float(np.std(x, ddof=1)) for k, x in means.items()}}
+    for label, replicates in paired_replicates(per_seed, metrics).items():
+        values[label]["replicates"] = replicates
+    return values
+
+
+def test_table2_findings_are_paired_and_a_saturated_coverage_is_untested():
+    rng = np.random.default_rng(1)
+    base = [rng.uniform(0.05, 0.4, 12) * s for s in (0.5, 1.0, 1.5)]  # 3 seeds whose levels differ a lot
+    rows = {"M_A": [b + 0.05 for b in base], "Rand B4": [b + 0.02 for b in base], "Unif B4": [b + 0.01 for b in base],
+            "Ours B2": [b + 0.004 for b in base], "Ours B4": [b for b in base], "Ours B8": [b - 0.004 for b in base]}
+    values = _paired_table2(rows)
+    found = {f.claim: f for f in offroad_table2.findings(values)}
+    hard = found["hard frames beat uniform frames on C in mFLR (paper 40.67 vs 44.68)"]
+    # Ours is 1 point below Unif in every frame: the paired interval excludes 0, though the seeds' std is larger.
+    assert hard.holds and hard.tested is None and hard.intervals[0]["high"] < 0
+    assert abs(values["Ours B4"]["mflr_c"] - values["Unif B4"]["mflr_c"]) < values["Unif B4"]["mflr_c_std"]
+    assert "Δ -1.00 [" in hard.evidence
+    coverage = found["hard frames beat uniform frames on C in scene coverage Sc"]  # every FLR <= 0.5: Sc 100 everywhere
+    assert not coverage.holds and coverage.tested is False and "saturated" in coverage.untested_because
+    assert all(found[c].tested is None for c in found if "Sc" not in c and "coverage" not in c)
+    rows["Unif B4"][1] = rows["Unif B4"][1].copy()
+    rows["Unif B4"][1][3] = 0.9  # one risky frame: Sc now differs in some replicates, so it is tested
+    coverage = {f.claim: f for f in offroad_table2.findings(_paired_table2(rows))}[coverage.claim]
+    assert coverage.tested is None and not coverage.holds  # 1 frame of 36: the interval still holds 0
+    rows["Ours B4"] = [b - 0.02 + 0.01 * np.sin(np.arange(12)) for b in base]  # noisy gain: 1 point, not every frame
+    assert {f.claim: f.holds for f in offroad_table2.findings(_paired_table2(rows))}[hard.claim]
+    rows["Ours B4"] = [b + 0.01 + 0.1 * np.sin(np.arange(12) + s) for s, b in enumerate(base)]  # no gain: noise only
+    assert not {f.claim: f.holds for f in offroad_table2.findings(_paired_table2(rows))}[hard.claim]

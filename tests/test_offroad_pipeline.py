@@ -137,3 +137,26 @@ def test_segmentation_scores_precision_recall_fpr_against_sklearn():
     m = confusion_matrix(y, p, labels=np.arange(5))
     fpr = [(m[:, c].sum() - m[c, c]) / (m.sum() - m[c].sum()) for c in range(4)]
     assert out["fpr"] == pytest.approx(np.mean(fpr))
+
+
+def test_confusion_scores_of_summed_frame_matrices_equal_the_pooled_scores():
+    from jaxanom.app.offroad_pipeline import confusion_scores
+
+    rng = np.random.default_rng(5)
+    truth = rng.integers(0, 3, (4, 6, 9))
+    truth[1] = 255  # an all-void frame
+    truth[2, :2] = 2
+    predicted = rng.integers(0, 4, (4, 6, 9))  # 3 = unknown
+    per_frame = np.stack([segmentation_scores(p, t, 3)["confusion"] for p, t in zip(predicted, truth)])
+    weights = np.array([[1, 0, 2, 1], [0, 1, 0, 0], [3, 3, 0, 1]])  # bootstrap multiplicities; row 2: void only
+    batched = confusion_scores(np.tensordot(weights, per_frame, axes=1), 3)
+    for r, w in enumerate(weights):
+        index = np.repeat(np.arange(4), w)
+        if w[1] == w.sum():  # only void pixels: every score undefined
+            assert all(np.isnan(v[r]) for v in batched.values())
+            continue
+        expected = segmentation_scores(predicted[index], truth[index], 3)
+        for name in ("pixel_accuracy", "miou", "precision", "recall", "fpr"):
+            assert batched[name][r] == pytest.approx(expected[name]), name
+    with pytest.raises(ValueError, match="matrix: expected"):
+        confusion_scores(per_frame, 4)

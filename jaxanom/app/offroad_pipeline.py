@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxanom._validate import check_count, check_labels, check_number
-from jaxanom.metrics.segmentation import confusion_counts, false_positive_rate, precision, recall
+from jaxanom.metrics.segmentation import confusion_counts
 from jaxanom.mixture import GaussianMixture, fit_gmm, select_components
 from jaxanom.offroad.active import SELECTIONS, select_hard_frames
 from jaxanom.offroad.crf import dense_crf_batch
@@ -250,24 +250,35 @@ def to_classes(labels: np.ndarray, model: OffroadModel, num_classes: int) -> np.
 def segmentation_scores(predicted: np.ndarray, truth: np.ndarray, num_classes: int) -> dict:
     """Pixel accuracy, mIoU and the means of per-class precision, recall and FPR over the classes
     where each is defined (D-B14): ``predicted`` in [0, num_classes] (num_classes = unknown,
-    counted wrong), ``truth`` in [0, num_classes) or 255 (ignored)."""
+    counted wrong), ``truth`` in [0, num_classes) or 255 (ignored). ``confusion``: the
+    (num_classes + 1)^2 counts (rows: truth), which ``confusion_scores`` reads."""
     check_labels("predicted", predicted, num_classes + 1, void=255)
     check_labels("truth", truth, num_classes, void=255)
     matrix = np.asarray(confusion_counts(jnp.asarray(np.where(predicted == 255, num_classes, predicted)),
                                          jnp.asarray(truth), num_classes + 1), np.int64)
-    tp = np.diag(matrix)[:num_classes]
-    union = matrix[:num_classes].sum(1) + matrix[:, :num_classes].sum(0) - tp
-    present = union > 0
-    return {"pixel_accuracy": float(np.trace(matrix) / max(matrix.sum(), 1)),
-            "miou": float(np.mean(tp[present] / union[present])) if present.any() else float("nan"),
-            **{name: _mean_defined(fn(matrix)[:num_classes])
-               for name, fn in (("precision", precision), ("recall", recall), ("fpr", false_positive_rate))},
-            "confusion": matrix.tolist()}
+    return {**{k: float(v) for k, v in confusion_scores(matrix, num_classes).items()}, "confusion": matrix.tolist()}
 
 
-def _mean_defined(values: np.ndarray) -> float:
-    defined = values[np.isfinite(values)]
-    return float(defined.mean()) if defined.size else float("nan")
+def confusion_scores(matrix, num_classes: int) -> dict[str, np.ndarray]:
+    """``segmentation_scores``' ``pixel_accuracy``, ``miou``, ``precision``, ``recall`` and ``fpr`` of
+    confusion matrices (..., num_classes + 1, num_classes + 1) (rows: truth; the last column: unknown),
+    each (...,); NaN where no class defines the metric. Sums of per-frame matrices give pooled scores."""
+    matrix = np.asarray(matrix, np.float64)
+    if matrix.shape[-2:] != (num_classes + 1, num_classes + 1):
+        raise ValueError(f"matrix: expected (..., {num_classes + 1}, {num_classes + 1}) counts, got {matrix.shape}")
+    tp = np.diagonal(matrix, axis1=-2, axis2=-1)
+    actual, predicted, total = matrix.sum(-1), matrix.sum(-2), matrix.sum((-2, -1))
+    classes = slice(0, num_classes)
+    per_class = {"miou": (tp, actual + predicted - tp), "precision": (tp, predicted), "recall": (tp, actual),
+                 "fpr": (predicted - tp, total[..., None] - actual)}
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = {"pixel_accuracy": np.where(total > 0, tp.sum(-1) / np.maximum(total, 1), np.nan)}
+        for name, (numerator, denominator) in per_class.items():
+            defined = denominator[..., classes] > 0
+            ratio = np.where(defined, numerator[..., classes] / np.where(defined, denominator[..., classes], 1), 0.0)
+            count = defined.sum(-1)
+            out[name] = np.where(count > 0, ratio.sum(-1) / np.maximum(count, 1), np.nan)
+    return out
 
 
 def active_round(key, model: OffroadModel, base: AnnotatedFrames, images: np.ndarray,
