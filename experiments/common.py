@@ -39,6 +39,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from experiments.jobs import Job
 from experiments.stats import (REPLICATES, bin_edges, binned_auroc, binned_metrics, frame_histograms, hierarchical,
                                hierarchical_draws, interval)
 from jaxanom.app import methods as scoring
@@ -421,16 +422,39 @@ def evaluate(net: Network, variables: dict, scale: Scale, log: Callable = print)
     return result, arrays
 
 
-def evaluation(net: Network, scale: Scale, runs: Path, log: Callable = print) -> tuple[dict, dict]:
-    """``evaluate`` of the trained network, cached in its run folder per evaluation setting:
-    ``evaluation_<tag>.json`` and the per-frame arrays in ``evaluation_<tag>.npz`` (the JSON names the
-    arrays' hash; a cache without them, or with other arrays, is recomputed)."""
+def evaluation_cache(net: Network, scale: Scale, runs: Path) -> Path:
+    """``runs/<run_key>/evaluation_<tag>.json``: ``evaluation``'s cache for the settings of ``scale`` it reads."""
     fields = ("stats_frames", "val_frames", "anomaly_frames", "anomaly_split", "anomaly")
     settings = {k: getattr(scale, k) for k in fields}
     if net.class_scale is not None:
         settings["class_scale"] = list(net.class_scale)
     tag = hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:8]
-    cache = runs / net.run_key / f"evaluation_{tag}.json"
+    return runs / net.run_key / f"evaluation_{tag}.json"
+
+
+def evaluate_networks(nets: Sequence[Network], scale: Scale, runs: Path) -> None:
+    """``evaluation`` of networks that share one run folder, one after the other (a ``jobs.Job``)."""
+    for net in nets:
+        evaluation(net, scale, runs)
+
+
+def table_jobs(rows, scale: Scale, seeds: int, runs: Path) -> list[Job]:
+    """One job per run folder that ``run_table(rows=rows)`` over ``seeds`` would train or evaluate and has
+    not cached yet: ``evaluate_networks`` of its rows' networks."""
+    folders: dict[str, tuple[Scale, dict]] = {}
+    for s in seed_scales(scale, seeds):
+        for row in rows(s) if callable(rows) else rows:
+            folders.setdefault(row.network.run_key, (s, {}))[1][row.network.key] = row.network
+    return [Job(f"network {key}", evaluate_networks, (list(nets.values()), s, runs), s.steps / 700)
+            for key, (s, nets) in folders.items()
+            if not all(evaluation_cache(n, s, runs).with_suffix(".npz").exists() for n in nets.values())]
+
+
+def evaluation(net: Network, scale: Scale, runs: Path, log: Callable = print) -> tuple[dict, dict]:
+    """``evaluate`` of the trained network, cached in its run folder per evaluation setting:
+    ``evaluation_<tag>.json`` and the per-frame arrays in ``evaluation_<tag>.npz`` (the JSON names the
+    arrays' hash; a cache without them, or with other arrays, is recomputed)."""
+    cache = evaluation_cache(net, scale, runs)
     arrays_file = cache.with_suffix(".npz")
     if cache.exists() and arrays_file.exists():
         result, data = json.loads(cache.read_text()), arrays_file.read_bytes()

@@ -36,6 +36,7 @@ import numpy as np
 from experiments.common import (COMPETENT_MIOU, HERE, RUNS, TABLE_BINS, Scale, _batches, _cell, _row_json, _tested,
                                 _thin, aggregate, best, improves, not_better, score_histograms, seed_scales,
                                 seeds_text)
+from experiments.jobs import Job
 from experiments.stats import binned_auroc, binned_metrics, hierarchical, hierarchical_draws
 from jaxanom import sml
 from jaxanom.app.demos.mmf import MMFDemoConfig, evaluation_frames
@@ -141,6 +142,18 @@ def demo_config(scale: Scale) -> MMFDemoConfig:
     frames_scored = scale.anomaly_frames if is_smoke(scale) else ANOMALY_FRAMES
     return MMFDemoConfig(pipeline=dataclasses.replace(config, segmenter=seg), anomaly_split=scale.anomaly_split,
                          anomaly_frames=frames_scored)
+
+
+def build_parts(scale: Scale, runs: Path) -> None:
+    """Train (or restore) every part of one seed's two pipelines into ``runs/mmf`` (a ``jobs.Job``)."""
+    config = demo_config(scale).pipeline
+    for pipeline in (config, spade_config(config)):
+        MMFPipeline.build(pipeline, runs / "mmf", progress=False)
+
+
+def jobs(scale: Scale, seeds: int, runs: Path) -> list[Job]:
+    """``build_parts`` of every seed, to run before the table (``python -m experiments --jobs``)."""
+    return [Job(f"{NAME} seed {s.seed}", build_parts, (s, runs), 14.0) for s in seed_scales(scale, seeds)]
 
 
 def spade_config(config: MMFConfig) -> MMFConfig:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import importlib
 import json
 import time
 from pathlib import Path
@@ -33,6 +34,7 @@ import jax
 import numpy as np
 
 from experiments.common import Finding, Scale, _cell, _tested, aggregate, control_lines, seed_scales
+from experiments.jobs import Job
 from experiments.stats import hierarchical, hierarchical_draws, interval
 from jaxanom.io import write_bytes_atomic, write_json_atomic
 from jaxanom.app.demos.offroad import OffroadDemoConfig, annotated, source_frames
@@ -129,6 +131,21 @@ def seed_minutes(name: str, sizes: Sequence[OffroadSizes], runs: Path) -> float 
     """Minutes that computing these seeds took (their caches' ``seconds``); None where a cache lacks them."""
     seconds = [json.loads(cache_path(name, z, runs).read_text()).get("seconds") for z in sizes]
     return None if None in seconds else sum(seconds) / 60
+
+
+def compute_seed(names: Sequence[str], sizes: OffroadSizes, runs: Path) -> None:
+    """One seed's values of the off-road experiments ``names``, in order and into their caches (``per_seed``),
+    sharing this process's M_A (a ``jobs.Job``)."""
+    for name in names:
+        module = importlib.import_module(f"experiments.{name}")
+        per_seed(name, sizes, runs, lambda: module.seed_values(sizes, print))
+
+
+def seed_jobs(names: Sequence[str], scale: Scale, seeds: int, runs: Path) -> list[Job]:
+    """``compute_seed`` of every seed that some experiment of ``names`` has not cached."""
+    sizes = [offroad_sizes(s) for s in seed_scales(scale, seeds)]
+    return [Job(f"off-road seed {z.demo.seed}", compute_seed, (tuple(names), z, runs), 13.0) for z in sizes
+            if names and not all(cache_path(name, z, runs).exists() for name in names)]
 
 
 PER_FRAME = "per_frame"  # a row's per-frame values in a seed's cache: {kind: (F, ...) nested lists}
