@@ -210,7 +210,8 @@ def summary(results: list[dict], failures: dict[str, str] | None = None) -> str:
         "",
         f"**Of {len(kinds)} qualitative findings of the papers, {kinds.count('holds')} hold here, "
         f"{kinds.count('fails')} fail, and {kinds.count('untested')} could not be tested** (a network compared is "
-        f"below {COMPETENT_MIOU:.0f}% mIoU, or the table's positive control failed). The synthetic data was not "
+        f"below {COMPETENT_MIOU:.0f}% mIoU, the rows compared cannot differ here (identical outputs, or a metric "
+        "saturated in every replicate), or the table's positive control failed). The synthetic data was not "
         "changed to make any of them hold.",
         "",
         "## Findings per paper",
@@ -253,8 +254,10 @@ def seed_lines(results: list[dict]) -> list[str]:
              "frames and networks). **A finding holds when the 95% percentile interval of the paired difference "
              "lies entirely on the paper's side of 0**; evidence reads e.g. \"AP 20.60 vs 13.30, Δ +7.30 [+2.10, "
              "+12.00]\" (Δ: the difference of the means; [ ]: its interval). A finding is **tested** only where every "
-             f"network of the rows it compares reaches {COMPETENT_MIOU:.0f}% mIoU on the validation frames; a finding "
-             "that fails below that says little about the paper. Positive controls are rows built so that the "
+             f"network of the rows it compares reaches {COMPETENT_MIOU:.0f}% mIoU on the validation frames (a finding "
+             "that fails below that says little about the paper), and only where its rows can differ: a comparison "
+             "whose rows have the same value in every bootstrap replicate (e.g. scene coverage at 100% in every frame) "
+             "is untested. Positive controls are rows built so that the "
              "mechanism must help; a failing control points at a bug here, and its table's findings count as not "
              "testable."]
     if single:

@@ -151,19 +151,19 @@ def seed_jobs(names: Sequence[str], scale: Scale, seeds: int, runs: Path) -> lis
 PER_FRAME = "per_frame"  # a row's per-frame values in a seed's cache: {kind: (F, ...) nested lists}
 
 
-def paired_replicates(per_seed: Sequence[dict], metrics: dict[str, Callable]) -> dict:
+def paired_replicates(seed_frames: Sequence[dict], metrics: dict[str, Callable]) -> dict:
     """``{label: {metric: (R,)}}``: one set of ``hierarchical_draws`` (seeds, then each seed's frames of every
-    kind) shared by every row. ``per_seed[s][label][kind]``: (F, ...) per-frame counts of seed s, the same F
+    kind) shared by every row. ``seed_frames[s][label][kind]``: (F, ...) per-frame counts of seed s, the same F
     for every row; ``metrics[kind](label)(pooled (n, ...)) -> {metric: (n,)}``: the metric of a row."""
-    labels = list(per_seed[0])
-    counts = {kind: [len(seed[labels[0]][kind]) for seed in per_seed] for kind in metrics}
+    labels = list(seed_frames[0])
+    counts = {kind: [len(seed[labels[0]][kind]) for seed in seed_frames] for kind in metrics}
     for label in labels:
-        got = {kind: [len(seed[label][kind]) for seed in per_seed] for kind in metrics}
+        got = {kind: [len(seed[label][kind]) for seed in seed_frames] for kind in metrics}
         if got != counts:
-            raise ValueError(f"per_seed: row {label!r} has frames {got}, the first row {counts}")
+            raise ValueError(f"seed_frames: row {label!r} has frames {got}, the first row {counts}")
     draws = hierarchical_draws(counts)
     return {label: {name: values for kind, metric in metrics.items()
-                    for name, values in hierarchical([np.asarray(seed[label][kind], np.float64) for seed in per_seed],
+                    for name, values in hierarchical([np.asarray(seed[label][kind], np.float64) for seed in seed_frames],
                                                      draws, kind, metric(label)).items()}
             for label in labels}
 
@@ -183,11 +183,6 @@ def comparison(values: dict, a: str, b: str, metric: str, lower: bool = False) -
                 "separable": not np.array_equal(first, second, equal_nan=True)}
     spread = max(values[a].get(f"{metric}_std", 0.0), values[b].get(f"{metric}_std", 0.0))
     return {**out, "better": bool(sign * (x - y) > spread)}
-
-
-def better(values: dict, a: str, b: str, metric: str, lower: bool = False) -> bool:
-    """Row ``a`` beats row ``b`` in ``metric`` (``comparison``)."""
-    return comparison(values, a, b, metric, lower)["better"]
 
 
 def _pair_text(values: dict, c: dict, name: str) -> str:
