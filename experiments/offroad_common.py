@@ -190,11 +190,12 @@ def _pair_text(values: dict, c: dict, name: str) -> str:
     return text if c["low"] is None else f"{text}, Δ {c['difference']:+.2f} [{c['low']:+.2f}, {c['high']:+.2f}]"
 
 
-def _finding(claim: str, holds: bool, evidence: str, comparisons: Sequence[dict]) -> Finding:
-    """A finding with its rows and comparisons; untested where a comparison cannot separate its rows."""
+def _finding(claim: str, holds: bool, evidence: str, comparisons: Sequence[dict], names: dict[str, str]) -> Finding:
+    """A finding with its rows and comparisons; untested where a comparison cannot separate its rows.
+    ``names``: metric -> the name the evidence gives it."""
     rows = list(dict.fromkeys(x for c in comparisons for x in (c["a"], c["b"])))
-    same = [f"{c['a']} and {c['b']} have the same {c['metric']} in every bootstrap replicate" for c in comparisons
-            if not c["separable"]]
+    same = [f"{c['a']} and {c['b']} have the same {names[c['metric']]} in every bootstrap replicate"
+            for c in comparisons if not c["separable"]]
     intervals = [{k: v for k, v in c.items() if k != "separable"} for c in comparisons if c["low"] is not None]
     return Finding(claim, holds, evidence, rows, intervals, False if same else None,
                    "; ".join(same) + " (the metric is saturated here)" if same else "")
@@ -204,14 +205,14 @@ def beats(values: dict, a: str, b: str, metrics: dict[str, str], claim: str, low
     """``a`` beats ``b`` in every metric of ``metrics`` (metric -> its name); ``lower``: lower is better."""
     compared = [comparison(values, a, b, m, m in lower) for m in metrics]
     return _finding(claim, all(c["better"] for c in compared),
-                    ", ".join(_pair_text(values, c, metrics[c["metric"]]) for c in compared), compared)
+                    ", ".join(_pair_text(values, c, metrics[c["metric"]]) for c in compared), compared, metrics)
 
 
 def not_beaten(values: dict, a: str, b: str, metrics: dict[str, str], claim: str, lower: Sequence[str] = ()) -> Finding:
     """``a`` is at ``b``'s level: ``b`` beats ``a`` in none of ``metrics``."""
     compared = [comparison(values, b, a, m, m in lower) for m in metrics]
     evidence = ", ".join(_pair_text(values, comparison(values, a, b, m, m in lower), name) for m, name in metrics.items())
-    return _finding(claim, not any(c["better"] for c in compared), evidence, compared)
+    return _finding(claim, not any(c["better"] for c in compared), evidence, compared, metrics)
 
 
 def chain(values: dict, rows: Sequence[str], metric: str, name: str, claim: str, lower: bool = False) -> Finding:
@@ -221,7 +222,7 @@ def chain(values: dict, rows: Sequence[str], metric: str, name: str, claim: str,
     if all(c["low"] is not None for c in compared):
         evidence += "; " + ", ".join(f"{c['a']} − {c['b']} Δ {c['difference']:+.2f} [{c['low']:+.2f}, {c['high']:+.2f}]"
                                      for c in compared)
-    return _finding(claim, all(c["better"] for c in compared), evidence, compared)
+    return _finding(claim, all(c["better"] for c in compared), evidence, compared, {metric: name})
 
 
 def markdown_table(values: dict, columns: dict[str, str]) -> str:

@@ -212,6 +212,7 @@ def test_table2_findings_are_paired_and_a_saturated_coverage_is_untested():
     assert "Δ -1.00 [" in hard.evidence
     coverage = found["hard frames beat uniform frames on C in scene coverage Sc"]  # every FLR <= 0.5: Sc 100 everywhere
     assert not coverage.holds and coverage.tested is False and "saturated" in coverage.untested_because
+    assert coverage.untested_because.startswith("Ours B4 and Unif B4 have the same Sc C in every bootstrap replicate")
     assert all(found[c].tested is None for c in found if "Sc" not in c and "coverage" not in c)
     rows["Unif B4"][1] = rows["Unif B4"][1].copy()
     rows["Unif B4"][1][3] = 0.9  # one risky frame: Sc now differs in some replicates, so it is tested
