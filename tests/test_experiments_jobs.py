@@ -1,4 +1,5 @@
 """``python -m experiments --jobs``: the work done before the tables, in worker processes."""
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -15,8 +16,10 @@ def test_jobs_run_in_worker_processes_and_a_failure_is_reported(tmp_path):
     written = [tmp_path / f"{i}.txt" for i in range(3)]
     jobs = [Job(f"write {i}", Path.write_text, (path, f"job {i}"), minutes=i) for i, path in enumerate(written)]
     jobs.append(Job("read a missing file", Path.read_text, (tmp_path / "missing",), minutes=5))
+    share = tmp_path / "share.txt"  # each worker's share of an accelerator's memory
+    jobs.append(Job("memory", subprocess.run, (["sh", "-c", f"echo $XLA_PYTHON_CLIENT_MEM_FRACTION > {share}"],), 1))
     failed = run_jobs(jobs, 2, tmp_path / "cache", log=lambda *_: None)
-    assert [p.read_text() for p in written] == ["job 0", "job 1", "job 2"]
+    assert [p.read_text() for p in written] == ["job 0", "job 1", "job 2"] and share.read_text() == "0.40\n"
     assert list(failed) == ["read a missing file"] and failed["read a missing file"].startswith("FileNotFoundError")
     other = tmp_path / "other.txt"
     assert run_jobs([Job("write", Path.write_text, (other, "x"), 1)], 1, tmp_path / "cache") == {}

@@ -27,7 +27,8 @@ def test_smoke_run_writes_tables_that_the_summary_includes(tmp_path):
     assert all(f["intervals"] == [] and f["tested"] is None for f in results[0]["findings"]) and not results[0]["paired"]
     for result in results[1:]:  # Tables II and III: every comparison paired, untested only where saturated
         assert result["paired"] and all(f["intervals"] for f in result["findings"])
-        assert all(f["tested"] is None or (f["tested"] is False and "saturated" in f["untested_because"])
+        assert all(f["tested"] is None or (f["tested"] is False and ("saturated" in f["untested_because"] or
+                                                                     "does not rank" in f["untested_because"]))
                    for f in result["findings"])
     assert all(f["holds"] == all(c["better"] for c in f["intervals"]) for f in results[1]["findings"])  # verdicts
     assert all(f"{m}_interval" in row for row in results[2]["table"] for m in ("pa", "iou", "pre", "rec", "fpr"))
@@ -110,6 +111,7 @@ def test_findings_need_the_difference_to_exceed_the_spread():
             "Ours B4": (40, 80, 1), "Ours B8": (35, 90, 1)}
     table2 = _rows(**{k: {"mflr_b": (m, s), "mflr_c": (m, s), "sc_b": (c, s), "sc_c": (c, s)}
                       for k, (m, c, s) in good.items()})
+    table2["M_A"]["rho_b_seeds"] = [0.5, 0.5, 0.5]  # M_A's FLR ranks B's frames by its error
     assert all(f.holds for f in offroad_table2.findings(table2))
     table2["Unif B4"]["mflr_c"] = 41.5  # Ours 40 vs Unif 41.5: within the std of 2
     held = {f.claim: f.holds for f in offroad_table2.findings(table2)}
@@ -182,8 +184,9 @@ def test_risk_metrics_of_summed_frame_risks_are_mflr_and_scene_coverage():
         assert got["sc_c"][r] == pytest.approx(100 * scene_coverage(drawn, 0.5))
 
 
-def _paired_table2(seed_flr: dict) -> dict:
-    """Table II values with paired replicates from per-frame FLRs ``{row: [(F,) per seed]}`` on B and C alike."""
+def _paired_table2(seed_flr: dict, rho=(0.5, 0.5, 0.5)) -> dict:
+    """Table II values with paired replicates from per-frame FLRs ``{row: [(F,) per seed]}`` on B and C alike;
+    ``rho``: M_A's Spearman rho between FLR and error, per seed."""
     per_seed = [{label: {k: offroad_table2.frame_risks(flrs[s], 0.5) for k in ("b", "c")} for label, flrs in seed_flr.items()}
                 for s in range(len(next(iter(seed_flr.values()))))]
     metrics = {k: (lambda _, k=k: offroad_table2.risk_metrics(k)) for k in ("b", "c")}
@@ -195,6 +198,7 @@ def _paired_table2(seed_flr: dict) -> dict:
                          **{f"{k}_std": float(np.std(x, ddof=1)) for k, x in means.items()}}
     for label, replicates in paired_replicates(per_seed, metrics).items():
         values[label]["replicates"] = replicates
+    values["M_A"]["rho_b_seeds"] = list(rho)
     return values
 
 
@@ -218,7 +222,27 @@ def test_table2_findings_are_paired_and_a_saturated_coverage_is_untested():
     rows["Unif B4"][1][3] = 0.9  # one risky frame: Sc now differs in some replicates, so it is tested
     coverage = {f.claim: f for f in offroad_table2.findings(_paired_table2(rows))}[coverage.claim]
     assert coverage.tested is None and not coverage.holds  # 1 frame of 36: the interval still holds 0
+    # M_A's FLR blind to its errors in one seed: the hard-frame claims are untested, the others still tested.
+    blind = {f.claim: f for f in offroad_table2.findings(_paired_table2(rows, rho=(0.5, 0.1, 0.6)))}
+    assert blind[hard.claim].tested is False and "ρ" not in blind[hard.claim].untested_because
+    assert "Spearman rho per seed +0.50, +0.10, +0.60" in blind[hard.claim].untested_because
+    seen = {f.claim for f in offroad_table2.findings(_paired_table2(rows)) if f.tested is False}  # saturated Sc
+    assert {c for c, f in blind.items() if f.tested is False} == {
+        c for c in blind if c.startswith(("hard frames", "mFLR on"))} | seen
+    assert blind[hard.claim].holds  # the verdict is kept, only marked untested
     rows["Ours B4"] = [b - 0.02 + 0.01 * np.sin(np.arange(12)) for b in base]  # noisy gain: 1 point, not every frame
     assert {f.claim: f.holds for f in offroad_table2.findings(_paired_table2(rows))}[hard.claim]
     rows["Ours B4"] = [b + 0.01 + 0.1 * np.sin(np.arange(12) + s) for s, b in enumerate(base)]  # no gain: noise only
     assert not {f.claim: f.holds for f in offroad_table2.findings(_paired_table2(rows))}[hard.claim]
+
+
+def test_rank_correlation_is_spearmans_rho_and_nan_without_a_ranking():
+    rng = np.random.default_rng(2)
+    x, y = rng.normal(size=20), rng.normal(size=20)
+    x[3] = x[4]  # a tie
+    ranks = lambda a: np.argsort(np.argsort(a)).astype(float)  # noqa: E731 (no ties in y; x's tie handled below)
+    rx = ranks(x)
+    rx[[3, 4]] = rx[[3, 4]].mean()  # average ranks of the tie
+    assert offroad_table2.rank_correlation(x, y) == pytest.approx(np.corrcoef(rx, ranks(y))[0, 1])
+    assert np.isnan(offroad_table2.rank_correlation(np.zeros(5), np.arange(5.0)))
+    assert np.isnan(offroad_table2.rank_correlation(np.arange(5.0), np.ones(5)))
