@@ -1,6 +1,6 @@
 """Run the paper-table experiments and write ``experiments/RESULTS.md``.
 
-    python -m experiments                         # every table on synthetic scenes, 3 seeds (hours on 2 cores)
+    python -m experiments                         # every table on synthetic scenes, 3 seeds (~2.5 h on 2 cores)
     python -m experiments --only cudam_table2     # one table
     python -m experiments --size 64 128 --train-frames 128 --steps 300   # smaller networks (RESULTS.md)
     python -m experiments --cityscapes /data/cityscapes --anomaly road_anomaly:/data/RoadAnomaly --out results/
