@@ -211,7 +211,8 @@ def beats(values: dict, a: str, b: str, metrics: dict[str, str], claim: str, low
 def not_beaten(values: dict, a: str, b: str, metrics: dict[str, str], claim: str, lower: Sequence[str] = ()) -> Finding:
     """``a`` is at ``b``'s level: ``b`` beats ``a`` in none of ``metrics``."""
     compared = [comparison(values, b, a, m, m in lower) for m in metrics]
-    evidence = ", ".join(_pair_text(values, comparison(values, a, b, m, m in lower), name) for m, name in metrics.items())
+    evidence = ", ".join(_pair_text(values, comparison(values, a, b, m, m in lower), name)
+                         for m, name in metrics.items())
     return _finding(claim, not any(c["better"] for c in compared), evidence, compared, metrics)
 
 
@@ -220,8 +221,8 @@ def chain(values: dict, rows: Sequence[str], metric: str, name: str, claim: str,
     compared = [comparison(values, b, a, metric, lower) for a, b in zip(rows, rows[1:])]
     evidence = f"{name}: " + ", ".join(f"{r} {_cell(values[r], metric)}" for r in rows)
     if all(c["low"] is not None for c in compared):
-        evidence += "; " + ", ".join(f"{c['a']} − {c['b']} Δ {c['difference']:+.2f} [{c['low']:+.2f}, {c['high']:+.2f}]"
-                                     for c in compared)
+        evidence += "; " + ", ".join(f"{c['a']} − {c['b']} Δ {c['difference']:+.2f} "
+                                     f"[{c['low']:+.2f}, {c['high']:+.2f}]" for c in compared)
     return _finding(claim, all(c["better"] for c in compared), evidence, compared, {metric: name})
 
 
@@ -270,7 +271,8 @@ def run_seeds(name: str, title: str, description: str, scale: Scale, seeds: int,
               **{f"{m}_interval": list(interval(r)) for m, r in v.get("replicates", {}).items()}}
              for k, v in values.items()]
     result = {"name": name, "title": title, "description": description, "table": table,
-              "scale": dataclasses.asdict(scales[0]), "sizes": json.loads(json.dumps(dataclasses.asdict(sizes[0]), default=str)),
+              "scale": dataclasses.asdict(scales[0]),
+              "sizes": json.loads(json.dumps(dataclasses.asdict(sizes[0]), default=str)),
               "findings": [dataclasses.asdict(f) for f in checked], "controls": checked_controls, "seeds": seed_text,
               "num_seeds": len(scales), "paired": bool(paired), "report": report}
     out_dir = Path(out_dir)
