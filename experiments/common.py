@@ -718,14 +718,14 @@ LOWER_IS_BETTER = {"fpr95"}
 NAMES = {"ap": "AP", "auroc": "AUROC", "fpr95": "FPR95", "miou": "mIoU", "f1": "mean F1"}
 
 
-def comparison(values: dict, a: str, b: str, metric: str) -> dict:
+def comparison(values: dict, a: str, b: str, metric: str, lower: bool | None = None) -> dict:
     """``a`` against ``b`` in ``metric``: ``{a, b, metric, difference (a - b of the means), low, high,
     better}``. With replicates on both rows (paired), ``[low, high]`` is the 95% interval of the paired
-    difference and ``better`` says it lies entirely on the paper's side of 0 (above; below for FPR95).
-    Without, ``low``/``high`` are None and ``better`` says the difference of means exceeds the larger std
-    over seeds (0 for one seed)."""
+    difference and ``better`` says it lies entirely on the paper's side of 0 (above; below where ``lower``,
+    by default for the metrics of ``LOWER_IS_BETTER``). Without, ``low``/``high`` are None and ``better``
+    says the difference of means exceeds the larger std over seeds (0 for one seed)."""
     x, y = values[a][metric], values[b][metric]
-    sign = -1.0 if metric in LOWER_IS_BETTER else 1.0
+    sign = -1.0 if (metric in LOWER_IS_BETTER if lower is None else lower) else 1.0
     out = {"a": a, "b": b, "metric": metric, "difference": x - y, "low": None, "high": None}
     if "replicates" in values[a] and "replicates" in values[b]:
         low, high = interval(values[a]["replicates"][metric] - values[b]["replicates"][metric])

@@ -33,9 +33,10 @@ import jax
 
 import numpy as np
 
-from experiments.common import Finding, Scale, _cell, _tested, aggregate, control_lines, seed_scales
+from experiments import common
+from experiments.common import Finding, Scale, _cell, _delta, _row_json, _tested, aggregate, control_lines, seed_scales
 from experiments.jobs import Job
-from experiments.stats import hierarchical, hierarchical_draws, interval
+from experiments.stats import hierarchical, hierarchical_draws
 from jaxanom.io import write_bytes_atomic, write_json_atomic
 from jaxanom.app.demos.offroad import OffroadDemoConfig, annotated, source_frames
 from jaxanom.offroad.encoder import AnnotatedFrames
@@ -169,25 +170,17 @@ def paired_replicates(seed_frames: Sequence[dict], metrics: dict[str, Callable])
 
 
 def comparison(values: dict, a: str, b: str, metric: str, lower: bool = False) -> dict:
-    """``a`` against ``b`` in ``metric`` (``lower``: lower is better), as ``experiments.common.comparison``:
-    ``{a, b, metric, difference, low, high, better, separable}``. Paired (replicates on both rows): the 95%
-    interval of the difference must lie on the better side of 0, and ``separable`` is False where the two
-    rows' replicates are equal in every replicate. Else the difference of means must exceed the larger std."""
-    x, y = values[a][metric], values[b][metric]
-    sign = -1.0 if lower else 1.0
-    out = {"a": a, "b": b, "metric": metric, "difference": x - y, "low": None, "high": None, "separable": True}
-    if "replicates" in values[a] and "replicates" in values[b]:
-        first, second = values[a]["replicates"][metric], values[b]["replicates"][metric]
-        low, high = interval(first - second)
-        return {**out, "low": low, "high": high, "better": bool(sign * low > 0 and sign * high > 0),
-                "separable": not np.array_equal(first, second, equal_nan=True)}
-    spread = max(values[a].get(f"{metric}_std", 0.0), values[b].get(f"{metric}_std", 0.0))
-    return {**out, "better": bool(sign * (x - y) > spread)}
+    """``experiments.common.comparison`` (``lower``: lower is better) with ``separable``: False where both
+    rows are paired and their replicates are equal in every replicate (nothing can separate them)."""
+    c = common.comparison(values, a, b, metric, lower)
+    paired = c["low"] is not None
+    return {**c, "separable": not paired or not np.array_equal(values[a]["replicates"][metric],
+                                                               values[b]["replicates"][metric], equal_nan=True)}
 
 
 def _pair_text(values: dict, c: dict, name: str) -> str:
     text = f"{name} {_cell(values[c['a']], c['metric'])} vs {_cell(values[c['b']], c['metric'])}"
-    return text if c["low"] is None else f"{text}, Δ {c['difference']:+.2f} [{c['low']:+.2f}, {c['high']:+.2f}]"
+    return text if c["low"] is None else f"{text}, {_delta(c)}"
 
 
 def _finding(claim: str, holds: bool, evidence: str, comparisons: Sequence[dict], names: dict[str, str]) -> Finding:
@@ -221,8 +214,7 @@ def chain(values: dict, rows: Sequence[str], metric: str, name: str, claim: str,
     compared = [comparison(values, b, a, metric, lower) for a, b in zip(rows, rows[1:])]
     evidence = f"{name}: " + ", ".join(f"{r} {_cell(values[r], metric)}" for r in rows)
     if all(c["low"] is not None for c in compared):
-        evidence += "; " + ", ".join(f"{c['a']} − {c['b']} Δ {c['difference']:+.2f} "
-                                     f"[{c['low']:+.2f}, {c['high']:+.2f}]" for c in compared)
+        evidence += "; " + ", ".join(f"{c['a']} − {c['b']} {_delta(c)}" for c in compared)
     return _finding(claim, all(c["better"] for c in compared), evidence, compared, {metric: name})
 
 
@@ -267,10 +259,8 @@ def run_seeds(name: str, title: str, description: str, scale: Scale, seeds: int,
               for f in checked]
     checked_controls = [dataclasses.asdict(f) for f in (controls(values) if controls else [])]
     report = "\n".join(lines + control_lines(checked_controls))
-    table = [{"label": k, **{m: x for m, x in v.items() if m != "replicates"},
-              **{f"{m}_interval": list(interval(r)) for m, r in v.get("replicates", {}).items()}}
-             for k, v in values.items()]
-    result = {"name": name, "title": title, "description": description, "table": table,
+    result = {"name": name, "title": title, "description": description,
+              "table": [_row_json(k, v) for k, v in values.items()],
               "scale": dataclasses.asdict(scales[0]),
               "sizes": json.loads(json.dumps(dataclasses.asdict(sizes[0]), default=str)),
               "findings": [dataclasses.asdict(f) for f in checked], "controls": checked_controls, "seeds": seed_text,
