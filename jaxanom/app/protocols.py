@@ -1,0 +1,80 @@
+"""Evaluation protocols: how a table turns a dataset's frames into the pixels it counts.
+
+Published road-anomaly numbers differ in more than the network: the size the network sees, the
+resampling filter, whether a void output takes part in the scores, which frames count, and how
+FPR at 95% TPR reads the curve. A ``Protocol`` names those choices so that a table can be
+reproduced by name (``jaxanom evaluate --protocol NAME``):
+
+- ``native`` (jaxanom's default): each image at its own size, the metrics at the labels' size,
+  every output channel in the scores (a void class included: docs/decisions/espnet.md measured
+  that dropping it hurts), every frame, FPR at the first point with TPR >= 95%.
+- ``erfnet-community``: the protocol of the many public ERFNet road-anomaly evaluations (their
+  MSP / max logit / max entropy table on RoadAnomaly21 and RoadObstacle21): the image resized
+  to 512x1024 with PIL's BILINEAR (antialiased when shrinking), the labels to 512x1024 with
+  PIL's NEAREST, the metrics at that size; the void (20th) channel dropped before the scores
+  (the ``void`` method reads it); frames without an anomaly pixel skipped; pixels pooled over
+  frames; AP as scikit-learn's ``average_precision_score`` (the step sum) and FPR95 as
+  ood-metrics' ``fpr_at_95_tpr`` (linear interpolation on the ROC).
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Iterable, Iterator, Mapping
+
+import numpy as np
+
+from jaxanom.data.resize import resize_image_antialiased, resize_labels_nearest
+
+
+@dataclasses.dataclass(frozen=True)
+class Protocol:
+    """``size``: (H, W) the network sees, None for each image's own; ``drop_void``: the scores
+    read every channel but a void one; ``skip_frames_without_anomaly``: frames whose (resized)
+    label holds no anomaly pixel are not counted; the conventions as in
+    ``jaxanom.metrics.anomaly_metrics``."""
+
+    name: str
+    description: str
+    size: tuple[int, int] | None = None
+    drop_void: bool = False
+    skip_frames_without_anomaly: bool = False
+    ap_convention: str = "step"
+    fpr_convention: str = "first"
+
+    def frames(self, records: Iterable[Mapping]) -> Iterator[dict]:
+        """The records ``{"image" (H, W, 3) uint8, "label" (H, W) uint8, ...}`` this protocol
+        counts, resized to ``size`` if it has one (other pixel maps are not carried)."""
+        for record in records:
+            record = dict(record)
+            if self.size is not None:
+                record = resize_frame(record, self.size)
+            if self.skip_frames_without_anomaly and not np.any(np.asarray(record["label"]) == 1):
+                continue
+            yield record
+
+
+def resize_frame(record: Mapping, size: tuple[int, int]) -> dict:
+    """``record`` with its image resized antialiased and its label by nearest neighbour to
+    ``size`` (H, W), both as PIL does (``jaxanom.data.resize``); ValueError for a record with
+    other pixel maps (depth, ROI), which these protocols do not define."""
+    if extra := sorted(set(record) & {"depth", "disparity", "roi"}):
+        raise ValueError(f"record: a resizing protocol reads image and label only, got {extra} too")
+    return {**record, "image": resize_image_antialiased(record["image"], size),
+            "label": resize_labels_nearest(record["label"], size)}
+
+
+PROTOCOLS: dict[str, Protocol] = {
+    "native": Protocol("native", "each image at its own size, every channel, every frame, FPR at the first "
+                       "point with TPR >= 95% (jaxanom's default)"),
+    "erfnet-community": Protocol(
+        "erfnet-community", "512x1024 PIL-style resize of images (antialiased) and labels (nearest), void channel "
+        "dropped, frames without anomalies skipped, interpolated FPR95 (the public ERFNet evaluations)",
+        size=(512, 1024), drop_void=True, skip_frames_without_anomaly=True, fpr_convention="interp"),
+}
+
+
+def get_protocol(name: str) -> Protocol:
+    """The protocol called ``name``; ValueError naming the known ones otherwise."""
+    if name not in PROTOCOLS:
+        raise ValueError(f"protocol: expected one of {', '.join(PROTOCOLS)}, got {name!r}")
+    return PROTOCOLS[name]

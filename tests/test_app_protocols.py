@@ -1,0 +1,47 @@
+"""Evaluation protocols (``jaxanom.app.protocols``): which frames count, at which size."""
+import numpy as np
+import pytest
+from PIL import Image
+
+from jaxanom.app.protocols import PROTOCOLS, get_protocol, resize_frame
+
+
+def frame(label_values, shape=(36, 64), name="f"):
+    rng = np.random.default_rng(len(label_values))
+    label = rng.choice(np.array(label_values, np.uint8), size=shape)
+    return {"image": rng.integers(0, 256, (*shape, 3), dtype=np.uint8), "label": label, "name": name}
+
+
+def test_community_protocol_resizes_as_pil_and_skips_frames_without_anomaly():
+    protocol = get_protocol("erfnet-community")
+    frames = [frame([0, 1, 255], name="a"), frame([0, 255], name="b"), frame([0, 1], shape=(1080 // 30, 1920 // 30),
+                                                                          name="c")]
+    kept = list(protocol.frames(frames))
+    assert [f["name"] for f in kept] == ["a", "c"]
+    for got, source in zip(kept, (frames[0], frames[2])):
+        assert got["image"].shape == (512, 1024, 3) and got["label"].shape == (512, 1024)
+        expected = np.asarray(Image.fromarray(source["label"]).resize((1024, 512), Image.NEAREST))
+        np.testing.assert_array_equal(got["label"], expected)
+        pil = np.asarray(Image.fromarray(source["image"]).resize((1024, 512), Image.BILINEAR)).astype(int)
+        assert np.abs(got["image"].astype(int) - pil).max() <= 1
+
+
+def test_anomaly_lost_by_the_label_resize_skips_the_frame():
+    """The community checks for an anomaly pixel after resizing the label (their loop's order)."""
+    record = frame([0])
+    record["label"][5, 5] = 1  # one pixel that nearest-neighbour shrinking to 4x4 does not sample
+    protocol = PROTOCOLS["erfnet-community"].__class__("t", "test", size=(4, 4), skip_frames_without_anomaly=True)
+    assert list(protocol.frames([record])) == []
+
+
+def test_native_protocol_passes_frames_unchanged():
+    frames = [frame([0, 255]), frame([0, 1])]
+    kept = list(get_protocol("native").frames(frames))
+    assert len(kept) == 2 and all(np.array_equal(a["image"], b["image"]) for a, b in zip(kept, frames))
+
+
+def test_unknown_protocol_and_extra_pixel_maps_are_refused():
+    with pytest.raises(ValueError, match="protocol: expected one of native, erfnet-community"):
+        get_protocol("erfnet")
+    with pytest.raises(ValueError, match="reads image and label only"):
+        resize_frame({**frame([0, 1]), "depth": np.zeros((36, 64), np.float32)}, (8, 8))
