@@ -1,4 +1,4 @@
-"""The three layers of DESIGN.md, read from the source: library <- application (``jaxanom.app``) <- ``jaxanom.cli``.
+"""The three layers of README.md, read from the source: library <- application (``jaxanom.app``) <- ``jaxanom.cli``.
 
 Every ``import`` counts, also those inside functions: a lazy upward import is still an upward
 dependency. Library modules import neither ``jaxanom.app`` nor ``jaxanom.cli``; application
