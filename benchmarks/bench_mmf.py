@@ -15,12 +15,12 @@
   NumPy float64 peer with its K x K matrix (K ~ 2048 only). Times are the median
   of 3 calls after a warm-up inside the child; the maps must agree with NumPy's.
 
-- ``synthesis``: the SPADE generator's forward pass (MMF.md A2.2's tiny nf 8, n 3, SPADE hidden
+- ``synthesis``: the SPADE generator's forward pass (docs/papers/mmf.md#spade-generator: nf 8, n 3, SPADE hidden
   32, random weights) against the class-mean gather on the same batch of semantic maps (Table 4:
   the two synthesizers' cost; ratio = SPADE / class means, both jaxanom).
 
 Frames: real Road Anomaly frames (``../shared/realdata`` or ``JAXANOM_REALDATA``) resized to the
-evaluation size of MMF.md D16, else a synthetic blocky image. Step S = 8 px. Rows give
+evaluation size of docs/papers/mmf.md#superpixel-step, else a synthetic blocky image. Step S = 8 px. Rows give
 ratio = this row's time / jaxanom's (above 1: jaxanom is faster).
 
     PYTHONPATH=. python benchmarks/bench_mmf.py [--quick]
@@ -55,7 +55,7 @@ def frames(count: int, height: int, width: int) -> tuple[np.ndarray, str]:
 
 
 def numpy_superpixel_score(anomaly, road, labels, k):
-    """Eq. 6 (MMF.md A2.8) for one image in NumPy float64."""
+    """Eq. 6 (docs/papers/mmf.md#superpixel-scores) for one image in NumPy float64."""
     height, width = labels.shape
     flat = labels.ravel()
     counts = np.bincount(flat, minlength=k).astype(np.float64)

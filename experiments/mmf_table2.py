@@ -4,7 +4,7 @@
   + the superpixel post-processor of Eq. 6, both (MMF), and MMF without the depth semantics Ŝ_D or
   without the uncertainty maps [A, D] (each its own dissimilarity net; "without both" is the plain
   net with the post-processor); the post-processor on connected superpixels and on SLIC of the
-  anomaly map (issue 20);
+  anomaly map (the text's reading, docs/papers/mmf.md#slic-superpixels);
 - Table 1: softmax entropy and the uncertainty scores the library has (MSP, max logit, SML) on the
   segmenter of the same pipeline and frames; AP, FPR95 and SMIYC's mean component F1;
 - Table 3: the time of each module per frame at the working size, measured in this run;
@@ -52,7 +52,7 @@ NAME = "mmf_table2"
 TITLE = "MMF Tables 1-4: assistant maps, depth, post-processor, timings and synthesizers, in the road ROI"
 
 # The demo's pipeline (MMFConfig()) with fewer steps and frames for the nets after the segmenter, and
-# every ablation net. The segmenter is the competent baseline of the other tables (issue 21; Scale's
+# every ablation net. The segmenter is the competent baseline of the other tables (docs/decisions/baselines.md; Scale's
 # defaults: deeplabv3plus_small, 2000 steps on 512 scenes, 60-65% mIoU); the demo's reaches 17%. The
 # RGB-D net's mIoU on the validation frames over seeds 0 and 1: 150 steps 21% (on the scored frames),
 # 2000 steps 59.1 ± 0.8%, 4000 steps (~3 min a seed on 2 loaded cores) 63.8 ± 1.7%.

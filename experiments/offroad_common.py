@@ -1,10 +1,10 @@
-"""What the off-road experiments (seed 001: ``offroad_exp2``, ``offroad_table2``, ``offroad_table3``) share.
+"""What the off-road experiments (the off-road paper: ``offroad_exp2``, ``offroad_table2``, ``offroad_table3``) share.
 
 Sizes: the runner's ``Scale`` describes segmentation networks; the off-road experiments use only
 its ``seed`` and whether it is a smoke run (``Scale.smoke()``'s handful of training steps), and
 take their sizes from ``jaxanom demo offroad`` (``OffroadDemoConfig``: 128 x 256 frames, the tiny
 patch encoder for 150 steps, 24 annotated frames of domain A with 12 patches each), with the BIC
-scan widened to OFFROAD.md's m = 2..12. A smoke run uses ``OffroadDemoConfig.quick()``.
+scan widened to the paper-scale m = 2..12 (docs/papers/offroad.md#unstated-settings). A smoke run uses ``OffroadDemoConfig.quick()``.
 
 Sharing: the model learned on domain A (M_A) for a granularity and seed is trained once per
 process (``model_on_a``) and reused by every experiment and row that starts from it; each

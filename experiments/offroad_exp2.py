@@ -1,10 +1,10 @@
-"""Off-road Exp. 2 (seed 001, Fig. 10a): the cluster count chosen by BIC against the granularity of the
+"""Off-road Exp. 2 (the off-road paper's Fig. 10a): the cluster count chosen by BIC against the granularity of the
 patch annotations. For each granularity (LV1: 4 classes, LV2: 6, LV3: 10 in the synthetic hierarchy;
 the paper's private data has 4 / 6 / 9) the patch encoder is trained from scratch on the same 24
 frames of domain A annotated at that granularity (12 patches per frame), and the GMM's m is chosen
-by the decisive BIC minimum over m = 2..12 (D-B4; the argmin of the curve where no minimum is
+by the decisive BIC minimum over m = 2..12 (docs/papers/offroad.md#component-count; the argmin of the curve where no minimum is
 decisive). "argmin m" is the plain argmin of the same curve; "classes recovered" counts the distinct
-reference classes that are the majority of some cluster (D-B13). Positive control: the same BIC
+reference classes that are the majority of some cluster (docs/papers/offroad.md#evaluation). Positive control: the same BIC
 choice on as many drawn points as M_A's anchors from exactly 6 Gaussians far apart (means 2.5
 apart, std 0.001: merging two costs more likelihood than a component's BIC penalty) must return 6;
 the reference row draws them at the unit embeddings' scale (0.5 apart, std 0.02), where it need not.

@@ -1,8 +1,8 @@
-"""Off-road Table II (seed 001): hard-frame selection for active learning. M_A (learned on 24
+"""Off-road Table II (the off-road paper): hard-frame selection for active learning. M_A (learned on 24
 LV3-annotated frames of domain A) is deployed on a 48-frame sequence of domain B; one round of
 active learning annotates B frames chosen at random among gap-respecting sets ("Rand"), uniformly
 ("Unif") or by the exact DP of Eq. 16 on M_A's frame-level risks ("Ours", gap 3), fine-tunes on
-them (1/4 of the initial steps, D-B12) and refits the GMM and r_sigma. mFLR and scene coverage Sc
+them (1/4 of the initial steps, docs/papers/offroad.md#active-learning-round) and refits the GMM and r_sigma. mFLR and scene coverage Sc
 (Eqs. 13-15, epsilon = 0.5) on B and on a held-out 32-frame sequence of C, in percent. The paper's
 budgets B10..B30 (of 1639 frames) become 2, 4 and 8 frames here, compared at 4 (the paper's B20);
 every row of a seed fine-tunes M_A with the same key, so rows differ only in the frames chosen.

@@ -1,17 +1,17 @@
-"""Off-road Table III (seed 001): active learning across datasets, on the DeepScene-like domains.
+"""Off-road Table III (the off-road paper): active learning across datasets, on the DeepScene-like domains.
 M_A (learned on 24 LV3-annotated frames of domain A) chooses hard frames (Eq. 16, gap 3) in a
 40-frame sequence of domain D; 4 and 8 of them (standing for the paper's 20 and 40 of DeepScene's
 230 training frames) are annotated with the DeepScene classes, the encoder is fine-tuned on them
-(1/4 of the initial steps, D-B12) and the category model refitted on A's and D's patches. 5-class
-rows fix m = 5 (D-B15); 4-class rows choose m by BIC with the obstacle patches left out of the
+(1/4 of the initial steps, docs/papers/offroad.md#active-learning-round) and the category model refitted on A's and D's patches. 5-class
+rows fix m = 5 (as the paper's 5-class model); 4-class rows choose m by BIC with the obstacle patches left out of the
 category model and obstacle ground truth ignored (the paper's 4-class group). M_A rows use M_A's
 encoder with the same two category models on A's patches alone. The 5-class and 4-class rows of a
 budget share one fine-tuned encoder. Pixel accuracy (PA) and mean IoU over the classes present, in
-percent, on 4 frames of domain E, from the Gaussian votes (unknown counted wrong, D-B14), from the
+percent, on 4 frames of domain E, from the Gaussian votes (unknown counted wrong, docs/papers/offroad.md#evaluation), from the
 argmax over the known clusters' votes (the CRF's input: the control, since the CRF never outputs
-unknown) and after the dense CRF (B2.6); with the means of per-class precision, recall and FPR;
+unknown) and after the dense CRF (docs/papers/offroad.md#dense-crf); with the means of per-class precision, recall and FPR;
 clusters map to classes by the majority reference class of their training
-patches (D-B13; A's LV3 references mapped to DeepScene's classes). "supervised" rows: the same
+patches (docs/papers/offroad.md#evaluation; A's LV3 references mapped to DeepScene's classes). "supervised" rows: the same
 patch network with a c-class softmax output, trained from scratch with the dense labels of the
 frames the active rows of that budget annotate (A's and D's chosen ones) for the same number of
 steps, segmented by the same windows and votes (m = c). Positive control: the CRF on the ground

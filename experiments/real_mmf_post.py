@@ -43,7 +43,7 @@ BASES = {"entropy": "entropy", "softmax distance": "distance"}  # row name: key 
 VARIANTS = (" + Eq. 6 (RGB SLIC)", " + Eq. 6 (connected)", " + Eq. 6 (SLIC on the map)")
 ROWS = ("max logit", *(base + suffix for base in BASES for suffix in ("", *VARIANTS)))
 TIMES = ("slic_rgb", "slic_connected", "slic_map (both maps)", "eq6 (one map)", "slic_rgb + eq6 (one map)")
-# MMF (seed 003) numbers on the Obstacle Track (ROI = road), as far as its text gives them; Table 2
+# MMF's numbers on the Obstacle Track (ROI = road), as far as its text gives them; Table 2
 # (the ablation with the post-processor row) is an image: its values are not in the text.
 PAPER = {"entropy": "Table 1 Softmax Entropy: AP 55.41, FPR95 5.28 (their segmenter)",
          "post": "Table 2 values not in the text; its text: FPR95 improves considerably, AP less"}

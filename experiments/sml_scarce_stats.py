@@ -1,4 +1,4 @@
-"""SML with scarce class statistics (issue 11): statistics fitted on 8, 32 and 256 training frames,
+"""SML with scarce class statistics (docs/decisions/sml.md): statistics fitted on 8, 32 and 256 training frames,
 finalised under each policy of ``jaxanom.sml.stats_finalize`` (``none``: the original, classes with
 < 2 pixels pooled; ``min_count``: classes under 10 000 pixels pooled; ``shrink``: shrinkage toward
 the pooled statistics with a prior of 10 000 pixels), SML (Eq. 5 alone, and with boundary

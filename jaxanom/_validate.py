@@ -2,7 +2,7 @@
 
 Each check raises ``ValueError`` naming the argument, what was expected and what came.
 Checks of *values* (finiteness, signs) run only on concrete arrays: under ``jax.jit`` or
-``jax.vmap`` the inputs are tracers and the functions do math only, as DESIGN.md asks.
+``jax.vmap`` the inputs are tracers and the functions do math only, since a tracer has no value to check.
 Shape checks run in both cases, since shapes are known while tracing.
 """
 from __future__ import annotations

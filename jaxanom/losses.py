@@ -5,7 +5,7 @@ Every function takes a batch: logits ``(B, H, W, C)``, labels ``(B, H, W)`` int 
 ``(B, H, W)`` (higher = more anomalous). They are pure and jit-friendly; shape agreement is
 checked on the static shapes (so also under ``jit``), values are not.
 
-Decisions where the papers are silent (see METHODS.md §2-§3):
+Decisions where the papers are silent (see docs/papers/sml-cudam-msaam.md):
 
 - A batch with no valid pixel gives a loss of 0 (and lambda 0), never NaN.
 - The CuDAM attention loss (Eq. 7) sums over the pixels of an image, as printed, and averages

@@ -1,6 +1,6 @@
 """Full-covariance Gaussian mixtures in JAX: densities, EM, k-means++ fitting and BIC.
 
-The category model of the off-road paper (seed 001, Eqs. 3-5). ``em`` follows scikit-learn's
+The category model of the off-road paper (docs/papers/offroad.md#category-model, Eqs. 3-5). ``em`` follows scikit-learn's
 ``GaussianMixture`` step for step, so the same initial parameters give the same parameters,
 lower bound and iteration count:
 
@@ -80,7 +80,7 @@ def log_responsibilities(z: jax.Array, mixture: GaussianMixture) -> tuple[jax.Ar
 
 
 def score_samples(z: jax.Array, mixture: GaussianMixture) -> jax.Array:
-    """Per-point log-likelihood ``log sum_k pi_k gamma(z_i; c_k)`` ``(N,)`` (Eq. 4 with weights, D-B3)."""
+    """Per-point log-likelihood ``log sum_k pi_k gamma(z_i; c_k)`` ``(N,)`` (Eq. 4 with the mixing weights the paper omits)."""
     return log_responsibilities(z, mixture)[0]
 
 
@@ -235,7 +235,7 @@ def n_parameters(m: int, dim: int) -> int:
 
 
 def bic(z, mixture: GaussianMixture) -> float:
-    """Eq. 5: ``-2 log L + u log N``, with L including the mixing weights (D-B3); sklearn's ``.bic``."""
+    """Eq. 5: ``-2 log L + u log N``, with L including the mixing weights (as Eq. 4 here); sklearn's ``.bic``."""
     x = _check_points(z)
     w, mu, cov = _check_mixture(*mixture, x.shape[1])
     with jax.enable_x64(True):
@@ -244,7 +244,7 @@ def bic(z, mixture: GaussianMixture) -> float:
 
 
 def decisive_minimum(counts: Sequence[int], bics: Sequence[float], threshold: float = 10.0) -> int:
-    """The component count at the first decisive local minimum of a BIC curve (D-B4).
+    """The component count at the first decisive local minimum of a BIC curve (docs/papers/offroad.md#component-count).
 
     ``counts`` ascending, consecutive candidates; ``bics`` their BIC values. The smallest m with
     ``BIC(m) <= BIC(m-1)`` (vacuous for the first candidate) and ``BIC(m+1) - BIC(m) >= threshold``
@@ -265,7 +265,7 @@ def decisive_minimum(counts: Sequence[int], bics: Sequence[float], threshold: fl
 
 def select_components(key, z, counts: Sequence[int] = tuple(range(2, 13)), *, threshold: float = 10.0,
                       max_count: int | None = None, **fit_options) -> tuple[int, dict[int, EMResult], dict[int, float]]:
-    """Fit every count in ``counts`` (default 2..12, D-B1) and pick one by ``decisive_minimum``.
+    """Fit every count in ``counts`` (default 2..12: the paper found 9 at its finest level) and pick one by ``decisive_minimum``.
 
     While the pick is the last count scanned (the curve still falls at the top), the scan goes on
     one count at a time up to ``max_count`` (default: no extension) and while m <= N, so a

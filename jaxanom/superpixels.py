@@ -1,7 +1,7 @@
 """SLIC superpixels (MMF Algorithm 1) and sRGB -> CIE Lab, in pure JAX.
 
 ``slic(lab, step)`` segments one image ``(H, W, 3)`` into ``K = num_superpixels((H, W), step)``
-clusters and returns int32 labels ``(H, W)`` in ``[0, K)``, one per pixel (MMF.md A2.7):
+clusters and returns int32 labels ``(H, W)`` in ``[0, K)``, one per pixel (docs/papers/mmf.md#slic-superpixels):
 
 1. grid: centres on the pixels ``(S//2 + a S, S//2 + b S)`` inside the image;
 2. perturbation: each centre moves to the pixel of least gradient
@@ -89,7 +89,7 @@ def num_superpixels(shape: tuple[int, int], step: int) -> int:
 
 def scaled_step(shape: tuple[int, int], step: int = 8, reference: tuple[int, int] = (256, 512)) -> int:
     """SLIC step S for an (H, W) frame: ``step`` at ``reference`` scaled by sqrt(H W / area of
-    reference), rounded, in [1, min(H, W)] (MMF.md D16 revisited): K stays near
+    reference), rounded, in [1, min(H, W)] (docs/papers/mmf.md#superpixel-step): K stays near
     ``num_superpixels(reference, step)`` (2048 by default), e.g. S = 2 at 64x128, 32 at 1080x1920."""
     scale = math.sqrt(shape[0] * shape[1] / (reference[0] * reference[1]))
     return int(min(max(1, round(step * scale)), min(shape)))

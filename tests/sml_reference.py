@@ -1,4 +1,4 @@
-"""Independent NumPy/SciPy references for SML, written from the equations and METHODS.md §1.
+"""Independent NumPy/SciPy references for SML, written from the equations and docs/papers/sml-cudam-msaam.md#standardized-max-logits.
 
 Everything here is float64 and loops or calls scipy.ndimage; nothing imports jaxanom.
 """

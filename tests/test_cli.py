@@ -206,7 +206,7 @@ def test_cudam_tau_flag_and_config_tau_win_over_the_default():
 
 
 def test_fit_stats_refuses_non_finite_statistics_and_names_its_flags(demo_dir, tmp_path, capsys):
-    """Issue 22: --strength 1e308 wrote std = inf with exit 0; the advice named library arguments."""
+    """--strength 1e308 once wrote std = inf with exit 0; the advice named library arguments."""
     stats = tmp_path / "s.npz"
     code = main(["fit-stats", "--run", str(demo_dir / "run"), "--frames", "4", "--policy", "shrink",
                  "--strength", "1e308", "--out", str(stats)])

@@ -1,6 +1,6 @@
 """Every public pixel function composes under the caller's jax.jit / vmap / grad with arrays
 closed over or passed in, and gives the eager values; value checks see NaN at any size; dtypes
-that are not real numbers are refused (issue 10, items 1, 2, 12)."""
+that are not real numbers are refused."""
 import jax
 import jax.numpy as jnp
 import numpy as np

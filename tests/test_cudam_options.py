@@ -1,4 +1,4 @@
-"""CuDAM options of issue 11: the scale-free gate (Eq. 3 deviation) and the paper's surface ("output") position."""
+"""CuDAM options beyond the paper's text: the scale-free gate (Eq. 3 deviation) and the paper's surface ("output") position."""
 import jax
 import jax.numpy as jnp
 import numpy as np

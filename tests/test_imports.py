@@ -1,6 +1,6 @@
 """The core library and the benchmarks import on a machine without grain or tensorboardX.
 
-The GPU machines have neither (DESIGN.md): a subprocess blocks both imports and loads every
+Machines with accelerators may have neither: a subprocess blocks both imports and loads every
 module that does not need them.
 """
 import subprocess

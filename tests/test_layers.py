@@ -1,4 +1,4 @@
-"""The three layers of DESIGN.md, read from the source: library <- application (``jaxanom.app``) <- ``jaxanom.cli``.
+"""The three layers of README.md, read from the source: library <- application (``jaxanom.app``) <- ``jaxanom.cli``.
 
 Every ``import`` counts, also those inside functions: a lazy upward import is still an upward
 dependency. Library modules import neither ``jaxanom.app`` nor ``jaxanom.cli``; application
@@ -108,3 +108,20 @@ def test_checks_find_an_upward_import_and_a_cycle(fake_package):
     assert upward_imports(graph) == ["jaxanom.app.demo -> jaxanom.cli.main", "jaxanom.scores -> jaxanom.app.demo"]
     assert cycles(graph) == [["jaxanom.a", "jaxanom.b"],
                              ["jaxanom.app.demo", "jaxanom.cli.main", "jaxanom.scores"]]
+
+
+def files_naming_shared_notes(root: Path = PACKAGE) -> list[str]:
+    """Files of the package that point outside the repository, at ``../shared``: a clone has no such
+    folder, so what the code relies on from those notes is written in ``docs/papers/`` instead."""
+    return sorted(str(path.relative_to(root)) for path in root.rglob("*") if path.is_file()
+                  and path.suffix in {".py", ".md", ".txt", ".json", ".toml", ".cfg"}
+                  and "../shared" in path.read_text(errors="replace"))
+
+
+def test_no_package_file_names_the_shared_folder_beside_the_repository():
+    assert files_naming_shared_notes() == []
+
+
+def test_the_shared_folder_check_finds_a_docstring_that_names_it(fake_package):
+    (fake_package / "app" / "demo.py").write_text('"""See ``../shared/METHODS.md`` section 1."""\n')
+    assert files_naming_shared_notes(fake_package) == ["app/demo.py"]

@@ -44,7 +44,7 @@ def test_post_rows_read_their_own_segmentation():
 
 
 def test_dissimilarity_inputs_are_the_anomaly_map_and_the_distance():
-    # MMF.md D9: u = [A, D] (A = U ⊙ L), not [U, D]
+    # u = [A, D] (A = U ⊙ L), not [U, D]: docs/papers/mmf.md#dissimilarity-network
     from jaxanom.app.mmf_pipeline import MMFPipeline
 
     rng = np.random.default_rng(2)

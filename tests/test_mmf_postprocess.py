@@ -7,7 +7,7 @@ from jaxanom.mmf.postprocess import superpixel_score, superpixel_score_batch, su
 
 
 def reference_scores(anomaly, road, labels, k, include_self=False):
-    """Eq. 6 with D1/D2/D5, one superpixel at a time, float64."""
+    """Eq. 6 as docs/papers/mmf.md#superpixel-scores reads it, one superpixel at a time, float64."""
     height, width = labels.shape
     ids = [j for j in range(k) if np.any(labels == j)]
     stats = {}

@@ -1,4 +1,4 @@
-"""MMF's SPADE synthesizer (MMF.md A2.2): losses against NumPy, the networks, the GAN loop, the pipeline option.
+"""MMF's SPADE synthesizer (docs/papers/mmf.md#spade-generator): losses against NumPy, the networks, the GAN loop, the pipeline option.
 
 Every network here has one tiny size, that of ``MMFConfig.quick()`` with the ``gan_*`` settings
 below, so that the GAN step compiles once for the whole file.
@@ -62,7 +62,7 @@ def test_feature_matching_and_l1_match_numpy():
     x, y = rng.random((2, 7, 5, 3)).astype(np.float32), rng.random((2, 7, 5, 3)).astype(np.float32)
     np.testing.assert_allclose(float(l1_loss(x, y)), np.mean(np.abs(x.astype(np.float64) - y)), rtol=1e-6)
     logits = [rng.normal(0, 1, (2, 3, 3, 1)).astype(np.float32)]
-    total, parts = generator_loss(logits, real, fake, x, y)  # MMF.md's weights: hinge + 10 FM + 10 L1
+    total, parts = generator_loss(logits, real, fake, x, y)  # the weights of docs/papers/mmf.md#spade-generator: hinge + 10 FM + 10 L1
     np.testing.assert_allclose(float(total), -np.mean(logits[0]) + 10 * np.mean(layers)
                                + 10 * np.mean(np.abs(x.astype(np.float64) - y)), rtol=1e-5)
     assert set(parts) == {"g_hinge", "feature_matching", "l1"}

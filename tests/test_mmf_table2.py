@@ -261,7 +261,7 @@ def test_table_over_two_seeds_is_written_and_summarised(tmp_path, untrained_part
         verdict = better != ("do not" in f["claim"])
         assert f["holds"] == (f["status"] == "holds") == verdict or f["status"] == "untested"
     assert not any(f["control"] for f in saved["findings"])  # the control is not one of the paper's findings
-    # a segmenter of random weights: nothing it feeds is a test of the paper (issue 21's bar)
+    # a segmenter of random weights: nothing it feeds is a test of the paper (docs/decisions/baselines.md)
     assert all(f["tested"] is False and "% mIoU (< 60%)" in f["untested_because"] for f in claims)
     assert all(len(saved["quality"][k]) == 2 for k in ("segmenter_miou", "rgbd_miou", "rgbd_val_miou"))
     assert saved["description"].startswith("MMF smoke. Sizes: 32 x 64")

@@ -1,4 +1,4 @@
-"""``mmf_pipeline``'s extra dissimilarity nets (issue 20 item 7, issue 21): each ablation net reads
+"""``mmf_pipeline``'s extra dissimilarity nets (ablations and a control): each ablation net reads
 what its name says and nothing else, the control net reads the resynthesis of the ground truth,
 and the variants leave the keys of the existing parts alone."""
 import dataclasses

@@ -96,7 +96,7 @@ def noisy_scene(rng, h, w, num_labels, colour_noise):
     (32, 48, 80.0, 3.0, "symmetric"), (32, 48, 20.0, 3.0, "none"),
     (64, 96, 15.0, 0.5625, "symmetric")])  # the last: the pipeline's sigmas scaled to W = 96 (sub-pixel)
 def test_permutohedral_agrees_with_exact_on_textured_images(h, w, sxy_b, sxy_g, normalization):
-    # issue 20: with the lattice's self weight taken as 1 (it is 0.4-0.8) these agreed on 65-88 % at
+    # with the lattice's self weight taken as 1 (it is 0.4-0.8) these agreed on 65-88 % at
     # colour noise 0.3; over 5 seeds now >= 95 % here (the full table: benchmarks/RESULTS.md)
     for noise in (0.0, 0.15, 0.3):
         probs, image = noisy_scene(np.random.default_rng(h + int(10 * noise)), h, w, 3, noise)

@@ -99,7 +99,7 @@ def test_bic_on_anchors_recovers_four_separated_clusters(seed):
     from jaxanom.mixture import select_components
     from jaxanom.app.offroad_pipeline import category_model
 
-    # issue 20: BIC on anchors + 8 near-duplicates each chose 9 here (N counted 9 times)
+    # BIC on anchors + 8 near-duplicates each chose 9 here (N counted 9 times)
     z, reference, anchor = four_cluster_patches(seed)
     config = OffroadConfig(components=(2, 3, 4, 5, 6), gmm_inits=2)
     model = category_model(jax.random.key(seed), None, z, anchor, reference, config)

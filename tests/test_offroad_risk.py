@@ -56,7 +56,7 @@ def test_classify_matches_numpy(m, d):
 
 @pytest.mark.parametrize("n_train", [7, 20, 61])
 def test_calibrated_labels_are_eq10_on_the_raw_order_statistic(n_train):
-    # issue 20: F_train is flat between order statistics, so F_train <= r_sigma called points in
+    # F_train is flat between order statistics, so F_train <= r_sigma called points in
     # (r_(k), r_(k+1)) known, and with delta = 1 it never gave unknown (a point 70 sigma away was known)
     rng = np.random.default_rng(n_train)
     mixture = random_mixture(rng, 3, 2)

@@ -1,4 +1,4 @@
-"""Broken files, races, permissions, streaming and one-line errors (issue 10, items 2, 4-12)."""
+"""Broken files, races, permissions, streaming and one-line errors."""
 import json
 import os
 import stat

@@ -1,4 +1,4 @@
-"""Readers of a run never touch it; damaged checkpoints are checkpoint errors (issue 10, items 3, 8, 12)."""
+"""Readers of a run never touch it; damaged checkpoints are checkpoint errors."""
 import numpy as np
 import pytest
 

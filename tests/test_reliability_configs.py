@@ -1,4 +1,4 @@
-"""Every configuration checked before the first step; one-line errors instead of tracebacks (issue 22, 3-5)."""
+"""Every configuration checked before the first step; one-line errors instead of tracebacks."""
 import dataclasses
 import json
 import math

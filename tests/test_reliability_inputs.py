@@ -1,4 +1,4 @@
-"""Library inputs refused at the public boundary instead of a wrong number (issue 22, sections 1 and 5)."""
+"""Library inputs refused at the public boundary instead of a wrong number."""
 import jax
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""Recovery after a kill, and runs never replaced half-way (issue 22, sections 1 and 2)."""
+"""Recovery after a kill, and runs never replaced half-way."""
 import errno
 import os
 import signal

@@ -1,4 +1,4 @@
-"""Running SML statistics for L_att's k (issue 11): EMA against a weighted NumPy reference,
+"""Running SML statistics for L_att's k: EMA against a weighted NumPy reference,
 decay 1 against ``sml.fit_stats``, the score against Eq. 5, and a training run."""
 import jax
 import jax.numpy as jnp

@@ -1,4 +1,4 @@
-"""The application layer: workflows built from the library (DESIGN.md's second layer).
+"""The application layer: workflows built from the library (the second of README.md's three layers).
 
 Training runs from a config (``experiment``), run folders of imported weights (``runs``),
 evaluation over a dataset (``evaluate``), scoring methods by name (``methods``), prediction on

@@ -2,7 +2,7 @@
 
 ``predictor(model, variables)`` builds the jitted forward pass once. ``anomaly_results``
 scores every batch with each method and pools the pixels of the whole dataset, as the
-benchmarks do (METHODS.md §6). ``segmentation_results`` sums confusion matrices.
+benchmarks do (docs/papers/anomaly-metrics.md#pooling). ``segmentation_results`` sums confusion matrices.
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""MMF end to end (MMF.md A1): train the parts once, cache them, score frames with every row.
+"""MMF end to end (docs/papers/mmf.md#pipeline): train the parts once, cache them, score frames with every row.
 
     config = MMFConfig()                       # one description of every trainable part
     pipe = MMFPipeline.build(config, "runs/mmf")   # trains or loads each part
@@ -9,12 +9,12 @@ it depends on (an edited config retrains only what changed; an interrupted part 
 its checkpoints):
 
 1. segmenter: the library's DeepLabV3+ (``jaxanom.app.experiment``), without attention;
-2. RGB-D net (``models.rgbd``), on the segmenter's frames with disparity (D11);
+2. RGB-D net (``models.rgbd``), on the segmenter's frames with disparity (docs/papers/mmf.md#depth-input);
 3. synthesizer (``mmf.synthesis``), on the segmenter's frames and their ground-truth labels:
    class means (``synthesizer="class_mean"``, the CPU default) or a SPADE generator trained as a
    GAN (``"spade"``, ``mmf.gan_train``; Table 4's "lighter" synthesizer);
 4. two dissimilarity nets (``models.dissimilarity``), with and without the assistant maps
-   [A, D] and Ŝ_D, trained on frames the segmenter never saw (D14, another seed) with void
+   [A, D] and Ŝ_D, trained on frames the segmenter never saw (another seed: its errors there are test-like) with void
    clutter as anomaly (void -> 1, labelled -> 0); ``dissim_variants`` adds nets of the same
    training for ablations and a control (``DISSIM_VARIANTS``): without Ŝ_D, without [A, D], and
    the plain net fed the resynthesis of the ground-truth semantics (255, unknown, where void or
@@ -75,10 +75,10 @@ class MMFConfig:
     ``dissim_balance``: class-weighted cross-entropy (``losses.balanced_class_weights``);
     ``dissim_variants``: names of ``DISSIM_VARIANTS`` trained besides ``mmf`` and ``resynthesis``;
     ``synthesizer``: ``"class_mean"`` or ``"spade"``; ``gan_*`` (SPADE only): steps, base width nf,
-    upsamplings n, SPADE hidden width, critic layers (MMF.md A2.2's tiny nf = 8, n = 3);
+    upsamplings n, SPADE hidden width, critic layers (docs/papers/mmf.md#spade-generator: nf = 8, n = 3);
     ``slic_step``: SLIC grid step S in pixels, None: ``superpixels.scaled_step`` of the frame
-    (8 px at 256x512, K ~ 2048 at any size; D16 revisited); ``slic_input``: what SLIC segments,
-    ``"image"`` (its Lab, D3) or ``"anomaly"`` (the map Eq. 6 scores, scaled to [0, 100]: the
+    (8 px at 256x512, K ~ 2048 at any size; docs/papers/mmf.md#superpixel-step); ``slic_input``: what SLIC segments,
+    ``"image"`` (its Lab, as the paper's Algorithms 1-2) or ``"anomaly"`` (the map Eq. 6 scores, scaled to [0, 100]: the
     paper's Sec. III-B / Fig. 4, one segmentation per dissimilarity net); ``slic_connectivity``:
     superpixels made connected (``superpixels.slic``); ``batch_size`` for the RGB-D and
     dissimilarity nets.
@@ -244,7 +244,7 @@ def _net_inputs(inputs: dict, name: str, model: DissimilarityNet) -> dict:
 def _dissimilarity_train_config(config: MMFConfig, root: Path, name: str, progress: bool,
                                 labels: np.ndarray | None = None) -> TrainConfig:
     """The nets' training run; with ``dissim_balance`` and the training ``labels``, cross-entropy
-    weighted by ``losses.balanced_class_weights`` (void clutter is rare: D12 revisited)."""
+    weighted by ``losses.balanced_class_weights`` (void clutter is rare: docs/papers/mmf.md#dissimilarity-training)."""
     weights = (tuple(float(w) for w in balanced_class_weights(labels, 2))
                if config.dissim_balance and labels is not None else None)
     return _train_config(_run_dir(config, root, "dissimilarity", name), config.dissim_steps, config.dissim_lr,
@@ -482,7 +482,7 @@ def _maps(seg_model, rgbd_model, generator, seg_vars, rgbd_vars, synth_arrays, i
 
 def _perceptual(seg_model, seg_vars, x, resynthesis, entropy) -> tuple:
     """(r normalised, L of Eq. 3, A of Eq. 4) for normalised images x and r in [0, 1] (B, H, W, 3):
-    the perceptual features are the segmenter's own ResNet stages (D10)."""
+    the perceptual features are the segmenter's own ResNet stages (docs/papers/mmf.md#perceptual-difference)."""
     r = normalize(jnp.round(resynthesis * 255).astype(jnp.uint8))
     backbone = ResNet(RESNETS[seg_model.backbone], seg_model.output_stride)
     sub = {"params": seg_vars["params"]["backbone"], "batch_stats": seg_vars["batch_stats"]["backbone"]}

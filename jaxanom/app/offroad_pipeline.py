@@ -1,15 +1,15 @@
-"""The three stages of the off-road paper as one pipeline (B1, B2.7).
+"""The three stages of the off-road paper as one pipeline (docs/papers/offroad.md#pipeline).
 
 - S1 ``learn``: patch annotations -> InfoNCE encoder -> GMM (BIC-chosen m) on P^train (the
-  anchors plus ``neighbours`` neighbour samples each, D-B8) -> risk bound r_sigma (Eq. 11).
+  anchors plus ``neighbours`` neighbour samples each, docs/papers/offroad.md#training-patches) -> risk bound r_sigma (Eq. 11).
 - S2 ``sequence_risk_sweep`` (FLR per frame on a sliding grid, Eqs. 6-13) and ``segment``
   (sliding windows -> Gaussian votes -> optional dense CRF).
 - S3 ``active_round``: if the sequence risk Phi^s exceeds the trigger, choose hard frames (Eq.
-  16), annotate them, fine-tune on them (D-B12) and refit the category model on P^train and P^AL.
+  16), annotate them, fine-tune on them (as the paper does) and refit the category model on P^train and P^AL.
 
 Array work runs in the jitted pieces (encoder, classify, vote, CRF); this module is host-side
 control flow. ``OffroadModel`` keeps what S2 needs; its ``cluster_class`` maps clusters to
-reference classes for evaluation only (D-B13): the majority reference class of the training
+reference classes for evaluation only (IoU needs a class per cluster): the majority reference class of the training
 patches in each cluster.
 """
 from __future__ import annotations
@@ -34,7 +34,7 @@ from jaxanom.offroad.supervised import classifier_config
 
 @dataclasses.dataclass(frozen=True)
 class OffroadConfig:
-    """Settings of the three stages (D-B1 values; ``stride`` s_p/4 segments, ``risk_stride``
+    """Settings of the three stages (docs/papers/offroad.md#unstated-settings; ``stride`` s_p/4 segments, ``risk_stride``
     s_p/2 sweeps). ``components``: the BIC scan range, extended one count at a time up to
     ``max_components`` while its minimum sits at the top; or a fixed m with ``fixed_components``."""
 
@@ -102,7 +102,7 @@ class OffroadModel:
 
 
 def training_patches(key, data: AnnotatedFrames, config: OffroadConfig) -> tuple[np.ndarray, np.ndarray]:
-    """P^train (D-B8): centres (F, A (1 + neighbours), 2) of every anchor followed by its
+    """P^train (docs/papers/offroad.md#training-patches): centres (F, A (1 + neighbours), 2) of every anchor followed by its
     ``neighbours`` neighbour samples, and whether each is valid (F, A (1 + neighbours))."""
     f, a = data.ids.shape
     size = config.encoder.size
@@ -124,7 +124,7 @@ def fit_category_model(key, params, data: AnnotatedFrames, config: OffroadConfig
 
 def category_model(key, params, z: np.ndarray, anchor: np.ndarray, reference: np.ndarray,
                    config: OffroadConfig) -> OffroadModel:
-    """GMM and BIC on the anchors (m by the decisive BIC minimum, or ``fixed_components``; D-B8:
+    """GMM and BIC on the anchors (m by the decisive BIC minimum, or ``fixed_components``; anchors only since
     the neighbour samples are near-duplicates of their anchor and would count each anchor 1 +
     ``neighbours`` times in BIC's N), then r_sigma and cluster -> class on all of P^train.
     ``z (N, D)`` P^train's embeddings, ``anchor (N,)`` which are anchors, ``reference (N,)``."""
@@ -215,7 +215,7 @@ def segment(model: OffroadModel, images: np.ndarray, config: OffroadConfig, *, c
 
 
 def crf_labels(votes: np.ndarray, images: np.ndarray, config: OffroadConfig) -> np.ndarray:
-    """(B, H, W) labels of the dense CRF (B2.6) whose probabilities are the normalised ``votes (B, H, W, L)``
+    """(B, H, W) labels of the dense CRF whose probabilities are the normalised ``votes (B, H, W, L)``
     (floored at 1e-4) on ``images (B, H, W, 3)`` in [0, 1]."""
     probs = np.maximum(votes / np.maximum(votes.sum(-1, keepdims=True), 1e-12), 1e-4)
     q = dense_crf_batch(probs / probs.sum(-1, keepdims=True), images, iters=config.crf_iters, reference_width=512)
@@ -240,7 +240,7 @@ def segment_supervised(params, images: np.ndarray, config: OffroadConfig, classe
 
 def to_classes(labels: np.ndarray, model: OffroadModel, num_classes: int) -> np.ndarray:
     """Cluster labels (unknown = m, void 255) -> reference classes; unknown and classless clusters
-    become ``num_classes`` (the always-wrong column of D-B14), void stays 255."""
+    become ``num_classes`` (the always-wrong column of docs/papers/offroad.md#evaluation), void stays 255."""
     check_labels("labels", labels, model.num_clusters + 1, void=255)
     table = np.append(np.where(model.cluster_class >= 0, model.cluster_class, num_classes), num_classes)
     safe = np.where(labels == 255, 0, labels)
@@ -249,7 +249,7 @@ def to_classes(labels: np.ndarray, model: OffroadModel, num_classes: int) -> np.
 
 def segmentation_scores(predicted: np.ndarray, truth: np.ndarray, num_classes: int) -> dict:
     """Pixel accuracy, mIoU and the means of per-class precision, recall and FPR over the classes
-    where each is defined (D-B14): ``predicted`` in [0, num_classes] (num_classes = unknown,
+    where each is defined (docs/papers/offroad.md#evaluation): ``predicted`` in [0, num_classes] (num_classes = unknown,
     counted wrong), ``truth`` in [0, num_classes) or 255 (ignored). ``confusion``: the
     (num_classes + 1)^2 counts (rows: truth), which ``confusion_scores`` reads."""
     check_labels("predicted", predicted, num_classes + 1, void=255)
@@ -306,7 +306,7 @@ def active_round(key, model: OffroadModel, base: AnnotatedFrames, images: np.nda
 
 def update_model(key, model: OffroadModel, base: AnnotatedFrames, new: AnnotatedFrames, config: OffroadConfig, *,
                  progress: Callable | None = None) -> OffroadModel:
-    """S3's update (D-B12): fine-tune on the new annotations ``new`` (with ``base`` too when
+    """S3's update (docs/papers/offroad.md#active-learning-round): fine-tune on the new annotations ``new`` (with ``base`` too when
     ``replay``) for ``finetune_fraction`` of the initial steps, then refit the category model on
     P^train u P^AL (``base`` and ``new``)."""
     k_train, k_fit = jax.random.split(key)

@@ -1,4 +1,4 @@
-"""Cityscapes-format stereo disparity and camera files (MMF's depth input, MMF.md A5).
+"""Cityscapes-format stereo disparity and camera files (MMF's depth input, docs/papers/mmf.md#data).
 
 Disparity PNGs are 16-bit: a stored value p > 0 means d = (p - 1) / 256 pixels, 0 means invalid
 (returned as 0). Camera JSONs hold ``extrinsic.baseline`` (metres) and ``intrinsic.fx, fy, u0,

@@ -3,7 +3,7 @@
 ``<root>/leftImg8bit/<split>/<sequence>/<name>_leftImg8bit.png``,
 ``<root>/gtCoarse/<split>/<sequence>/<name>_gtCoarse_labelIds.png``,
 ``<root>/disparity/<split>/<sequence>/<name>_disparity.png`` and (optional)
-``<root>/camera/<split>/<sequence>/<name>_camera.json``. Labels (MMF.md A5): free space 1 -> 0,
+``<root>/camera/<split>/<sequence>/<name>_camera.json``. Labels (docs/papers/mmf.md#data): free space 1 -> 0,
 obstacles (ids >= 2) -> 1, unlabelled 0 -> 255; the road ROI (``"roi"``) is free space and
 obstacles. File names follow the official archives' scheme as documented; they were not checked
 against a downloaded archive here.

@@ -5,7 +5,7 @@ pure in the reference labels, round-robin over the classes present (rarer classe
 crowded out), and gives each picked class a label id that is meaningful only within the
 frame: the ids are a random renumbering 0..n-1 per image, as two annotators (or one on two
 days) would name the same terrain differently. The reference class of each patch is kept for
-evaluation (D-B13) and never used in training. NumPy only (host side).
+evaluation (docs/papers/offroad.md#evaluation) and never used in training. NumPy only (host side).
 """
 from __future__ import annotations
 

@@ -6,7 +6,7 @@ with 0 = in-distribution, 1 = anomaly / obstacle, 255 = void. Only the validatio
 label masks (the test labels are held out), so the reader lists the frames that have one.
 The tracks ship no depth: for MMF's RGB-D module pass ``depth_root``, a folder of
 ``<frame>_disparity.png`` in Cityscapes' 16-bit encoding (e.g. from a stereo or monocular
-estimator); every labelled frame then needs one, and frames gain ``"disparity"`` (MMF.md D11).
+estimator); every labelled frame then needs one, and frames gain ``"disparity"`` (docs/papers/mmf.md#depth-input).
 """
 from __future__ import annotations
 

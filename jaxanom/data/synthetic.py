@@ -19,7 +19,7 @@ pixels around each anomaly (annotations are uncertain at object borders, as in F
 with ``off_road_void=True`` every pixel that is neither road nor anomaly is void as well (as in
 SegmentMeIfYouCan RoadObstacle21, which scores the road only).
 
-For MMF (seed 003), all off by default (frames are then byte-identical to those without the
+For MMF (docs/papers/mmf.md#synthetic-extensions), all off by default (frames are then byte-identical to those without the
 options): ``disparity=True`` adds ``"disparity"`` = f B / Z in pixels (0 on the sky) with the
 Cityscapes stereo baseline B = ``BASELINE`` and the frame's focal length, plus ``"camera"``
 (Cityscapes' camera-file fields), with ``disparity_noise=(sigma_rel, hole_fraction)`` for a

@@ -1,4 +1,4 @@
-"""Pixel-level anomaly metrics pooled over all non-void pixels (METHODS.md §6).
+"""Pixel-level anomaly metrics pooled over all non-void pixels (docs/papers/anomaly-metrics.md#pooling).
 
 ``anomaly_metrics`` gives AP, AUROC and FPR at a TPR in the convention of each benchmark, exact
 (one curve point per distinct score, ties as scikit-learn) and in float64 whether or not JAX's

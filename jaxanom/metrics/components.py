@@ -1,4 +1,4 @@
-"""SMIYC component-level metrics: sIoU, PPV and F1 over connected components (METHODS.md §6).
+"""SMIYC component-level metrics: sIoU, PPV and F1 over connected components (docs/papers/anomaly-metrics.md#component-metrics).
 
 Follows the SegmentMeIfYouCan definitions (Chan et al., 2021) and their benchmark code:
 - anomaly mask = score >= threshold (default: the pixel threshold of best F1 over all images,

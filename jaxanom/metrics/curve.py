@@ -1,4 +1,4 @@
-"""Exact summaries of the ROC and precision-recall curves from score-sorted counts (METHODS.md §6).
+"""Exact summaries of the ROC and precision-recall curves from score-sorted counts (docs/papers/anomaly-metrics.md).
 
 Input: entries sorted by ``keys`` ascending (= score descending), each carrying a number of
 positive and negative pixels (one pixel per entry, or run-length / histogram counts). Entries
@@ -14,7 +14,7 @@ origin (TP_0 = FP_0 = 0):
 - AP "envelope" = sum_k (R_k - R_{k-1}) max_{j>=k} Prec_j   (VOC all-point interpolation,
   MMF Eq. 7 with r_0 = 0: precision replaced by its upper envelope from the right)
 - AUROC      = sum_k (FPR_k - FPR_{k-1}) (TPR_k + TPR_{k-1}) / 2
-- FPR at TPR t, four conventions (METHODS.md §6), see ``curve_summary``.
+- FPR at TPR t, four conventions (docs/papers/anomaly-metrics.md#fpr-at-95-tpr), see ``curve_summary``.
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Multi-Mechanism Fusion (MMF, seed 003): the paper's maps, synthesis and post-processor.
+"""Multi-Mechanism Fusion (MMF, docs/papers/mmf.md): the paper's maps, synthesis and post-processor.
 
 Modules: ``uncertainty`` (Eqs. 1-2 normalised, road probability), ``perceptual`` (Eqs. 3-4),
 ``synthesis`` (class-mean and SPADE resynthesis), ``gan`` / ``gan_train`` (the SPADE

@@ -1,4 +1,4 @@
-"""The SPADE synthesizer's losses (MMF.md A2.2; hinge GAN of [34], feature matching of pix2pixHD).
+"""The SPADE synthesizer's losses (docs/papers/mmf.md#spade-generator; hinge GAN of [34], feature matching of pix2pixHD).
 
 Discriminator outputs are lists over scales k = 1..K (``MultiscaleDiscriminator``):
 
@@ -8,7 +8,7 @@ Discriminator outputs are lists over scales k = 1..K (``MultiscaleDiscriminator`
     l1_loss                  = mean |r - x|
 
 ``means`` run over every element. The real features are not differentiated (stop_gradient);
-``generator_loss`` weights them as MMF.md does: hinge + 10 feature matching + 10 L1.
+``generator_loss`` weights them as docs/papers/mmf.md#spade-generator says: hinge + 10 feature matching + 10 L1.
 """
 from __future__ import annotations
 

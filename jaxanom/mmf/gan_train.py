@@ -1,4 +1,4 @@
-"""Training of the SPADE synthesizer against its critic (MMF.md A2.2): two Adam optimisers, one step.
+"""Training of the SPADE synthesizer against its critic (docs/papers/mmf.md#spade-generator): two Adam optimisers, one step.
 
     config = GANConfig(run_dir="runs/spade", steps=2000)
     state = train_gan(config, SPADEGenerator(19, nf=8), MultiscaleDiscriminator(19, nf=8), batches)
@@ -41,7 +41,7 @@ from jaxanom.train.runlog import RunLog
 
 @dataclasses.dataclass(frozen=True)
 class GANConfig:
-    """A GAN run; defaults are MMF.md A2.2's (Adam G 1e-4 / D 4e-4, betas (0, 0.999), FM and L1 x10)."""
+    """A GAN run; defaults as in docs/papers/mmf.md#spade-generator (Adam G 1e-4 / D 4e-4, betas (0, 0.999), FM and L1 x10)."""
 
     run_dir: str
     steps: int = 2000

@@ -1,6 +1,6 @@
 """MMF's post-processor (Eq. 6): one anomaly score per superpixel, focused on the road.
 
-With Omega_j the pixels of superpixel j of an (H, W) image (MMF.md A2.8, decisions D1, D2, D5):
+With Omega_j the pixels of superpixel j of an (H, W) image (as read in docs/papers/mmf.md#superpixel-scores):
 
 - n_j = |Omega_j| / (H W), alpha_j = mean anomaly a over Omega_j, p_j = mean road probability
   over Omega_j, c_j = centroid (y, x), r_ij = |c_i - c_j|;

@@ -1,4 +1,4 @@
-"""Resynthesis from the predicted semantic map (MMF.md A2.2): class means, or a trained SPADE generator.
+"""Resynthesis from the predicted semantic map (docs/papers/mmf.md#resynthesis): class means, or a trained SPADE generator.
 
 ``ClassMeanSynthesizer`` is the CPU stand-in for MMF's cGAN synthesizer: each class is painted in
 its mean training colour, so, like a GAN's output, the resynthesis keeps the layout of the

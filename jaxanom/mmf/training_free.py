@@ -1,4 +1,4 @@
-"""MMF's parts that need no training, on any network's logits and real frames (issue 20, item 9).
+"""MMF's parts that need no training, on any network's logits and real frames.
 
     out = training_free_maps(logits, images)   # logits (B, H, W, C) of any segmenter, images uint8
 
@@ -24,7 +24,7 @@ def segment(images: np.ndarray, anomaly: dict[str, np.ndarray], *, step: int | N
     """SLIC labels for Eq. 6: ``{"superpixels" (B, H, W) int32, "num_segments" K}`` of the Lab
     images (B, H, W, 3) uint8, or with ``slic_input="anomaly"`` one entry per name of ``anomaly``
     (maps (B, H, W) in [0, 1], each segmented as one channel scaled to [0, 100], like Lab's L:
-    MMF Sec. III-B, Fig. 4). ``step`` None: ``scaled_step`` of the frame (MMF.md D16 revisited)."""
+    MMF Sec. III-B, Fig. 4). ``step`` None: ``scaled_step`` of the frame (docs/papers/mmf.md#superpixel-step)."""
     if slic_input not in SLIC_INPUTS:
         raise ValueError(f"slic_input: expected one of {SLIC_INPUTS}, got {slic_input!r}")
     step = step or scaled_step(images.shape[1:3])

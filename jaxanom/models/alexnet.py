@@ -1,4 +1,4 @@
-"""An AlexNet-style patch encoder (Krizhevsky et al. 2012) with L2-normalised embeddings (B2.2).
+"""An AlexNet-style patch encoder (Krizhevsky et al. 2012) with L2-normalised embeddings (docs/papers/offroad.md#patch-encoder).
 
 ``PatchAlexNet()(patches)``: (B, s, s, 6) float -> ``{"embedding": (B, D) unit vectors,
 "features": (B, hidden)}`` (with ``unit=False`` the embedding is fc2's raw output, e.g. class logits).

@@ -34,7 +34,7 @@ on the logits at input size (``"output"``, the paper's surface position: its (19
 with F_low = ``layer1`` and F_mid = ``layer2``; at ``"output"`` the attention map is (B, H, W). MSAAM sits at the end of the encoder, before ASPP.
 
 On the CuDAM position: the paper inserts the module "after the convolution layer following the
-concatenation" (256 channels here, as METHODS.md decides) yet lists the inserted feature as
+concatenation" (256 channels here: docs/papers/sml-cudam-msaam.md#insertion-position) yet lists the inserted feature as
 (304, 180, 180), the concatenation itself; with 304 channels Eq. 2's 1x1 conv would have
 (256 + 512 + 304) * 304 weights, about the paper's +0.34M, against +0.26M here. Its "surface"
 position is the output (the paper's (19, 720, 720)): ``"output"`` here; ``"surface"`` is our

@@ -16,10 +16,10 @@ relu4_3 (strides 1, 2, 4, 8); E2 (separate weights for Ŝ, Ŝ_D and the assistan
 h_l = conv1x1([E1_l(x), E1_l(r), E2_l(Ŝ), E2_l(Ŝ_D)]), multiplies it point by point with
 E2_l(u), then (``correlation``) prepends the channel sum_c E1_l(x) E1_l(r), as SynBoost's
 ``DissimNetPrior`` does (after the product: with E2(u) = 0, e.g. u = 0 at initialisation, the
-output still depends on x and r). Decoder (four blocks; D8): conv3x3 + SELU, SPADE block conditioned
+output still depends on x and r). Decoder (four blocks, as SynBoost's): conv3x3 + SELU, SPADE block conditioned
 on Ŝ, transposed conv 2x2 stride 2 (the last block ends with a 1x1 conv to 2 classes instead),
 each later block reading the previous output concatenated with h_l. a = softmax(logits)[..., 1].
-``width`` scales every width (1/8 is the CPU preset). E1 is trained from scratch here (D10).
+``width`` scales every width (1/8 is the CPU preset). E1 is trained from scratch here (no ImageNet VGG weights at hand).
 """
 from __future__ import annotations
 

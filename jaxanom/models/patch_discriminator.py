@@ -1,4 +1,4 @@
-"""The SPADE generator's critic (MMF.md A2.2): a conditional multi-scale PatchGAN (pix2pixHD / [34]).
+"""The SPADE generator's critic (docs/papers/mmf.md#spade-generator): a conditional multi-scale PatchGAN (pix2pixHD / [34]).
 
     model = MultiscaleDiscriminator(num_classes=19, nf=8)
     out = model.apply(variables, image, semantic)   # {"logits": [(B, h_k, w_k, 1)] * scales,

@@ -4,7 +4,7 @@
     out = model.apply(variables, images, depth=depth, train=False)   # {"logits": (B, H, W, C)}
 
 ``images``: float32 (B, H, W, 3) normalised; ``depth``: float32 (B, H, W, 1), the normalised
-disparity of ``depth_input`` (MMF.md D11). The RGB and depth trunks run stage by stage; after
+disparity of ``depth_input`` (docs/papers/mmf.md#depth-input). The RGB and depth trunks run stage by stage; after
 the stem (post max-pool) and after each of layer1..4 an AFC (Eq. 5) fuses them, the fused map
 feeds the next RGB stage and the depth trunk goes on with its own features. SwiftNet's SPP sits
 on fused layer4; the decoder has three upsampling blocks with skips from fused layer3, 2, 1
@@ -27,7 +27,7 @@ from jaxanom.nn.spp import SpatialPyramidPooling
 
 
 def depth_input(disparity, width: int):
-    """MMF.md D11: clip(disparity_px / (W / 16), 0, 1); invalid (0) and sky stay 0. (..., H, W) -> same."""
+    """Normalised disparity: clip(disparity_px / (W / 16), 0, 1); invalid (0) and sky stay 0. (..., H, W) -> same."""
     return np.clip(np.asarray(disparity, np.float32) / np.float32(width / 16), 0, 1)
 
 

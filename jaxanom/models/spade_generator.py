@@ -1,4 +1,4 @@
-"""MMF's "lighter" synthesizer (Table 4; MMF.md A2.2): a SPADE generator (Park et al. 2019 [34]).
+"""MMF's "lighter" synthesizer (Table 4; docs/papers/mmf.md#spade-generator): a SPADE generator (Park et al. 2019 [34]).
 
     model = SPADEGenerator(num_classes=19, nf=8, upsamples=3)   # the CPU preset (paper: nf 64)
     out = model.apply(variables, semantic, train=False)          # {"image": (B, H, W, 3) in [0, 1]}

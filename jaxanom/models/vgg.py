@@ -22,7 +22,7 @@ from jaxanom.nn.layers import Dtype
 
 BLOCK_DEPTHS = {"vgg16": (2, 2, 3, 3, 3), "vgg19": (2, 2, 4, 4, 4)}
 WIDTHS = (64, 128, 256, 512, 512)
-# MMF's taps (MMF.md A2.6 and A2.3): the dissimilarity encoder E1 (VGG16) and the perceptual
+# MMF's taps (docs/papers/mmf.md#dissimilarity-network): the dissimilarity encoder E1 (VGG16) and the perceptual
 # difference (VGG19, the first four of SynBoost's five).
 ENCODER_TAPS = ("relu1_2", "relu2_2", "relu3_3", "relu4_3")
 PERCEPTUAL_TAPS = ("relu1_1", "relu2_1", "relu3_1", "relu4_1")

@@ -4,7 +4,7 @@
 
 ``O``, ``Dp``: (B, h, w, C); GAP is the global average over (h, w); W1, W2 are C x C 1x1
 convolutions with bias (on a 1x1 map: dense layers); the channel weights broadcast over (h, w)
-(the paper's "outer product", decision D6 of MMF.md).
+(the paper's "outer product", read as in docs/papers/mmf.md#afc-fusion).
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Curiosity-driven attention module (CuDAM), Eqs. 1-3 of the CuDAM paper (seeds/000).
+"""Curiosity-driven attention module (CuDAM), Eqs. 1-3 of the CuDAM paper (docs/papers/sml-cudam-msaam.md).
 
 Given decoder features ``F_a`` (B, h, w, C') and two encoder stages ``F_low``, ``F_mid``:
 

@@ -1,4 +1,4 @@
-"""Multi-scale adaptive attention module (MSAAM), Eqs. 1-6 and 8-12 of the MSAAM paper (seeds/004).
+"""Multi-scale adaptive attention module (MSAAM), Eqs. 1-6 and 8-12 of the MSAAM paper (docs/papers/sml-cudam-msaam.md).
 
 Input: encoder features F (B, h, w, C). Three branches, each giving features of F's shape:
 

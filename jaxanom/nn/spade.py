@@ -6,7 +6,7 @@
 ``x``: (B, h, w, C) features; ``s``: (B, H, W, K) a conditioning map (one-hot semantics),
 resized to (h, w) by nearest neighbour (PyTorch's rule: source index floor(o * H / h)). BN is
 a parameter-free BatchNorm (batch statistics with ``train=True``, running averages otherwise).
-``SPADEBlock(x; s) = SELU(SPADE(conv3x3(SELU(SPADE(x, s))), s))`` (MMF.md A2.6).
+``SPADEBlock(x; s) = SELU(SPADE(conv3x3(SELU(SPADE(x, s))), s))`` (docs/papers/mmf.md#spade-block).
 """
 from __future__ import annotations
 

@@ -1,1 +1,1 @@
-"""Active + contrastive off-road segmentation (seed 001): InfoNCE, risk, frame selection, dense CRF."""
+"""Active + contrastive off-road segmentation (docs/papers/offroad.md): InfoNCE, risk, frame selection, dense CRF."""

@@ -3,7 +3,7 @@
 Eq. 16: choose B frames u_1 < ... < u_B maximising ``sum FLR_u`` subject to ``|u_i - u_j| > Delta``
 (no two chosen frames within Delta of each other, so near-duplicates are not annotated twice).
 ``select_hard_frames`` solves it exactly by dynamic programming over (frames seen, frames
-chosen) (D-B11): ``best[t][b] = max(best[t-1][b], FLR_{t-1} + best[t-1-Delta][b-1])``, with
+chosen): ``best[t][b] = max(best[t-1][b], FLR_{t-1} + best[t-1-Delta][b-1])``, with
 backtracking; O(T B) time. ``method="greedy"`` (highest FLR first, then its neighbours
 excluded) is an option. Host-side (NumPy): T is a few thousand frames.
 """

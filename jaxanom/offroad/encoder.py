@@ -1,4 +1,4 @@
-"""Training the patch encoder with InfoNCE on patch annotations (S1, B2.2-B2.3), and embedding.
+"""Training the patch encoder with InfoNCE on patch annotations (docs/papers/offroad.md#infonce), and embedding.
 
 ``AnnotatedFrames`` stacks frames with their patch annotations padded to ``A`` anchor slots.
 ``train_encoder`` runs Adam on Eq. 2: each step draws ``frames_per_step`` annotated frames,
@@ -26,9 +26,9 @@ from jaxanom.offroad.patches import patches_batch
 
 @dataclasses.dataclass(frozen=True)
 class EncoderConfig:
-    """Patch side, context factor, encoder widths, InfoNCE and Adam settings (D-B1, B2.3).
+    """Patch side, context factor, encoder widths, InfoNCE and Adam settings (docs/papers/offroad.md#unstated-settings).
 
-    Defaults are the paper-scale ones of OFFROAD.md; ``tiny()`` is the CPU encoder. ``unit=False``
+    Defaults are the paper-scale ones of docs/papers/offroad.md; ``tiny()`` is the CPU encoder. ``unit=False``
     leaves the last layer's output unnormalised (the supervised patch classifier's logits).
     """
 

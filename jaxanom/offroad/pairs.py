@@ -1,4 +1,4 @@
-"""Queries, positives and negatives for InfoNCE from per-frame patch annotations (B2.3).
+"""Queries, positives and negatives for InfoNCE from per-frame patch annotations (docs/papers/offroad.md#infonce).
 
 Label ids are comparable only within a frame (the annotator renumbers them per image), so every
 pair is drawn inside one frame. Each anchor j of a frame gives two augmented patches: ``view_j``
@@ -6,7 +6,7 @@ at its own centre (the query) and ``near_j`` at a random neighbour centre (``nei
 For the query of anchor i:
 
 - positive: ``near_j`` for j drawn uniformly from ``P_i = {j != i : id_j = id_i}``, or
-  ``near_i`` (its own neighbourhood) when that set is empty (D-B5);
+  ``near_i`` (its own neighbourhood) when that set is empty (a label with one anchor);
 - negatives: ``near_j`` for ``n`` draws of j with replacement from ``N_i = {j : id_j != id_i}``;
 - mask: anchor i is valid and ``N_i`` is not empty.
 

@@ -1,8 +1,8 @@
-"""Six-channel image patches, their neighbours, augmentation and the sliding-window grid (B2.1).
+"""Six-channel image patches, their neighbours, augmentation and the sliding-window grid (docs/papers/offroad.md#patches).
 
 A patch at centre ``c = (row, col)`` of side ``s`` is ``[fg, bg]`` along channels: ``fg`` the
 ``s x s`` crop whose rows are ``row - s // 2 .. row - s // 2 + s - 1`` (likewise columns), and
-``bg`` the ``(context s)^2`` crop at the same centre, average-pooled by ``context`` (D-B7), so
+``bg`` the ``(context s)^2`` crop at the same centre, average-pooled by ``context``, so
 the encoder sees the surface and what surrounds it. Images are reflect-padded, so any centre
 inside the image is valid. Images are float in [0, 1], channels-last.
 """
@@ -73,7 +73,7 @@ def _colour_jitter(rgb, brightness, contrast, saturation, to_grey):
 
 
 def augment(key: jax.Array, patch: jax.Array, strength: float = 0.4) -> jax.Array:
-    """One random augmentation of a (s, s, 6) patch; fg and bg share its parameters (D-B6).
+    """One random augmentation of a (s, s, 6) patch; fg and bg share its parameters, so the pair stays consistent.
 
     Horizontal flip with p = 0.5; brightness, contrast, saturation factors ~ U[1 - strength,
     1 + strength] (applied in that order, each clipped to [0, 1]; contrast blends with the mean
@@ -89,7 +89,7 @@ def augment(key: jax.Array, patch: jax.Array, strength: float = 0.4) -> jax.Arra
 
 
 def sliding_centers(height: int, width: int, size: int, stride: int) -> np.ndarray:
-    """(P, 2) int32 centres of the sliding windows, row-major (D-B10).
+    """(P, 2) int32 centres of the sliding windows, row-major.
 
     Top-left corners at 0, stride, 2 stride, ... up to ``dim - size``, plus a last window flush
     with the border when the grid does not reach it, so every pixel is covered.

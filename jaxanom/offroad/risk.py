@@ -4,7 +4,7 @@ Per patch embedding z (off-road paper, Section III-C):
 
 - Eq. 6: ``k* = argmax_k gamma(z; c_k)`` (densities without mixing weights, as printed);
 - Eq. 7: the risk. ``risk="literal"`` gives ``1 - gamma(z; c_k*)``; the default
-  ``"calibrated"`` (D-B2) gives ``F_train(-log gamma(z; c_k*))``, the fraction of training
+  ``"calibrated"`` (docs/papers/offroad.md#risk) gives ``F_train(-log gamma(z; c_k*))``, the fraction of training
   patches whose raw risk ``-log gamma`` is at most this one, in [0, 1]. Both are increasing in
   ``-gamma``; the calibrated label compares the raw risk with the raw order statistic behind
   ``r_sigma`` (``r_sigma N``-th smallest training raw risk), so the two give the same labels;
@@ -15,7 +15,7 @@ Per patch embedding z (off-road paper, Section III-C):
   ``Phi^s = |{t: FLR_t > eps}| / T``, mFLR = mean FLR, scene coverage ``Sc = 1 - Phi^s``.
 
 ``vote`` turns sliding-window patch labels into a dense label map with centre-weighted
-(Gaussian) votes (D-B9). Single-frame functions have ``_batch`` twins (jit(vmap), built once).
+(Gaussian) votes (docs/papers/offroad.md#voting). Single-frame functions have ``_batch`` twins (jit(vmap), built once).
 """
 from __future__ import annotations
 
@@ -230,7 +230,7 @@ def risk_bound(train_risks, delta: float = 0.95, *, bins: int | None = None) -> 
 
 def vote(centers, labels, risks=None, *, patch_size: int, height: int, width: int, num_labels: int,
          sigma: float | None = None) -> VoteResult:
-    """Centre-weighted voting of sliding-window patch labels into a dense map (D-B9).
+    """Centre-weighted voting of sliding-window patch labels into a dense map (docs/papers/offroad.md#voting).
 
     ``centers (P, 2)`` int (row, col) window centres (the window spans ``c - floor(s/2)`` to
     ``c + ceil(s/2) - 1``, clipped to the image); ``labels (P,)`` in [0, num_labels) (the

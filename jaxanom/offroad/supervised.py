@@ -5,7 +5,7 @@ the encoder's widths, its last layer giving ``classes`` logits (``EncoderConfig(
 unit=False)``). Each step draws ``frames_per_step`` frames and ``patches_per_frame`` uniformly
 random centres in each; a patch's target is its centre pixel's class (every pixel is labelled:
 full labels; void 255 is left out of the mean softmax cross-entropy). Prediction is per window:
-the argmax of its logits, voted into dense maps like the weakly supervised path (D-B9).
+the argmax of its logits, voted into dense maps like the weakly supervised path (docs/papers/offroad.md#voting).
 """
 from __future__ import annotations
 

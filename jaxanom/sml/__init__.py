@@ -3,7 +3,7 @@
 Pipeline: fit per-class max-logit statistics on training logits (``fit_stats`` ->
 ``stats_finalize``), standardise test logits (``standardized_max_logit``, Eq. 5), suppress
 class boundaries (``suppress_boundaries``, Eqs. 6-7), smooth (``dilated_smoothing``, Eq. 8);
-``sml_score`` does the whole test-time path. See ``../shared/METHODS.md`` §1.
+``sml_score`` does the whole test-time path. See docs/papers/sml-cudam-msaam.md#standardized-max-logits.
 """
 from jaxanom.sml.boundaries import BORDERS, boundary_distance, find_boundaries
 from jaxanom.sml.policy import POLICIES, FinalizedStats

@@ -35,7 +35,7 @@ ATTENTION_KS = ("msp", "running_sml")
 
 @dataclasses.dataclass(frozen=True)
 class LossConfig:
-    """What a train step minimises; defaults are the papers' (CuDAM §IV, METHODS.md §2-§3).
+    """What a train step minimises; defaults are the papers' (CuDAM §IV; docs/papers/sml-cudam-msaam.md).
 
     ``method``: ``"plain"`` (cross-entropy), ``"cudam"`` (Eq. 8: reward Eq. 4 in study
     iterations + lambda (Eq. 9) * attention loss Eq. 7) or ``"msaam"`` (MSAAM Eq. 7;
