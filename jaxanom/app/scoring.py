@@ -9,15 +9,27 @@ from __future__ import annotations
 
 from typing import Iterable, Mapping
 
+import numpy as np
+
+from jaxanom.data.cityscapes_labels import NUM_CLASSES
 from jaxanom.method_registry import INPUTS, check, get, given, load_plugin, names
 
-__all__ = ["INPUTS", "check", "describe", "get", "inputs_of", "load_plugin", "names", "run_inputs", "score_all"]
+__all__ = ["INPUTS", "check", "describe", "get", "inputs_of", "load_plugin", "names", "provided", "run_inputs",
+           "score_all"]
+
+
+# A network with one output more than Cityscapes' 19 trainIds carries a void class there (the ESPNet
+# and ERFNet authors' weights). The other methods read every channel, void included, as measured in
+# docs/decisions/espnet.md; the void method reads the void channel's probability.
+VOID_CHANNEL = NUM_CLASSES
 
 
 def inputs_of(batch: Mapping, stats=None) -> dict:
     """The method inputs of one batch ``{"logits", "attention_up"?, "attention_positions"?, "image"?,
     "mmf_maps"?}`` and the SML ``stats`` ``(mean, std)`` (None: none)."""
     inputs = {"logits": batch["logits"]}
+    if np.shape(batch["logits"])[-1] == VOID_CHANNEL + 1:
+        inputs["void_channel"] = VOID_CHANNEL
     if stats is not None:
         inputs["stats"] = stats
     if "attention_up" in batch:
@@ -29,17 +41,20 @@ def inputs_of(batch: Mapping, stats=None) -> dict:
     return inputs
 
 
-def run_inputs(experiment, *, stats: bool, images: bool = True) -> set[str]:
-    """The inputs every batch of a run's network will give (``experiment``: its ``Experiment``),
-    with class statistics if ``stats`` and the images if ``images``."""
-    provided = {"logits"}
-    if stats:
-        provided.add("stats")
-    if experiment.attention == "cudam":
-        provided.add("attention")
-    if images:
-        provided.add("image")
-    return provided
+def provided(*, classes: int | None, stats: bool, attention: bool = False, images: bool = False,
+             mmf_maps: bool = False) -> set[str]:
+    """The inputs ``inputs_of`` will give for batches of logits with ``classes`` channels (None:
+    unknown), with class statistics, attention maps, images or MMF's maps if so told."""
+    flags = {"stats": stats, "attention": attention, "image": images, "mmf_maps": mmf_maps,
+             "void_channel": classes == VOID_CHANNEL + 1}
+    return {"logits", *(key for key, given in flags.items() if given)}
+
+
+def run_inputs(experiment, *, stats: bool) -> set[str]:
+    """The inputs every batch of a run's network (``experiment``: its ``Experiment``) will give
+    with the frames' images, and class statistics if ``stats``."""
+    return provided(classes=experiment.num_classes, stats=stats, attention=experiment.attention == "cudam",
+                    images=True)
 
 
 def score_all(method_names: Iterable[str], inputs: Mapping, options: Mapping | None = None) -> tuple[dict, dict]:

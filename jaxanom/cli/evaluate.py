@@ -70,7 +70,7 @@ def run(args) -> None:
     options = {"cudam_sigma": args.cudam_sigma}
     if args.mmf:  # every check before the first frame is read or scored
         names = scoring.check((args.methods or MMF_DEFAULT_METHODS).split(","),
-                              {"logits", "mmf_maps", *(("stats",) if stats is not None else ())}, options)
+                              scoring.provided(classes=None, stats=stats is not None, mmf_maps=True), options)
         source, batches = mmf_scored_batches(args.mmf, args.dataset, args.path, frames=args.frames, depth=args.depth)
     else:  # the frames' images come with every batch (evaluation_batches)
         names = scoring.check((args.methods or DEFAULT_METHODS).split(","),

@@ -57,7 +57,7 @@ def run(args) -> None:
     if stats is not None and len(stats[0]) != classes:
         raise CommandError(f"--stats: has {len(stats[0])} classes, the logits have {classes}")
     names = scoring.check((args.methods or DEFAULT_METHODS).split(","),
-                          {"logits", *(("stats",) if stats is not None else ())})
+                          scoring.provided(classes=classes, stats=stats is not None))
     out = out_folder(args.out, args.overwrite)
     accumulators = {name: AnomalyMetricAccumulator() for name in names}
     label_images = iter(labels if labels is not None else ())
