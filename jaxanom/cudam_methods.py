@@ -26,5 +26,5 @@ def _paper_equivalent_sigma(inputs, options):
 
 
 register(Method("cudam", frozenset({"logits", "stats", "attention"}), _score,
-                "CuDAM ensemble (Eq. 10): sml_post + sigma * attention map; needs statistics and a CuDAM network",
+                "CuDAM ensemble (Eq. 10): sml_post + sigma * attention; needs statistics and a CuDAM network",
                 defaults={"cudam_sigma": None}, resolve=_paper_equivalent_sigma))

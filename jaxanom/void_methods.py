@@ -34,5 +34,4 @@ def void_probability_batch(logits, channel: int) -> jax.Array:
 
 register(Method("void", frozenset({"logits", "void_channel"}),
                 lambda inputs, options: void_probability_batch(inputs["logits"], inputs["void_channel"]),
-                "softmax probability of the network's void output (the 'void classifier'; ESPNet's and ERFNet's "
-                "20th channel)"))
+                "softmax probability of a 20-output network's void channel (the 'void classifier')"))

@@ -60,9 +60,9 @@ class PredictSettings:
     cudam_sigma: float | None = None
 
     def __post_init__(self):
-        from jaxanom.app.scoring import check
+        from jaxanom.app.scoring import INPUTS, check
 
-        check(self.methods, {"logits", "image", "stats", "attention"})  # all predict can give (a run may give less)
+        check(self.methods, set(INPUTS) - {"mmf_maps"})  # all a run can give predict (no MMF pipeline)
         if len(set(self.methods)) != len(self.methods) or len(set(self.formats)) != len(self.formats):
             raise ValueError(f"methods, formats: expected no repeats, got {list(self.methods)}, {list(self.formats)}")
         if not self.formats or any(f not in FORMATS for f in self.formats):

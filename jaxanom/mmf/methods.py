@@ -66,9 +66,9 @@ for _name, _source, _post, _description in (
         ("resynthesis_post", "resynthesis", True, "resynthesis dissimilarity through the post-processor (Eq. 6)")):
     register(Method(_name, frozenset({"logits", "mmf_maps"}), _dissimilarity(_source, _post), _description))
 for _name, _uncertainty, _description in (
-        ("entropy_superpixel", "entropy", "normalised entropy (MMF Eq. 1) through MMF's post-processor (Eq. 6) "
-         "on SLIC superpixels of the image"),
-        ("softmax_distance_superpixel", "distance", "softmax distance (MMF Eq. 2) through MMF's post-processor "
-         "(Eq. 6) on SLIC superpixels of the image")):
+        ("entropy_superpixel", "entropy", "MMF's post-processor (Eq. 6) on the normalised entropy (Eq. 1), "
+         "SLIC superpixels"),
+        ("softmax_distance_superpixel", "distance", "MMF's post-processor (Eq. 6) on the softmax distance (Eq. 2), "
+         "SLIC superpixels")):
     register(Method(_name, frozenset({"logits", "image"}), _on_superpixels(_uncertainty), _description,
                     defaults={"slic_step": None}, resolve=_scaled_step))
