@@ -135,8 +135,9 @@ def check(method_names: Iterable[str], provided: Iterable[str], options: Options
 
 def score(name: str, inputs: Inputs, options: Options | None = None):
     """Scores float32 (B, H, W) of method ``name`` for ``inputs`` (keys of ``INPUTS``; batch-first
-    arrays; a None value counts as absent), higher = more anomalous. ``options``: values for the options methods declare (the
-    keys this method does not declare are ignored, so one mapping can serve many methods)."""
+    arrays; a None value counts as absent), higher = more anomalous. ``options``: values of the
+    options methods declare (keys this method does not declare are ignored, so one mapping can
+    serve many methods)."""
     method = get(name)
     check((name,), given(inputs), options)
     return method.score(inputs, method.options(inputs, options))

@@ -165,8 +165,8 @@ def test_a_plugin_method_through_score(tmp_path, plugin):
     assert metrics["twice_max_logit"]["ap"] == metrics["max_logit"]["ap"]  # a positive scale keeps the ranking
 
 
-def test_a_plugin_method_and_the_superpixel_methods_through_evaluate_and_predict(tmp_path, plugin, tiny_run,  # noqa: F811
-                                                                                 road_anomaly):
+def test_a_plugin_method_and_the_superpixel_methods_through_evaluate_and_predict(
+        tmp_path, plugin, tiny_run, road_anomaly):  # noqa: F811
     from jaxanom.app.evaluate import predictor
     from jaxanom.app.experiment import build_network, load_variables
     from jaxanom.data import RoadAnomaly

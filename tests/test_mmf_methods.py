@@ -29,7 +29,8 @@ def test_raw_rows_are_the_dissimilarity_maps_and_post_rows_apply_eq6_with_the_ro
         # an independent composition: softmax and Eq. 6 in NumPy (test_mmf_postprocess.dense_eq6)
         expected = [dense_eq6(maps[source][b], road[b], maps["superpixels"][b], 6)[maps["superpixels"][b]]
                     for b in range(2)]
-        np.testing.assert_allclose(method_registry.score(name, {"logits": logits, "mmf_maps": maps}), expected, atol=1e-5)
+        got = method_registry.score(name, {"logits": logits, "mmf_maps": maps})
+        np.testing.assert_allclose(got, expected, atol=1e-5)
 
 
 def test_post_rows_read_their_own_segmentation():
@@ -41,7 +42,8 @@ def test_post_rows_read_their_own_segmentation():
     for name, source, labels in (("mmf", "mmf", "superpixels"), ("resynthesis_post", "resynthesis",
                                                                   "superpixels_resynthesis")):
         expected = superpixel_score_batch(maps[source], road, maps[labels], 6)
-        np.testing.assert_allclose(method_registry.score(name, {"logits": logits, "mmf_maps": maps}), expected, atol=1e-6)
+        got = method_registry.score(name, {"logits": logits, "mmf_maps": maps})
+        np.testing.assert_allclose(got, expected, atol=1e-6)
 
 
 def test_dissimilarity_inputs_are_the_anomaly_map_and_the_distance():

@@ -83,6 +83,7 @@ def test_score_command_keeps_every_channel_for_the_other_methods(tmp_path, capsy
     np.testing.assert_allclose(np.load(out / "scores" / "msp.npy"), 1 - p.max(-1), rtol=1e-4, atol=1e-6)
 
     np.save(tmp_path / "l19.npy", logits[:, :19])
-    assert main(["score", "--logits", str(tmp_path / "l19.npy"), "--methods", "void", "--out", str(tmp_path / "o")]) == 2
+    args = ["--methods", "void", "--out", str(tmp_path / "o")]
+    assert main(["score", "--logits", str(tmp_path / "l19.npy"), *args]) == 2
     error = capsys.readouterr().err.strip()
     assert "need the index of a void output" in error and len(error.splitlines()) == 1

@@ -62,7 +62,8 @@ def _scaled_step(inputs, options):
 for _name, _source, _post, _description in (
         ("mmf_raw", "mmf", False, "MMF's dissimilarity map a, not post-processed; needs an MMF pipeline"),
         ("mmf", "mmf", True, "MMF: dissimilarity map a through the superpixel post-processor (Eq. 6)"),
-        ("resynthesis", "resynthesis", False, "dissimilarity of the resynthesis alone (no assistant maps A, D, no RGB-D semantics)"),
+        ("resynthesis", "resynthesis", False,
+         "dissimilarity of the resynthesis alone (no assistant maps A, D, no RGB-D semantics)"),
         ("resynthesis_post", "resynthesis", True, "resynthesis dissimilarity through the post-processor (Eq. 6)")):
     register(Method(_name, frozenset({"logits", "mmf_maps"}), _dissimilarity(_source, _post), _description))
 for _name, _uncertainty, _description in (
