@@ -42,11 +42,11 @@ import numpy as np
 from experiments.jobs import Job
 from experiments.stats import (REPLICATES, bin_edges, binned_auroc, binned_metrics, frame_histograms, hierarchical,
                                hierarchical_draws, interval)
-from jaxanom.app import methods as scoring
 from jaxanom import sml
 from jaxanom.cudam_score import (PAPER_TEST_POSITIONS, PAPER_TRAIN_POSITIONS, cudam_score, equivalent_weight,
                                  paper_sigma, paper_tau)
 from jaxanom.app.evaluate import class_statistics, predictions, predictor
+from jaxanom.app.scoring import inputs_of, score_all
 from jaxanom.app.experiment import Experiment, build_network, frames, jsonable, run_training
 from jaxanom.io import write_bytes_atomic, write_json_atomic
 from jaxanom.metrics import AnomalyMetricAccumulator, confusion_matrix, miou, pr_curve, roc_curve
@@ -335,7 +335,8 @@ def _scores(out: dict, stats) -> dict:
     """Every score of one batch of outputs (see ``BASE_SCORES``, ``ENSEMBLE_BASES``); with attention also
     ``"sml_post+oracle"``, Eq. 10 with ``oracle_attention`` in place of the network's map (a control)."""
     attention = out.get("attention_up")
-    scores = {name: scoring.score_batch(name, out["logits"], stats=stats) for name in BASE_SCORES}
+    names = (*BASE_SCORES, "cudam") if attention is not None else BASE_SCORES
+    scores, _ = score_all(names, inputs_of(out, stats), {"cudam_sigma": PAPER_SIGMA})  # the paper's literal sigma
     if attention is not None:
         positions = out.get("attention_positions")
         positions = attention_positions(*out["logits"].shape[1:3]) if positions is None else int(positions)
@@ -343,7 +344,7 @@ def _scores(out: dict, stats) -> dict:
         for base in ENSEMBLE_BASES:
             scores[f"{base}+att"] = cudam_score(scores[base], attention, sigma)
         scores["sml_post+oracle"] = cudam_score(scores["sml_post"], oracle_attention(out["label"], positions), sigma)
-        scores["cudam"] = scoring.score_batch("cudam", out["logits"], stats=stats, attention_up=attention)
+        scores["cudam"] = scores.pop("cudam")  # last, as the cached evaluations hold it
     return scores
 
 

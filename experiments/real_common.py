@@ -20,11 +20,12 @@ from pathlib import Path
 import numpy as np
 
 from experiments.stats import bin_edges, binned_metrics, bootstrap, frame_histograms, interval
+from jaxanom.app.scoring import VOID_CHANNEL
 
 HERE = Path(__file__).parent
 REALDATA = Path(os.environ.get("JAXANOM_REALDATA", HERE.parent.parent / "shared" / "realdata"))
 CHECKPOINT = REALDATA / "espnet" / "espnet_p_2_q_8.pth"
-TRAIN_IDS = 19  # the ESPNet weights' channels 0..18; channel 19 is their extra void class
+TRAIN_IDS = VOID_CHANNEL  # the ESPNet weights' channels 0..18 are the trainIds; channel 19 is their void class
 
 
 def require_realdata(*parts: str) -> Path:

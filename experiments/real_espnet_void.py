@@ -18,7 +18,8 @@ import jax.numpy as jnp
 
 from experiments.real_common import HERE, TRAIN_IDS, anomaly_tracks, espnet, score_frames, with_intervals
 from experiments.stats import REPLICATES, difference, draws
-from jaxanom import scores as S
+from jaxanom.app.scoring import inputs_of
+from jaxanom.method_registry import score
 from jaxanom.io import write_bytes_atomic, write_json_atomic
 
 NAME = "real_espnet_void"
@@ -37,12 +38,16 @@ def msp_19_of_20(logits):
 
 @jax.jit
 def score_maps(logits):
-    trainids = logits[..., :TRAIN_IDS]
-    return {"msp 20": S.msp(logits), "msp 19": S.msp(trainids), "msp 19 of 20": msp_19_of_20(logits),
-            "max_logit 20": S.max_logit(logits), "max_logit 19": S.max_logit(trainids),
-            "entropy 20": S.entropy(logits), "entropy 19": S.entropy(trainids),
-            "energy 20": S.energy(logits), "energy 19": S.energy(trainids),
-            "void probability": jax.nn.softmax(logits, axis=-1)[..., TRAIN_IDS]}
+    """Every row's map of one frame's logits (H, W, 20): the registered methods over all 20 channels and
+    over the 19 trainIds, "msp 19 of 20", and the registered ``void`` method (channel 19's probability)."""
+    full, trainids = inputs_of({"logits": logits[None]}), inputs_of({"logits": logits[None, ..., :TRAIN_IDS]})
+    maps = {}
+    for name in ("msp", "max_logit", "entropy", "energy"):
+        maps[f"{name} 20"], maps[f"{name} 19"] = score(name, full)[0], score(name, trainids)[0]
+        if name == "msp":
+            maps["msp 19 of 20"] = msp_19_of_20(logits)
+    maps["void probability"] = score("void", full)[0]
+    return maps
 
 
 def main() -> dict:

@@ -19,7 +19,7 @@ import numpy as np
 from experiments.common import (HERE, LOGIT_SCALE_CONTROL, RUNS, Finding, Scale, _batches, _scaled, _thin,
                                 anomaly_source, control_scales, frame_confusions, improves, logit_scale_control,
                                 over_seeds, paired_replicates, plain, score_histograms, trained, write_table)
-from jaxanom.app import methods as scoring
+from jaxanom import method_registry
 from jaxanom import sml
 from jaxanom.app.evaluate import class_statistics, predictions, predictor
 from jaxanom.app.experiment import frames
@@ -69,7 +69,7 @@ def seed_values(scale: Scale, runs: Path, log: Callable) -> tuple[dict, dict, di
     for name, (score, stats, scored) in runs_of.items():
         accumulator, per_frame = AnomalyMetricAccumulator(), []
         for out in scored:
-            result = np.asarray(scoring.score_batch(score, out["logits"], stats=stats))
+            result = np.asarray(method_registry.score(score, {"logits": out["logits"], "stats": stats}))
             accumulator.update(result, out["label"])
             per_frame.extend(result)
         m = accumulator.compute()

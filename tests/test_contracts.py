@@ -8,7 +8,7 @@ import pytest
 from jax.test_util import check_grads
 
 from jaxanom import _validate, scores, sml
-from jaxanom.app import methods
+from jaxanom import method_registry
 from jaxanom.cudam_score import cudam_score, upsample_attention
 
 B, H, W, C = 2, 9, 11, 5
@@ -48,9 +48,10 @@ PER_BATCH = {
     "sml.sml_score_batch": (lambda x: sml.sml_score_batch(x, MEAN, STD), (LOGITS,)),
     "sml.postprocess_batch": (sml.postprocess_batch, (SCORE, PREDICTION)),
     "sml.stats_update_batch": (lambda x: sml.stats_update_batch(sml.stats_init(C), x), (LOGITS,)),
-    **{f"methods.score_batch[{name}]": (
-        lambda x, name=name: methods.score_batch(name, x, stats=(MEAN, STD), attention_up=ATTENTION[:, :, :]),
-        (LOGITS,)) for name in ("msp", "sml", "msp_post", "cudam")},  # each branch of score_batch
+    **{f"method_registry.score[{name}]": (
+        lambda x, name=name: method_registry.score(name, {"logits": x, "stats": (MEAN, STD), "attention": ATTENTION},
+                                                   {"cudam_sigma": 2e4}),
+        (LOGITS,)) for name in ("msp", "sml", "msp_post", "cudam")},  # one row of each paper
 }
 
 

@@ -1,4 +1,4 @@
-"""MMF rows of jaxanom.app.methods (mmf, mmf_raw, resynthesis, resynthesis_post) and the pipeline's batches."""
+"""MMF rows of jaxanom.method_registry (mmf, mmf_raw, resynthesis, resynthesis_post) and the pipeline's batches."""
 from types import SimpleNamespace
 
 import jax
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from test_mmf_postprocess import dense_eq6
 
-from jaxanom.app import methods
+from jaxanom import method_registry
 from jaxanom.app.mmf_pipeline import training_stream
 from jaxanom.mmf.postprocess import superpixel_score_batch
 
@@ -20,15 +20,17 @@ def test_raw_rows_are_the_dissimilarity_maps_and_post_rows_apply_eq6_with_the_ro
     rng = np.random.default_rng(0)
     logits = rng.normal(size=(2, 8, 12, 4)).astype(np.float32) * 3
     maps = _maps(rng)
-    np.testing.assert_array_equal(methods.score_batch("mmf_raw", logits, mmf_maps=maps), maps["mmf"])
-    np.testing.assert_array_equal(methods.score_batch("resynthesis", logits, mmf_maps=maps), maps["resynthesis"])
+    np.testing.assert_array_equal(method_registry.score("mmf_raw", {"logits": logits, "mmf_maps": maps}), maps["mmf"])
+    np.testing.assert_array_equal(method_registry.score("resynthesis", {"logits": logits, "mmf_maps": maps}),
+                                  maps["resynthesis"])
     e = np.exp(logits.astype(np.float64) - logits.max(-1, keepdims=True))
     road = e[..., 0] / e.sum(-1)  # road = class 0
     for name, source in (("mmf", "mmf"), ("resynthesis_post", "resynthesis")):
         # an independent composition: softmax and Eq. 6 in NumPy (test_mmf_postprocess.dense_eq6)
         expected = [dense_eq6(maps[source][b], road[b], maps["superpixels"][b], 6)[maps["superpixels"][b]]
                     for b in range(2)]
-        np.testing.assert_allclose(methods.score_batch(name, logits, mmf_maps=maps), expected, atol=1e-5)
+        got = method_registry.score(name, {"logits": logits, "mmf_maps": maps})
+        np.testing.assert_allclose(got, expected, atol=1e-5)
 
 
 def test_post_rows_read_their_own_segmentation():
@@ -40,7 +42,8 @@ def test_post_rows_read_their_own_segmentation():
     for name, source, labels in (("mmf", "mmf", "superpixels"), ("resynthesis_post", "resynthesis",
                                                                   "superpixels_resynthesis")):
         expected = superpixel_score_batch(maps[source], road, maps[labels], 6)
-        np.testing.assert_allclose(methods.score_batch(name, logits, mmf_maps=maps), expected, atol=1e-6)
+        got = method_registry.score(name, {"logits": logits, "mmf_maps": maps})
+        np.testing.assert_allclose(got, expected, atol=1e-6)
 
 
 def test_dissimilarity_inputs_are_the_anomaly_map_and_the_distance():
@@ -101,8 +104,8 @@ def test_config_rejects_bad_slic_settings(field, value, message):
 
 def test_mmf_rows_need_the_maps():
     with pytest.raises(ValueError, match="MMF's maps"):
-        methods.check_methods(["entropy", "mmf"], have_stats=False, have_attention=False)
-    assert methods.check_methods(["mmf"], have_stats=False, have_attention=False, have_mmf=True) == ("mmf",)
+        method_registry.check(["entropy", "mmf"], {"logits"})
+    assert method_registry.check(["mmf"], {"logits", "mmf_maps"}) == ("mmf",)
 
 
 def test_training_stream_is_deterministic_and_flips_every_entry_together():

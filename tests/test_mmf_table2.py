@@ -283,7 +283,7 @@ def result_values(saved: dict) -> dict:
 
 def test_timed_modules_compute_the_pipelines_maps(tmp_path, untrained_parts):
     """``module_calls`` (Table 3's timings) times the computations ``MMFPipeline.maps`` makes."""
-    from jaxanom.app.methods import score_batch
+    from jaxanom.method_registry import score
     from jaxanom.data.synthetic import SyntheticScenes
     from jaxanom.models.dissimilarity import anomaly_probability
 
@@ -304,7 +304,7 @@ def test_timed_modules_compute_the_pipelines_maps(tmp_path, untrained_parts):
     np.testing.assert_array_equal(np.argmax(np.asarray(calls["depth"]()), -1), maps["prediction_depth"])
     close(anomaly_probability(calls["dissimilarity"]()), maps["mmf"])
     batch = pipeline.scored_batch(frames, maps)
-    close(calls["post-processor"](), score_batch("mmf", batch["logits"], mmf_maps=batch["mmf_maps"]))
+    close(calls["post-processor"](), score("mmf", {"logits": batch["logits"], "mmf_maps": batch["mmf_maps"]}))
 
 
 def test_claims_reading_the_depth_semantics_need_a_competent_rgbd_net():

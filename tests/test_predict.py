@@ -240,7 +240,7 @@ def test_float16_overflow_is_refused(tmp_path):
 
 def test_superpixel_methods_are_eq6_on_the_normalised_uncertainty():
     from jaxanom import superpixels
-    from jaxanom.app import methods
+    from jaxanom import method_registry
     from jaxanom.mmf.postprocess import superpixel_score
 
     rng = np.random.default_rng(0)
@@ -248,7 +248,7 @@ def test_superpixel_methods_are_eq6_on_the_normalised_uncertainty():
     images = rng.integers(0, 256, (2, 24, 40, 3), dtype=np.uint8)
     step = superpixels.scaled_step((24, 40))
     assert step == 1 and superpixels.scaled_step((256, 512)) == 8 and superpixels.scaled_step((1080, 1920)) == 32
-    got = {name: np.asarray(methods.score_batch(name, logits, images=images, slic_step=4))
+    got = {name: np.asarray(method_registry.score(name, {"logits": logits, "image": images}, {"slic_step": 4}))
            for name in ("entropy_superpixel", "softmax_distance_superpixel")}
     p = np.exp(logits - logits.max(-1, keepdims=True))
     p /= p.sum(-1, keepdims=True)
@@ -262,7 +262,7 @@ def test_superpixel_methods_are_eq6_on_the_normalised_uncertainty():
             expected = superpixel_score(anomaly[index], p[index, ..., 0], labels, k)
             np.testing.assert_allclose(got[name][index], expected, atol=1e-5)
     with pytest.raises(ValueError, match="images"):
-        methods.score_batch("entropy_superpixel", logits)
+        method_registry.score("entropy_superpixel", {"logits": logits})
 
 
 def test_statistics_of_another_network_are_refused(tiny_run, tmp_path, capsys):

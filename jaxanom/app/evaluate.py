@@ -13,8 +13,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom.app import methods as scoring
-from jaxanom.cudam_score import paper_sigma, upsample_attention
+from jaxanom.app.scoring import inputs_of, score_all
+from jaxanom.cudam_score import upsample_attention
 from jaxanom.metrics import AnomalyMetricAccumulator, anomaly_metrics, confusion_matrix, miou, per_class_iou
 from jaxanom.metrics import pixel_accuracy, pr_curve, restrict_to_roi, roc_curve
 from jaxanom.metrics.components import component_summary, frame_components
@@ -54,17 +54,18 @@ def class_statistics(predict: Callable, batches: Iterable[dict]):
     return sml.fit_stats(out["logits"] for out in predictions(predict, batches))
 
 
-def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, cudam_sigma: float | None = None,
+def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, options: dict | None = None,
                     mode: str = "exact", fpr_convention: str = "first", ap_convention: str = "step",
                     keep_curves: bool = False, track: str | None = None) -> tuple[dict, dict]:
     """Pooled metrics per method over batches ``{"logits", "label", "image"?, "name"?,
     "attention_up"?, "attention_positions"?, "roi"?, "mmf_maps"?}``.
 
-    ``stats``: SML ``(mean, std)``; ``cudam_sigma``: the ensemble weight of Eq. 10, by default
-    (None) the paper-equivalent weight for each batch's attention-map size
-    (``cudam_score.paper_sigma`` of ``"attention_positions"``). ``metrics["cudam"]["sigma"]``
-    lists the distinct sigmas used. Every method's metrics hold ``ap_conventions`` and
-    ``fpr_conventions`` (all conventions' values).
+    ``method_names``: registered methods (``jaxanom.method_registry``); ``stats``: SML
+    ``(mean, std)``; ``options``: values of the methods' options (e.g. ``cudam_sigma``,
+    ``slic_step``; absent or None: the method's default, which may depend on the batch, as
+    CuDAM's paper-equivalent sigma does). ``metrics[name]["options"]`` lists, for a method with
+    options, the distinct values each took, in the order met. Every method's metrics hold
+    ``ap_conventions`` and ``fpr_conventions`` (all conventions' values).
     ``track`` (``"anomaly"`` / ``"obstacle"``): also SegmentMeIfYouCan's component metrics at
     the pooled best-F1 threshold (``metrics[name]["components"]``) and, per frame, the pixel
     metrics (None where the frame lacks a class) and component metrics
@@ -76,19 +77,17 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, cudam_
     """
     import tempfile
 
-    accumulators, kept, sigmas, frames = {}, {}, set(), []
+    accumulators, kept, used, frames = {}, {}, {}, []
     spill = tempfile.TemporaryDirectory(prefix="jaxanom-maps-") if track is not None else None
     for batch in outputs:
-        names = scoring.check_methods(method_names, have_stats=stats is not None,
-                                      have_attention="attention_up" in batch, have_mmf="mmf_maps" in batch,
-                                      have_image="image" in batch)
+        batch_scores, options_used = score_all(method_names, inputs_of(batch, stats), options)
+        for name, values in options_used.items():
+            for key, value in values.items():
+                if value not in (seen := used.setdefault(name, {}).setdefault(key, [])):
+                    seen.append(value)
         labels = np.asarray(batch["label"])
         if "roi" in batch:  # evaluate inside the region of interest only (MMF: the road)
             labels = restrict_to_roi(labels, batch["roi"])
-        sigma = cudam_sigma
-        if "cudam" in names:
-            sigma = paper_sigma(int(batch["attention_positions"])) if sigma is None else float(sigma)
-            sigmas.add(sigma)
         first = len(frames)
         if spill is not None:
             names_in_batch = batch.get("name", [None] * len(labels))
@@ -96,9 +95,7 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, cudam_
                 name = names_in_batch[index]
                 frames.append({"name": str(name) if name is not None else str(first + index), "pixels": {}})
                 np.save(Path(spill.name) / f"label_{first + index}.npy", label)
-        for name in names:
-            score = scoring.score_batch(name, batch["logits"], stats=stats, attention_up=batch.get("attention_up"),
-                                        cudam_sigma=sigma, mmf_maps=batch.get("mmf_maps"), images=batch.get("image"))
+        for name, score in batch_scores.items():
             accumulators.setdefault(name, AnomalyMetricAccumulator(mode)).update(score, labels)
             if keep_curves:
                 kept.setdefault(name, []).extend(zip(np.asarray(score), labels))
@@ -111,8 +108,9 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, cudam_
         raise ValueError("outputs: expected at least one batch, got none")
     metrics = {name: acc.compute(fpr_convention=fpr_convention, ap_convention=ap_convention, conventions=True)
                for name, acc in accumulators.items()}
-    if "cudam" in metrics:
-        metrics["cudam"]["sigma"] = sorted(sigmas)
+    for name, values in used.items():
+        if values:
+            metrics[name]["options"] = values
     if spill is not None:
         with spill:
             for name, values in metrics.items():

@@ -3,7 +3,7 @@
 ``predict_images(paths, out, predict, settings)`` streams the images through a network (any
 run that ``jaxanom evaluate --run`` loads): each image is decoded, resized to the network's
 working size (bilinear; or kept at its own size), batched on the device, scored with each
-method (``jaxanom.app.methods``) at the working size, and each map is resized back (bilinear) to
+method (``jaxanom.method_registry``) at the working size, and each map is resized back (bilinear) to
 the image's native size and written in every requested format:
 
 - ``npy``:   ``<out>/npy/<method>/<frame>.npy``, float16 (H, W);
@@ -43,7 +43,7 @@ FLOAT16_MAX = float(np.finfo(np.float16).max)
 class PredictSettings:
     """What ``predict_images`` computes and writes.
 
-    ``methods``: names from ``jaxanom.app.methods.METHODS`` (not the MMF pipeline rows);
+    ``methods``: registered methods (``jaxanom.method_registry``; not the MMF pipeline rows);
     ``formats``: from ``FORMATS``; ``size``: the working (H, W) the network sees, or None for
     each image's own size; ``batch_size``: images per device batch; ``dataset``: the SMIYC
     dataset name (format ``smiyc``); ``slic_step``: SLIC grid step of the ``*_superpixel``
@@ -60,12 +60,9 @@ class PredictSettings:
     cudam_sigma: float | None = None
 
     def __post_init__(self):
-        from jaxanom.app.methods import METHODS, NEEDS_MMF
+        from jaxanom.app.scoring import INPUTS, check
 
-        bad = [m for m in self.methods if m not in METHODS or m in NEEDS_MMF]
-        if bad or not self.methods:
-            raise ValueError(f"methods: expected names from {[m for m in METHODS if m not in NEEDS_MMF]}, "
-                             f"got {list(self.methods)}")
+        check(self.methods, set(INPUTS) - {"mmf_maps"})  # all a run can give predict (no MMF pipeline)
         if len(set(self.methods)) != len(self.methods) or len(set(self.formats)) != len(self.formats):
             raise ValueError(f"methods, formats: expected no repeats, got {list(self.methods)}, {list(self.formats)}")
         if not self.formats or any(f not in FORMATS for f in self.formats):
@@ -204,8 +201,7 @@ class Scorer:
 
     def __call__(self, batch: list[dict]) -> dict:
         """Device arrays ``{method: (B, h, w)}`` for the frames of ``batch`` (padded to the batch size)."""
-        from jaxanom.app import methods as scoring
-        from jaxanom.cudam_score import paper_sigma
+        from jaxanom.app.scoring import inputs_of, score_all
 
         images = np.stack([f["input"] for f in batch])
         if self.check_size is not None and images.shape[1:3] not in self._checked:
@@ -215,12 +211,8 @@ class Scorer:
         if padding:
             images = np.concatenate([images, np.repeat(images[-1:], padding, axis=0)])
         out = self.predict(images)
-        sigma = self.settings.cudam_sigma
-        if "cudam" in self.settings.methods and sigma is None:
-            sigma = paper_sigma(int(out["attention_positions"]))
-        return {name: scoring.score_batch(name, out["logits"], stats=self.stats, attention_up=out.get("attention_up"),
-                                          cudam_sigma=sigma, images=images, slic_step=self.settings.slic_step)
-                for name in self.settings.methods}
+        options = {"cudam_sigma": self.settings.cudam_sigma, "slic_step": self.settings.slic_step}
+        return score_all(self.settings.methods, inputs_of({**out, "image": images}, self.stats), options)[0]
 
 
 def native_map(score: np.ndarray, shape: tuple[int, int]) -> np.ndarray:

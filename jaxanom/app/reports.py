@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxanom.app import methods as scoring
+from jaxanom import method_registry
 
 
 def results_table(metrics: dict, segmentation: dict | None = None) -> str:
@@ -49,7 +49,7 @@ def write_pictures(out_dir: Path, predict, source, stats, count: int) -> None:
     for index in range(min(count, len(source))):
         frame = source[index]
         out = predict(frame["image"][None])
-        score = scoring.score_batch("sml_post" if stats else "msp", out["logits"], stats=stats)[0]
+        score = method_registry.score("sml_post" if stats else "msp", {"logits": out["logits"], "stats": stats})[0]
         panels = [Panel("image", frame["image"]),
                   label_panel("prediction", np.asarray(out["logits"][0].argmax(-1)), CLASS_NAMES, CLASS_COLORS),
                   anomaly_label_panel(frame["label"]),

@@ -58,13 +58,45 @@ def add_common(parser, progress: bool, overwrite: bool = True) -> None:
         parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+class _KeepIndented(argparse.HelpFormatter):
+    """argparse's wrapping, except for lines starting with a space (the methods' listing), kept as written."""
+
+    def _fill_text(self, text, width, indent):
+        return "\n".join(line if line.startswith(" ") else super(_KeepIndented, self)._fill_text(line, width, indent)
+                         for line in text.splitlines())
+
+
+def add_methods(parser, default: str = DEFAULT_METHODS, extra: str = "") -> None:
+    """``--methods`` (every registered method listed with its description under the help) and ``--plugin``."""
+    from jaxanom.app.scoring import describe
+
+    parser.add_argument("--methods", help=f"comma-separated names of the methods listed below (default: {default})"
+                        + extra)
+    parser.add_argument("--plugin", action="append", default=[], metavar="MODULE",
+                        help="import this Python module first, which registers its own methods (repeatable)")
+    parser.formatter_class = _KeepIndented
+    parser.epilog = "methods (plug-ins add theirs):\n" + describe()
+
+
+def load_plugins(args) -> None:
+    """Import the ``--plugin`` modules (their methods are registered on import)."""
+    from jaxanom.app.scoring import load_plugin
+
+    for module in args.plugin:
+        try:
+            load_plugin(module)
+        except ModuleNotFoundError as error:
+            if error.name is None or not (module + ".").startswith(error.name + "."):
+                raise  # the plug-in itself imports something missing: its traceback says what
+            raise CommandError(f"--plugin {module}: no module named {error.name!r} on the Python path") from None
+
+
 def add_scoring(parser) -> None:
-    """Flags of the commands that score anomalies: statistics, methods, metric conventions, --out."""
-    from jaxanom.app.methods import METHODS
+    """Flags of the commands that score anomalies: statistics, methods, plug-ins, metric conventions, --out."""
     from jaxanom.metrics.anomaly import AP_CONVENTIONS
 
     parser.add_argument("--stats", help="SML statistics .npz (from fit-stats); needed by the sml* and cudam methods")
-    parser.add_argument("--methods", help=f"comma-separated, from {', '.join(METHODS)} (default: {DEFAULT_METHODS})")
+    add_methods(parser)
     parser.add_argument("--fpr-convention", choices=["first", "interp", "nearest", "strict"], default="first")
     parser.add_argument("--ap-convention", choices=AP_CONVENTIONS, default="step",
                         help="step (scikit-learn), trapz (SMIYC before 2023) or envelope (VOC, MMF Eq. 7)")

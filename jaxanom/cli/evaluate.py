@@ -1,8 +1,8 @@
 """``jaxanom evaluate``: pooled anomaly metrics of a trained run on an anomaly dataset."""
 from __future__ import annotations
 
-from jaxanom.cli.common import (DEFAULT_METHODS, CommandError, add_common, add_scoring, load_stats, nonnegative_int,
-                                out_folder, positive_int)
+from jaxanom.cli.common import (DEFAULT_METHODS, CommandError, add_common, add_scoring, load_plugins, load_stats,
+                                nonnegative_int, out_folder, positive_int)
 
 DATASETS = {
     "synthetic": "synthetic anomaly split (PATH = split name: anomaly, anomaly_small, anomaly_large)",
@@ -50,7 +50,7 @@ def add_parser(commands) -> None:
 
 
 def run(args) -> None:
-    from jaxanom.app import methods as scoring
+    from jaxanom.app import scoring
     from jaxanom._validate import check_number
     from jaxanom.data.pipeline import evaluation_batches
     from jaxanom.app.reports import conventions_table, results_table
@@ -63,22 +63,24 @@ def run(args) -> None:
     if track is None:
         raise CommandError("--track: the smiyc dataset holds either track; pass --track anomaly (RoadAnomaly21) or "
                            "--track obstacle (RoadObstacle21)")
+    load_plugins(args)
     stats = load_stats(args.stats)
     if args.cudam_sigma is not None:
         check_number("--cudam-sigma", args.cudam_sigma, 0.0, open_low=True)
+    options = {"cudam_sigma": args.cudam_sigma}
     if args.mmf:  # every check before the first frame is read or scored
-        names = scoring.check_methods((args.methods or MMF_DEFAULT_METHODS).split(","), have_stats=stats is not None,
-                                      have_attention=False, have_mmf=True)
+        names = scoring.check((args.methods or MMF_DEFAULT_METHODS).split(","),
+                              scoring.provided(classes=None, stats=stats is not None, mmf_maps=True), options)
         source, batches = mmf_scored_batches(args.mmf, args.dataset, args.path, frames=args.frames, depth=args.depth)
-    else:
-        names = scoring.check_methods((args.methods or DEFAULT_METHODS).split(","), have_stats=stats is not None,
-                                      have_attention=load_experiment(args.run).attention == "cudam")
+    else:  # the frames' images come with every batch (evaluation_batches)
+        names = scoring.check((args.methods or DEFAULT_METHODS).split(","),
+                              scoring.run_inputs(load_experiment(args.run), stats=stats is not None), options)
         source = dataset_reader(args.dataset, args.path, base=args.base, frames=args.frames, depth=args.depth)
         experiment, variables = load_variables(args.run)
         predict = predictor(build_network(experiment), variables)
         batches = predictions(predict, evaluation_batches(source, batch_size=1))
     out = out_folder(args.out, args.overwrite)
-    metrics, _ = anomaly_results(batches, names, stats=stats, cudam_sigma=args.cudam_sigma,
+    metrics, _ = anomaly_results(batches, names, stats=stats, options=options,
                                  fpr_convention=args.fpr_convention, ap_convention=args.ap_convention,
                                  track=None if track == "none" else track)
     record = {"dataset": args.dataset, "path": args.path, "frames": len(source), "metrics": metrics}
@@ -87,7 +89,7 @@ def run(args) -> None:
     if stats is not None:
         record["sml_statistics"] = statistics_record(args.stats)
     if "cudam" in metrics:
-        record["cudam_sigma"] = {"values": metrics["cudam"]["sigma"],
+        record["cudam_sigma"] = {"values": metrics["cudam"]["options"]["cudam_sigma"],
                                  "source": "given" if args.cudam_sigma is not None else "paper-equivalent"}
     write_json_atomic(out / "metrics.json", record)
     if args.pictures and not args.mmf:  # MMF's pictures: jaxanom demo mmf

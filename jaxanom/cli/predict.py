@@ -1,7 +1,8 @@
 """``jaxanom predict``: anomaly maps of image files (npy, png, SegmentMeIfYouCan's hdf5 tree)."""
 from __future__ import annotations
 
-from jaxanom.cli.common import DEFAULT_METHODS, CommandError, add_common, load_stats, out_folder, positive_int, size_hw
+from jaxanom.cli.common import (DEFAULT_METHODS, CommandError, add_common, add_methods, load_plugins, load_stats,
+                                out_folder, positive_int, size_hw)
 
 
 def add_parser(commands) -> None:
@@ -17,8 +18,7 @@ def add_parser(commands) -> None:
     parser.add_argument("images", nargs="+", help="image files, folders (their images) or quoted glob patterns")
     parser.add_argument("--run", required=True, help="run folder (train or convert-weights); read only")
     parser.add_argument("--out", required=True, help="output folder")
-    parser.add_argument("--methods", help=f"comma-separated (default: {DEFAULT_METHODS}); "
-                        "entropy_superpixel / softmax_distance_superpixel: MMF's post-processor (Eq. 6)")
+    add_methods(parser)
     parser.add_argument("--stats", help="SML statistics .npz (from fit-stats); needed by the sml* and cudam methods")
     parser.add_argument("--format", default="npy", help=f"comma-separated, from {', '.join(FORMATS)} "
                         "(default: %(default)s)")
@@ -37,13 +37,14 @@ def add_parser(commands) -> None:
 def run(args) -> None:
     from pathlib import Path
 
-    from jaxanom.app import methods as scoring
+    from jaxanom.app import scoring
     from jaxanom.app.evaluate import predictor
     from jaxanom.app.experiment import build_network, load_experiment, load_variables
     from jaxanom.io import write_json_atomic
     from jaxanom.app.predict import (PredictSettings, Scorer, check_resumable, inside, list_images, logits_shape,
                                  predict_images, settings_record, size_check)
 
+    load_plugins(args)
     settings = PredictSettings(methods=tuple((args.methods or DEFAULT_METHODS).split(",")),
                                formats=tuple(args.format.split(",")), size=size_hw(args.size),
                                batch_size=args.batch_size, dataset=args.dataset, slic_step=args.slic_step,
@@ -63,8 +64,7 @@ def run(args) -> None:
         raise CommandError(f"images: {inside_out[0]} lies inside --out {out}")
     experiment = load_experiment(run_dir)
     stats = load_stats(args.stats)
-    scoring.check_methods(settings.methods, have_stats=stats is not None,
-                          have_attention=experiment.attention == "cudam", have_image=True)
+    scoring.check(settings.methods, scoring.run_inputs(experiment, stats=stats is not None))
     model = build_network(experiment)
     _, variables = load_variables(run_dir)
     check = size_check(model, variables)

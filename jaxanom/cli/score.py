@@ -8,7 +8,8 @@ distinct score (see ``jaxanom.metrics.accumulator``).
 """
 from __future__ import annotations
 
-from jaxanom.cli.common import DEFAULT_METHODS, CommandError, StreamedArray, add_common, add_scoring, load_stats, out_folder
+from jaxanom.cli.common import (DEFAULT_METHODS, CommandError, StreamedArray, add_common, add_scoring, load_plugins,
+                                load_stats, out_folder)
 
 
 def add_parser(commands) -> None:
@@ -33,11 +34,12 @@ def run(args) -> None:
 
     import numpy as np
 
-    from jaxanom.app import methods as scoring
+    from jaxanom.app import scoring
     from jaxanom.app.reports import results_table
     from jaxanom.io import NpyWriter, write_json_atomic
     from jaxanom.metrics import AnomalyMetricAccumulator
 
+    load_plugins(args)
     logits = StreamedArray(args.logits, "logits")
     if logits.ndim != 4:
         raise CommandError(f"--logits: expected 4 dimensions ({args.layout}), got shape {logits.shape}")
@@ -54,8 +56,8 @@ def run(args) -> None:
     stats = load_stats(args.stats)
     if stats is not None and len(stats[0]) != classes:
         raise CommandError(f"--stats: has {len(stats[0])} classes, the logits have {classes}")
-    names = scoring.check_methods((args.methods or DEFAULT_METHODS).split(","), have_stats=stats is not None,
-                                  have_attention=False)
+    names = scoring.check((args.methods or DEFAULT_METHODS).split(","),
+                          scoring.provided(classes=classes, stats=stats is not None))
     out = out_folder(args.out, args.overwrite)
     accumulators = {name: AnomalyMetricAccumulator() for name in names}
     label_images = iter(labels if labels is not None else ())
@@ -65,13 +67,15 @@ def run(args) -> None:
         for index, image in enumerate(logits):
             image = np.moveaxis(image, 0, -1) if channels_first else image
             label = None if labels is None else next(label_images)
-            for name in names:
-                try:
-                    score = np.asarray(scoring.score_batch(name, image[None], stats=stats))[0]
-                    if label is not None:
+            try:
+                scores, _ = scoring.score_all(names, scoring.inputs_of({"logits": image[None]}, stats))
+                scores = {name: np.asarray(score)[0] for name, score in scores.items()}
+                if label is not None:
+                    for name, score in scores.items():
                         accumulators[name].update(score, label)
-                except ValueError as error:
-                    raise CommandError(f"image {index}: {error}") from None
+            except ValueError as error:
+                raise CommandError(f"image {index}: {error}") from None
+            for name, score in scores.items():
                 writers[name].write(score)
     print(f"score maps of {len(logits)} images -> {out / 'scores'}/<method>.npy")
     if labels is not None:

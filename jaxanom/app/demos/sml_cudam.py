@@ -97,7 +97,8 @@ def run_demo(out_dir: str | Path, config: DemoConfig = DemoConfig(), *, progress
         experiment.num_classes)
     anomaly_frames = frames(experiment, config.anomaly_split, config.anomaly_frames)
     metrics, curves = anomaly_results(predictions(predict, _batches(anomaly_frames, batch)), DEMO_METHODS,
-                                      stats=(mean, std), cudam_sigma=config.cudam_sigma, keep_curves=True)
+                                      stats=(mean, std), options={"cudam_sigma": config.cudam_sigma},
+                                      keep_curves=True)
 
     log("[4/4] writing pictures and results")
     write_pictures(out_dir, predict, anomaly_frames, (mean, std), config.pictures)

@@ -1,0 +1,76 @@
+"""The application's batches scored by the registered methods (``jaxanom.method_registry``).
+
+Batches of ``evaluate.predictions``, ``predict`` and the MMF pipeline hold the network's outputs
+as ``{"logits", "attention_up"?, "attention_positions"?, "image"?, "mmf_maps"?}``; ``inputs_of``
+gives them to the methods under the registry's ``INPUTS`` names, ``run_inputs`` says before any
+work what a run's batches will hold, and ``score_all`` scores one batch with several methods.
+"""
+from __future__ import annotations
+
+from typing import Iterable, Mapping
+
+import numpy as np
+
+from jaxanom.data.cityscapes_labels import NUM_CLASSES
+from jaxanom.method_registry import INPUTS, check, get, given, load_plugin, names
+
+__all__ = ["INPUTS", "check", "describe", "get", "inputs_of", "load_plugin", "names", "provided", "run_inputs",
+           "score_all"]
+
+
+# A network with one output more than Cityscapes' 19 trainIds carries a void class there (the ESPNet
+# and ERFNet authors' weights). The other methods read every channel, void included, as measured in
+# docs/decisions/espnet.md; the void method reads the void channel's probability.
+VOID_CHANNEL = NUM_CLASSES
+
+
+def inputs_of(batch: Mapping, stats=None) -> dict:
+    """The method inputs of one batch ``{"logits", "attention_up"?, "attention_positions"?, "image"?,
+    "mmf_maps"?}`` and the SML ``stats`` ``(mean, std)`` (None: none)."""
+    inputs = {"logits": batch["logits"]}
+    if np.shape(batch["logits"])[-1] == VOID_CHANNEL + 1:
+        inputs["void_channel"] = VOID_CHANNEL
+    if stats is not None:
+        inputs["stats"] = stats
+    if "attention_up" in batch:
+        inputs["attention"] = batch["attention_up"]
+        inputs["attention_positions"] = batch.get("attention_positions")
+    for key in ("image", "mmf_maps"):
+        if key in batch:
+            inputs[key] = batch[key]
+    return inputs
+
+
+def provided(*, classes: int | None, stats: bool, attention: bool = False, images: bool = False,
+             mmf_maps: bool = False) -> set[str]:
+    """The inputs ``inputs_of`` will give for batches of logits with ``classes`` channels (None:
+    unknown), with class statistics, attention maps, images or MMF's maps if so told."""
+    flags = {"stats": stats, "attention": attention, "image": images, "mmf_maps": mmf_maps,
+             "void_channel": classes == VOID_CHANNEL + 1}
+    return {"logits", *(key for key, given in flags.items() if given)}
+
+
+def run_inputs(experiment, *, stats: bool) -> set[str]:
+    """The inputs every batch of a run's network (``experiment``: its ``Experiment``) will give
+    with the frames' images, and class statistics if ``stats``."""
+    return provided(classes=experiment.num_classes, stats=stats, attention=experiment.attention == "cudam",
+                    images=True)
+
+
+def score_all(method_names: Iterable[str], inputs: Mapping, options: Mapping | None = None) -> tuple[dict, dict]:
+    """``(scores, used)``: each method's scores (B, H, W) of ``inputs`` and the options it used
+    (``Method.options``: defaults, ``options``, resolved for this batch)."""
+    method_names = check(method_names, given(inputs), options)
+    scores, used = {}, {}
+    for name in method_names:
+        method = get(name)
+        used[name] = method.options(inputs, options)
+        scores[name] = method.score(inputs, used[name])
+    return scores, used
+
+
+def describe() -> str:
+    """Every method, one per line: its name and description (the commands' ``--help``)."""
+    known = names()
+    width = max(map(len, known))
+    return "\n".join(f"  {name.ljust(width)}  {get(name).description}" for name in known)
