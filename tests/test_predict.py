@@ -104,8 +104,8 @@ def test_every_format_on_real_frames(tiny_run, real_frames, tmp_path, capsys):
     assert main(args) == 0
     assert "0 frames written, 3 already there" in capsys.readouterr().out
     assert not stale.exists()
-    assert main([*args[:-1], "--batch-size", "1"]) == 2
-    assert "batch_size" in capsys.readouterr().err
+    assert main([*args, "--size", "24x48"]) == 2
+    assert "size=[48, 96], now size=[24, 48]" in capsys.readouterr().err
 
 
 def test_native_size_and_folders_and_globs(tiny_run, tmp_path, capsys):
