@@ -36,6 +36,7 @@ def predict(capsys, *args):
 
 
 def test_maps_are_resumed_only_from_the_same_statistics_and_weights(tiny_run, tmp_path, capsys):  # noqa: F811
+    """Fingerprints of contents, not paths: a moved run resumes, re-fitted statistics or other weights do not."""
     from jaxanom.app.experiment import build_network, load_variables
     from jaxanom.app.runs import write_run
 
@@ -66,12 +67,13 @@ def test_maps_are_resumed_only_from_the_same_statistics_and_weights(tiny_run, tm
     # other weights in the same run folder: refused
     experiment, variables = load_variables(tmp_path / "moved")
     shutil.rmtree(tmp_path / "moved")
-    write_run(tmp_path / "moved", experiment.model, build_network(experiment), jax.tree.map(lambda v: v * 1.5, variables))
+    changed = jax.tree.map(lambda v: v * 1.5, variables)
+    write_run(tmp_path / "moved", experiment.model, build_network(experiment), changed)
     code, printed, error = predict(capsys, a, "--run", tmp_path / "moved", *common)
     assert code == 2 and "network" in error and len(error.splitlines()) == 1, error
 
 
-def test_a_failed_start_blocks_nothing_and_the_batch_size_is_not_part_of_the_key(tiny_run, tmp_path, capsys):  # noqa: F811
+def test_a_failed_start_and_the_batch_size_block_no_rerun(tiny_run, tmp_path, capsys):  # noqa: F811
     image, out = tmp_path / "x.png", tmp_path / "maps"
     image.write_bytes(b"not a png")
     common = ["--run", tiny_run, "--methods", "msp", "--out", out]
@@ -145,7 +147,7 @@ def test_a_batch_is_never_padded(tmp_path):
     assert sum(shape[0] for shape in calls) == 3, calls
 
 
-def test_device_out_of_memory_is_one_line_and_keeps_the_maps_written(tiny_run, tmp_path, capsys, monkeypatch):  # noqa: F811
+def test_device_out_of_memory_is_one_line_and_keeps_the_maps(tiny_run, tmp_path, capsys, monkeypatch):  # noqa: F811
     from jaxanom.app import evaluate
 
     real = evaluate.predictor

@@ -379,17 +379,18 @@ def predict_images(paths: Sequence[Path], out: Path, scorer: Scorer, *, progress
     for root in {"npy": out / "npy", "png": out / "png", "smiyc": out / "anomaly_p"}.values():
         for stale in root.rglob(".*.tmp") if root.is_dir() else ():  # a killed run's unfinished files
             stale.unlink(missing_ok=True)
-    todo = list(paths) if redo else [p for p in paths if not all(f.is_file() for f in output_files(out, p.stem, settings))]
+    todo = [p for p in paths if redo or not all(f.is_file() for f in output_files(out, p.stem, settings))]
     bar = tqdm(total=len(todo), unit="image", desc="predict", disable=not progress)
     pending = at = None
-    written = []
+    written = 0
 
     def finish(batch, scores):
+        nonlocal written
         for frame, frame_scores in zip(batch, scores):
             host = {name: np.asarray(value)[0] for name, value in frame_scores.items()}
             shape = frame["image"].shape[:2]
             write_frame(out, frame, {name: native_map(score, shape) for name, score in host.items()}, settings)
-            written.append(frame["name"])
+            written += 1
             bar.update(1)
 
     try:
@@ -413,7 +414,7 @@ def predict_images(paths: Sequence[Path], out: Path, scorer: Scorer, *, progress
         if out_of_memory:
             height, width = at[0]["input"].shape[:2]
             raise DeviceOutOfMemory(f"the device ran out of memory on {at[0]['name']} ({height}x{width} working "
-                                    f"size, {len(at)} frame(s) in flight); {len(written)} frames written") from None
+                                    f"size, {len(at)} frame(s) in flight); {written} frames written") from None
         raise
     finally:
         bar.close()
