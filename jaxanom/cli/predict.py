@@ -13,7 +13,7 @@ def add_parser(commands) -> None:
         "method at the image's own size: npy/<method>/<frame>.npy (float16), png/<method>/<frame>.png (a picture "
         "with a colour bar), anomaly_p/<method>/<dataset>/<frame>.hdf5 (SegmentMeIfYouCan's submission tree, "
         "float16 in HDF5 dataset 'value'; needs h5py: pip install 'jaxanom[smiyc]'). <frame> is the image's "
-        "file name as given. A rerun with the same settings, network weights and statistics skips the frames "
+        "file name without its extension, as given (a link's own name, not its target's). A rerun with the same settings, network weights and statistics skips the frames "
         "already written (one with others is refused; --overwrite recomputes every frame). Images under --out "
         "are left out.")
     parser.add_argument("images", nargs="+", help="image files, folders (their images) or quoted glob patterns")
