@@ -8,7 +8,6 @@ import cv2
 import jax
 import jax.numpy as jnp
 import numpy as np
-import pytest
 
 from jaxanom.cli import main
 from test_predict import tiny_run  # noqa: F401 (the module fixture: a tiny converted run)
