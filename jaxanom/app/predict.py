@@ -412,9 +412,10 @@ def predict_images(paths: Sequence[Path], out: Path, scorer: Scorer, *, progress
             with contextlib.suppress(JaxRuntimeError):  # unless the device failed it too
                 finish(*pending)
         if out_of_memory:
-            height, width = at[0]["input"].shape[:2]
-            raise DeviceOutOfMemory(f"the device ran out of memory on {at[0]['name']} ({height}x{width} working "
-                                    f"size, {len(at)} frame(s) in flight); {written} frames written") from None
+            frames = at[0]["name"] if len(at) == 1 else f"{at[0]['name']} .. {at[-1]['name']}"
+            height, width = max((f["input"].shape[:2] for f in at), key=lambda shape: shape[0] * shape[1])
+            raise DeviceOutOfMemory(f"the device ran out of memory scoring {frames} ({len(at)} in flight, working "
+                                    f"size up to {height}x{width}); {written} frames written") from None
         raise
     finally:
         bar.close()
