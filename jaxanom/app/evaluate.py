@@ -26,19 +26,35 @@ def predictor(model, variables) -> Callable[[np.ndarray], dict]:
 
     uint8 images are normalised as ``model`` wants them (``jaxanom.train.step.model_input``).
     The attention map (if the model has one) is upsampled bilinearly to the image size (Eqs. 4, 10);
-    ``"attention_positions"`` (a scalar) is then the h * w of the map before upsampling.
+    ``"attention_positions"`` (a Python int) is then the h * w of the map before upsampling: a
+    shape, known without reading the device (taken once per input shape from ``jax.eval_shape``).
     """
+
+    def apply(variables, images):
+        return model.apply(variables, model_input(images, model), train=False)
 
     @jax.jit
     def forward(variables, images):
-        out = model.apply(variables, model_input(images, model), train=False)
+        out = apply(variables, images)
         result = {"logits": out["logits"].astype(jnp.float32)}
         if "attention" in out:
             result["attention_up"] = upsample_attention(out["attention"], images.shape[1:3])
-            result["attention_positions"] = jnp.int32(out["attention"].shape[1] * out["attention"].shape[2])
         return result
 
-    return lambda images: forward(variables, jnp.asarray(images))
+    positions: dict = {}
+
+    def call(images):
+        images = jnp.asarray(images)
+        result = forward(variables, images)
+        if "attention_up" in result:
+            key = (images.shape, images.dtype)
+            if key not in positions:
+                attention = jax.eval_shape(apply, variables, images)["attention"]
+                positions[key] = int(attention.shape[1] * attention.shape[2])
+            result["attention_positions"] = positions[key]
+        return result
+
+    return call
 
 
 def predictions(predict: Callable, batches: Iterable[dict]) -> Iterator[dict]:

@@ -1,10 +1,11 @@
 """Anomaly maps of image files: the application behind ``jaxanom predict``.
 
-``predict_images(paths, out, predict, settings)`` streams the images through a network (any
-run that ``jaxanom evaluate --run`` loads): each image is decoded, resized to the network's
-working size (bilinear; or kept at its own size), batched on the device, scored with each
-method (``jaxanom.method_registry``) at the working size, and each map is resized back (bilinear) to
-the image's native size and written in every requested format:
+``predict_images(paths, out, scorer)`` streams the images through a network (any run that
+``jaxanom evaluate --run`` loads): each image is decoded, resized to the network's working size
+(bilinear; or kept at its own size), scored on the device with each method
+(``jaxanom.method_registry``) at the working size, alone (a batch of one, so that its maps do not
+depend on the frames around it), and each map is resized back (bilinear) to the image's native
+size and written in every requested format:
 
 - ``npy``:   ``<out>/npy/<method>/<frame>.npy``, float16 (H, W);
 - ``png``:   ``<out>/png/<method>/<frame>.png``, the image and the map over it, with a colour bar;
@@ -16,17 +17,21 @@ the image's native size and written in every requested format:
   "value", compression=9)``; ``fid`` is the image's file stem and ``dset_name`` e.g.
   ``AnomalyTrack-all``, ``ObstacleTrack-all``, ``LostAndFound-test`` (``datasets/tracks.py``).
 
-``<frame>`` is the image's file name without its extension. Every file is written under a
-temporary name beside it and renamed, so a killed run leaves complete files only, and a rerun
-skips the frames whose files all exist (and removes the temporary files a kill left).
-``settings.json`` in ``out`` records the settings; a
-rerun with other settings is refused (``check_resumable``).
+``<frame>`` is the image's file name (as given, not a symlink's target) without its extension.
+Every file is written under a temporary name beside it and renamed, so a killed run leaves
+complete files only, and a rerun skips the frames whose files all exist (and removes the
+temporary files a kill left). ``settings.json`` in ``out`` records the settings and the
+fingerprints of the network and statistics the maps were made with (``settings_record``); a
+rerun that would make other maps is refused (``check_resumable``).
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import glob
 import io
+import json
+import os
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, Sequence
 
@@ -37,6 +42,13 @@ FORMATS = ("npy", "png", "smiyc")
 SETTINGS_FILE = "settings.json"
 SMIYC_DATASETS = ("AnomalyTrack-all", "ObstacleTrack-all", "LostAndFound-test", "LostAndFound-train")
 FLOAT16_MAX = float(np.finfo(np.float16).max)
+# the maps predict writes (``output_file``), found in a folder without knowing its settings
+MAP_PATTERNS = ("npy/*/*.npy", "png/*/*.png", "anomaly_p/*/*/*.hdf5")
+READ_FROM = "read_from"  # the record's paths of the run and statistics: where, not what (not compared)
+
+
+class DeviceOutOfMemory(Exception):
+    """The accelerator could not allocate a frame's computation (XLA's RESOURCE_EXHAUSTED)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,7 +57,8 @@ class PredictSettings:
 
     ``methods``: registered methods (``jaxanom.method_registry``; not the MMF pipeline rows);
     ``formats``: from ``FORMATS``; ``size``: the working (H, W) the network sees, or None for
-    each image's own size; ``batch_size``: images per device batch; ``dataset``: the SMIYC
+    each image's own size; ``batch_size``: frames dispatched to the device before the first of
+    them is read back (each is computed alone, so the maps do not depend on it); ``dataset``: the SMIYC
     dataset name (format ``smiyc``); ``slic_step``: SLIC grid step of the ``*_superpixel``
     methods (None: ``superpixels.scaled_step`` of the working size); ``cudam_sigma``: Eq. 10's
     weight (None: the paper-equivalent one).
@@ -82,12 +95,16 @@ def _plain_name(name) -> bool:
     return isinstance(name, str) and name not in ("", ".", "..") and "/" not in name and "\\" not in name
 
 
-def list_images(inputs: Sequence[str]) -> list[Path]:
+def list_images(inputs: Sequence[str], out: Path | None = None) -> tuple[list[Path], int]:
     """Image files named by ``inputs``: files, folders (their image files, not recursive) or
-    glob patterns (``**`` recursive); sorted per input, without repeats.
+    glob patterns (``**`` recursive); sorted per input, without repeats, as given (a symlink is
+    not replaced by its target, so two links to one file are two frames). Those under ``out``
+    (``predict``'s own outputs, matched by a recursive glob over a tree that holds them) are
+    left out. Returns ``(images, how many were left out)``.
 
-    FileNotFoundError for an input that names nothing; ValueError for a named file without an
-    image extension, or two images with the same file stem (their outputs would collide).
+    FileNotFoundError for an input that names nothing, or when every image lies under ``out``;
+    ValueError for a named file without an image extension, or two images with the same file
+    stem (their outputs would collide).
     """
     found: list[Path] = []
     for text in inputs:
@@ -106,14 +123,25 @@ def list_images(inputs: Sequence[str]) -> list[Path]:
         if not matches:
             raise FileNotFoundError(f"images: {text} names no image file ({', '.join(IMAGE_EXTENSIONS)})")
         found.extend(matches)
-    unique = list(dict.fromkeys(p.resolve() for p in found))
+    unique: dict[str, Path] = {}
+    for path in found:  # one path given twice (a file and its folder, "x.png" and "./x.png") is one frame
+        unique.setdefault(os.path.abspath(path), path)
+    kept = [p for p in unique.values() if out is None or not _under(p, out)]
+    if not kept:
+        raise FileNotFoundError(f"images: every image given lies inside --out {out}, where predict writes")
     stems: dict[str, Path] = {}
-    for path in unique:
+    for path in kept:
         if path.stem in stems:
             raise ValueError(f"images: {stems[path.stem]} and {path} share the frame name {path.stem!r}; "
                              "their outputs would overwrite each other")
         stems[path.stem] = path
-    return unique
+    return kept, len(unique) - len(kept)
+
+
+def _under(path: Path, folder: Path) -> bool:
+    """``path`` lies in ``folder``, as written or once symlinks are resolved."""
+    written = Path(os.path.abspath(path))
+    return Path(os.path.abspath(folder)) in written.parents or inside(path, folder)
 
 
 def output_file(out: Path, frame: str, method: str, fmt: str, dataset: str | None) -> Path:
@@ -128,30 +156,93 @@ def output_files(out: Path, frame: str, settings: PredictSettings) -> list[Path]
     return [output_file(out, frame, m, f, settings.dataset) for m in settings.methods for f in settings.formats]
 
 
-def settings_record(settings: PredictSettings, **extra) -> dict:
-    """The JSON of ``settings`` plus ``extra`` (run, statistics file)."""
-    record = dataclasses.asdict(settings)
-    record = {k: (list(v) if isinstance(v, tuple) else v) for k, v in record.items()}
-    return {**record, **extra}
+def fingerprint(tree) -> str:
+    """SHA-256 (hex) of a pytree of arrays and strings: every leaf's path, dtype, shape and bytes."""
+    import hashlib
+
+    import jax
+
+    digest = hashlib.sha256()
+    for path, leaf in jax.tree_util.tree_flatten_with_path(tree)[0]:
+        value = np.ascontiguousarray(leaf)
+        digest.update(f"{jax.tree_util.keystr(path)} {value.dtype.str} {value.shape}\n".encode())
+        digest.update(value.tobytes())
+    return digest.hexdigest()
+
+
+def settings_record(settings: PredictSettings, *, network: str, statistics: str | None, read_from: dict) -> dict:
+    """What decides the maps: ``settings`` (but the batch size, which does not change them), the
+    ``fingerprint`` of the network (its experiment and the variables restored) and of the
+    statistics (mean and std; None without), and, for the reader only, where they were read."""
+    record = {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(settings).items()}
+    del record["batch_size"]
+    return {**record, "network": network, "statistics": statistics, READ_FROM: read_from}
+
+
+def existing_maps(out: Path) -> list[Path]:
+    """The map files in ``out`` (any method, format and dataset; not unfinished temporaries)."""
+    return [p for pattern in MAP_PATTERNS for p in out.glob(pattern) if p.is_file()]
+
+
+def _earlier_record(out: Path) -> dict | None:
+    """``out``'s settings.json, or None when it is absent or not a JSON object."""
+    try:
+        earlier = json.loads((out / SETTINGS_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    return earlier if isinstance(earlier, dict) else None
+
+
+def _difference(earlier: dict | None, record: dict) -> str | None:
+    """How maps of the ``earlier`` record differ from ``record``'s, in words; None when they do not."""
+    if earlier is None:
+        return f"and no readable {SETTINGS_FILE} saying how they were made"
+    if "network" not in earlier:
+        return "made by an older jaxanom, which did not record their network and statistics"
+    for key in sorted((set(earlier) | set(record)) - {READ_FROM}):
+        before, now = earlier.get(key), record.get(key)
+        if before == now:
+            continue
+        if key == "network":
+            return f"made with another network (weights or experiment) than --run {record[READ_FROM]['run']} holds now"
+        if key == "statistics" and before and now:
+            return f"made with other statistics than --stats {record[READ_FROM]['stats']} holds now"
+        if key == "statistics":
+            return "made with statistics, now without" if before else \
+                f"made without statistics, now with --stats {record[READ_FROM]['stats']}"
+        return f"made with {key}={before!r}, now {key}={now!r}"
+    return None
 
 
 def check_resumable(out: Path, record: dict) -> bool:
-    """True when ``out`` holds the ``settings.json`` of an earlier run with ``record``'s settings
-    (its frames may be skipped), False when it holds none; ValueError naming the first difference."""
-    import json
-
-    path = out / SETTINGS_FILE
-    if not path.is_file():
+    """Whether a run of ``record`` may go on in ``out`` (without ``--overwrite``): True when its
+    ``settings.json`` is ``record``'s (the frames already there may be skipped), or when it holds
+    one but no map (a run stopped before its first map); False without one; ValueError naming
+    the difference when its maps were made with other settings, network or statistics."""
+    if not (out / SETTINGS_FILE).is_file():
         return False
-    try:
-        earlier = json.loads(path.read_text())
-    except ValueError:
-        raise ValueError(f"out: {path} is not readable JSON; remove it or choose another folder") from None
-    for key in sorted(set(earlier) | set(record)):
-        if earlier.get(key) != record.get(key):
-            raise ValueError(f"out: {out} holds maps made with {key}={earlier.get(key)!r}, now {key}={record.get(key)!r}; "
-                             "choose another folder (or the same settings to resume)")
+    difference = _difference(_earlier_record(out), record)
+    if difference is not None and existing_maps(out):
+        raise ValueError(f"out: {out} holds maps {difference}; choose another folder, "
+                         "or pass --overwrite to recompute them")
     return True
+
+
+def remove_other_maps(out: Path, record: dict, settings: PredictSettings) -> int:
+    """Before a run of ``record`` that recomputes every frame it is given (``--overwrite``): unless
+    ``out``'s ``settings.json`` is ``record``'s, delete the maps in the folders this run writes
+    (of frames it may not be given: a later resume would keep them as its own). Returns how many."""
+    if _difference(_earlier_record(out), record) is None:
+        return 0
+    removed = 0
+    for method in settings.methods:
+        for fmt in settings.formats:
+            pattern = output_file(out, "*", method, fmt, settings.dataset)
+            for path in pattern.parent.glob(pattern.name):
+                if path.is_file():
+                    path.unlink()
+                    removed += 1
+    return removed
 
 
 def _frames(paths: Iterable[Path], size) -> Iterator[dict]:
@@ -168,8 +259,8 @@ def _frames(paths: Iterable[Path], size) -> Iterator[dict]:
 
 
 def _batches(frames: Iterable[dict], batch_size: int) -> Iterator[list[dict]]:
-    """Consecutive frames of one working size, at most ``batch_size`` at a time. When a frame
-    cannot be decoded, the frames before it are yielded first, then its ValueError raised."""
+    """Consecutive frames, at most ``batch_size`` at a time (the last batch as many as remain).
+    When a frame cannot be decoded, the frames before it are yielded first, then its ValueError raised."""
     batch: list[dict] = []
     frames = iter(frames)
     while True:
@@ -181,9 +272,6 @@ def _batches(frames: Iterable[dict], batch_size: int) -> Iterator[list[dict]]:
             if batch:
                 yield batch
             raise
-        if batch and frame["input"].shape != batch[0]["input"].shape:
-            yield batch
-            batch = []
         batch.append(frame)
         if len(batch) == batch_size:
             yield batch
@@ -193,23 +281,29 @@ def _batches(frames: Iterable[dict], batch_size: int) -> Iterator[list[dict]]:
 
 
 class Scorer:
-    """Network + methods on one batch, dispatched asynchronously (``__call__``), read back later."""
+    """Network + methods on each frame of a batch, dispatched asynchronously (``__call__``), read back later.
+
+    Each frame is computed alone, through one compiled program per working size: batched
+    convolutions may round a frame differently with other frames beside it (an ulp on some
+    CPUs), so a frame's maps would depend on its batch-mates, and a resumed run on its batches.
+    """
 
     def __init__(self, predict: Callable, settings: PredictSettings, stats=None, check_size=None):
         self.predict, self.settings, self.stats, self.check_size = predict, settings, stats, check_size
         self._checked: set = set()
 
-    def __call__(self, batch: list[dict]) -> dict:
-        """Device arrays ``{method: (B, h, w)}`` for the frames of ``batch`` (padded to the batch size)."""
+    def __call__(self, batch: list[dict]) -> list[dict]:
+        """Device arrays ``{method: (1, h, w)}`` of each frame of ``batch``."""
+        return [self._score(frame) for frame in batch]
+
+    def _score(self, frame: dict) -> dict:
         from jaxanom.app.scoring import inputs_of, score_all
 
-        images = np.stack([f["input"] for f in batch])
-        if self.check_size is not None and images.shape[1:3] not in self._checked:
-            self.check_size(images.shape[1:3], batch[0]["name"])
-            self._checked.add(images.shape[1:3])
-        padding = self.settings.batch_size - len(batch)  # one compiled shape per working size
-        if padding:
-            images = np.concatenate([images, np.repeat(images[-1:], padding, axis=0)])
+        images = frame["input"][None]
+        shape = images.shape[1:3]
+        if self.check_size is not None and shape not in self._checked:
+            self.check_size(shape, frame["name"])
+            self._checked.add(shape)
         out = self.predict(images)
         options = {"cudam_sigma": self.settings.cudam_sigma, "slic_step": self.settings.slic_step}
         return score_all(self.settings.methods, inputs_of({**out, "image": images}, self.stats), options)[0]
@@ -260,41 +354,57 @@ def _write_hdf5(path: str, value: np.ndarray) -> None:
         f.create_dataset("value", data=value, compression=9)  # gzip level 9, as the benchmark writes
 
 
-def predict_images(paths: Sequence[Path], out: Path, scorer: Scorer, *, progress: bool = True) -> dict:
+def predict_images(paths: Sequence[Path], out: Path, scorer: Scorer, *, progress: bool = True,
+                   redo: bool = False) -> dict:
     """Score ``paths`` into ``out`` (see the module docstring); frames whose files all exist are
-    skipped, and unfinished temporary files of a killed run (``.<file>.*.tmp``) are removed:
-    the caller must hold ``out`` alone (the CLI claims it). Returns ``{"frames", "written",
-    "skipped"}``. A corrupt image raises ValueError naming it, after the frames before it are
-    written."""
+    skipped (unless ``redo``), and unfinished temporary files of a killed run (``.<file>.*.tmp``)
+    are removed: the caller must hold ``out`` alone (the CLI claims it). Returns ``{"frames",
+    "written", "skipped"}``. A corrupt image raises ValueError naming it, and a device
+    out-of-memory ``DeviceOutOfMemory`` naming the frame, after the frames before are written."""
+    from jax.errors import JaxRuntimeError
     from tqdm import tqdm
 
     settings = scorer.settings
     for root in {"npy": out / "npy", "png": out / "png", "smiyc": out / "anomaly_p"}.values():
         for stale in root.rglob(".*.tmp") if root.is_dir() else ():  # a killed run's unfinished files
             stale.unlink(missing_ok=True)
-    todo = [p for p in paths if not all(f.is_file() for f in output_files(out, p.stem, settings))]
+    todo = [p for p in paths if redo or not all(f.is_file() for f in output_files(out, p.stem, settings))]
     bar = tqdm(total=len(todo), unit="image", desc="predict", disable=not progress)
-    pending = None
+    pending = at = None
+    written = 0
 
     def finish(batch, scores):
-        host = {name: np.asarray(value) for name, value in scores.items()}
-        for index, frame in enumerate(batch):
+        nonlocal written
+        for frame, frame_scores in zip(batch, scores):
+            host = {name: np.asarray(value)[0] for name, value in frame_scores.items()}
             shape = frame["image"].shape[:2]
-            write_frame(out, frame, {name: native_map(host[name][index], shape) for name in host}, settings)
+            write_frame(out, frame, {name: native_map(score, shape) for name, score in host.items()}, settings)
+            written += 1
             bar.update(1)
 
     try:
         for batch in _batches(_frames(todo, settings.size), settings.batch_size):
+            at = batch
             scores = scorer(batch)  # dispatched: the device works while the next batch is decoded
             done, pending = pending, (batch, scores)
             if done is not None:
+                at = done[0]
                 finish(*done)
         done, pending = pending, None
         if done is not None:
+            at = done[0]
             finish(*done)
-    except ValueError:
-        if pending is not None:  # e.g. a corrupt image in the next batch: keep what was computed
-            finish(*pending)
+    except (ValueError, JaxRuntimeError) as error:
+        out_of_memory = isinstance(error, JaxRuntimeError) and "RESOURCE_EXHAUSTED" in str(error)
+        if pending is not None and (out_of_memory or isinstance(error, ValueError)):
+            # the batch before the failure (e.g. a corrupt image in the next one) was computed: keep it
+            with contextlib.suppress(JaxRuntimeError):  # unless the device failed it too
+                finish(*pending)
+        if out_of_memory:
+            frames = at[0]["name"] if len(at) == 1 else f"{at[0]['name']} .. {at[-1]['name']}"
+            height, width = max((f["input"].shape[:2] for f in at), key=lambda shape: shape[0] * shape[1])
+            raise DeviceOutOfMemory(f"the device ran out of memory scoring {frames} ({len(at)} in flight, working "
+                                    f"size up to {height}x{width}); {written} frames written") from None
         raise
     finally:
         bar.close()
@@ -335,6 +445,6 @@ def size_check(model, variables) -> Callable[[tuple[int, int], str], None]:
     return check
 
 
-__all__ = ["FORMATS", "PredictSettings", "Scorer", "check_resumable", "inside", "list_images", "native_map",
-           "logits_shape", "output_file", "output_files", "predict_images", "settings_record", "size_check",
-           "write_frame"]
+__all__ = ["DeviceOutOfMemory", "FORMATS", "PredictSettings", "Scorer", "check_resumable", "existing_maps",
+           "fingerprint", "inside", "list_images", "native_map", "logits_shape", "output_file", "output_files",
+           "predict_images", "remove_other_maps", "settings_record", "size_check", "write_frame"]

@@ -13,8 +13,10 @@ def add_parser(commands) -> None:
         description="Score JPEG / PNG / WebP images of any size with each method and write one map per image and "
         "method at the image's own size: npy/<method>/<frame>.npy (float16), png/<method>/<frame>.png (a picture "
         "with a colour bar), anomaly_p/<method>/<dataset>/<frame>.hdf5 (SegmentMeIfYouCan's submission tree, "
-        "float16 in HDF5 dataset 'value'; needs h5py: pip install 'jaxanom[smiyc]'). A rerun with the same "
-        "settings skips the frames already written.")
+        "float16 in HDF5 dataset 'value'; needs h5py: pip install 'jaxanom[smiyc]'). <frame> is the image's "
+        "file name without its extension, as given (a link's own name, not its target's). A rerun with the same settings, network weights and statistics skips the frames "
+        "already written (one with others is refused; --overwrite recomputes every frame). Images under --out "
+        "are left out.")
     parser.add_argument("images", nargs="+", help="image files, folders (their images) or quoted glob patterns")
     parser.add_argument("--run", required=True, help="run folder (train or convert-weights); read only")
     parser.add_argument("--out", required=True, help="output folder")
@@ -24,7 +26,9 @@ def add_parser(commands) -> None:
                         "(default: %(default)s)")
     parser.add_argument("--size", help="working size HxW the network sees, e.g. 512x1024 (default: each image's "
                         "own size); maps are resized back to the image's size")
-    parser.add_argument("--batch-size", type=positive_int, default=1, help="images per device batch (default: 1)")
+    parser.add_argument("--batch-size", type=positive_int, default=1,
+                        help="images sent to the device before the first is read back; each is scored alone, so "
+                        "the maps do not depend on it (default: 1)")
     parser.add_argument("--dataset", help=f"SegmentMeIfYouCan dataset name for --format smiyc, e.g. "
                         f"{', '.join(SMIYC_DATASETS)}")
     parser.add_argument("--slic-step", type=positive_int,
@@ -35,14 +39,16 @@ def add_parser(commands) -> None:
 
 
 def run(args) -> None:
+    import json
     from pathlib import Path
 
     from jaxanom.app import scoring
     from jaxanom.app.evaluate import predictor
-    from jaxanom.app.experiment import build_network, load_experiment, load_variables
+    from jaxanom.app.experiment import build_network, jsonable, load_experiment, load_variables
     from jaxanom.io import write_json_atomic
-    from jaxanom.app.predict import (PredictSettings, Scorer, check_resumable, inside, list_images, logits_shape,
-                                 predict_images, settings_record, size_check)
+    from jaxanom.app.predict import (DeviceOutOfMemory, PredictSettings, Scorer, check_resumable, fingerprint, inside,
+                                     list_images, logits_shape, predict_images, remove_other_maps, settings_record,
+                                     size_check)
 
     load_plugins(args)
     settings = PredictSettings(methods=tuple((args.methods or DEFAULT_METHODS).split(",")),
@@ -54,14 +60,12 @@ def run(args) -> None:
             import h5py  # noqa: F401
         except ImportError:
             raise CommandError("--format smiyc: needs h5py (pip install 'jaxanom[smiyc]')") from None
-    paths = list_images(args.images)
     run_dir, out = Path(args.run), Path(args.out)
+    paths, left_out = list_images(args.images, out)
     if not (run_dir / "experiment.json").is_file():
         raise CommandError(f"--run {run_dir}: expected a run folder (with experiment.json)")
     if inside(out, run_dir):
         raise CommandError(f"--out {out}: lies inside --run {run_dir}; predict never writes into a run")
-    if inside_out := [p for p in paths if inside(p, out)]:
-        raise CommandError(f"images: {inside_out[0]} lies inside --out {out}")
     experiment = load_experiment(run_dir)
     stats = load_stats(args.stats)
     scoring.check(settings.methods, scoring.run_inputs(experiment, stats=stats is not None))
@@ -74,12 +78,22 @@ def run(args) -> None:
         classes = logits_shape(model, variables, tuple(experiment.crop))[-1]
         if len(stats[0]) != classes:
             raise CommandError(f"--stats {args.stats}: has {len(stats[0])} classes, the network's logits {classes}")
-    record = settings_record(settings, run=str(run_dir.resolve()),
-                             stats=None if args.stats is None else str(Path(args.stats).resolve()))
-    resuming = out.is_dir() and check_resumable(out, record)
+    # the maps depend on what the files hold, not where they are: a moved run resumes, a re-fitted one does not
+    network = fingerprint({"experiment": json.dumps(jsonable(experiment), sort_keys=True), "variables": variables})
+    record = settings_record(settings, network=network, statistics=None if stats is None else fingerprint(stats),
+                             read_from={"run": str(run_dir.resolve()),
+                                        "stats": None if args.stats is None else str(Path(args.stats).resolve())})
+    resuming = not args.overwrite and out.is_dir() and check_resumable(out, record)
     out = out_folder(args.out, args.overwrite or resuming, hint="pass --overwrite (or rerun with its settings)")
+    if args.overwrite and (removed := remove_other_maps(out, record, settings)):
+        print(f"jaxanom predict: removed {removed} maps of other settings, network or statistics from {out}")
     write_json_atomic(out / "settings.json", record)
     scorer = Scorer(predictor(model, variables), settings, stats, check_size=None if settings.size else check)
-    summary = predict_images(paths, out, scorer, progress=not args.no_progress)
-    print(f"jaxanom predict: {summary['written']} frames written, {summary['skipped']} already there, "
+    try:
+        summary = predict_images(paths, out, scorer, progress=not args.no_progress, redo=args.overwrite)
+    except DeviceOutOfMemory as error:
+        raise CommandError(f"{error}; rerun with a smaller --batch-size to resume, or a smaller --size "
+                           "(into another --out, or with --overwrite)") from None
+    skipped = f", {left_out} images under --out left out" if left_out else ""
+    print(f"jaxanom predict: {summary['written']} frames written, {summary['skipped']} already there{skipped}, "
           f"{len(settings.methods)} methods, formats {','.join(settings.formats)} -> {out}")
