@@ -1,7 +1,8 @@
 """``jaxanom predict``: anomaly maps of image files (npy, png, SegmentMeIfYouCan's hdf5 tree)."""
 from __future__ import annotations
 
-from jaxanom.cli.common import DEFAULT_METHODS, CommandError, add_common, load_stats, out_folder, positive_int, size_hw
+from jaxanom.cli.common import (DEFAULT_METHODS, CommandError, add_common, load_stats, method_list, out_folder,
+                                positive_int, size_hw)
 
 
 def add_parser(commands) -> None:
@@ -17,7 +18,7 @@ def add_parser(commands) -> None:
     parser.add_argument("images", nargs="+", help="image files, folders (their images) or quoted glob patterns")
     parser.add_argument("--run", required=True, help="run folder (train or convert-weights); read only")
     parser.add_argument("--out", required=True, help="output folder")
-    parser.add_argument("--methods", help=f"comma-separated (default: {DEFAULT_METHODS}); "
+    parser.add_argument("--methods", type=method_list, help=f"comma-separated (default: {DEFAULT_METHODS}); "
                         "entropy_superpixel / softmax_distance_superpixel: MMF's post-processor (Eq. 6)")
     parser.add_argument("--stats", help="SML statistics .npz (from fit-stats); needed by the sml* and cudam methods")
     parser.add_argument("--format", default="npy", help=f"comma-separated, from {', '.join(FORMATS)} "
