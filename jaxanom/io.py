@@ -7,6 +7,7 @@ alone would leave it 0o600, unreadable to colleagues).
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import tempfile
@@ -133,13 +134,15 @@ class NpyWriter:
             self._file.close()
             os.replace(self._tmp, self.path)
         except OSError as error:
+            self.abort()
             _name_file(error, self.path)
             raise
         return self.path
 
     def abort(self) -> None:
         """Drop the temporary file."""
-        self._file.close()
+        with contextlib.suppress(OSError):  # closing flushes: the full disk that made the writer give up
+            self._file.close()
         Path(self._tmp).unlink(missing_ok=True)
 
     def __enter__(self) -> "NpyWriter":

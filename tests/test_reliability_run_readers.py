@@ -55,13 +55,15 @@ def _smiyc(root: Path) -> Path:
     return root
 
 
-def test_readers_refuse_an_out_inside_the_run(tiny_run, tmp_path, capsys):
+@pytest.mark.parametrize("command", ["evaluate", "fit-stats"])
+def test_readers_refuse_an_out_inside_the_run(tiny_run, tmp_path, capsys, command):
     before = _tree(tiny_run)
-    evaluate = ["evaluate", "--run", str(tiny_run), "--dataset", "smiyc", "--path", str(_smiyc(tmp_path / "t")),
-                "--track", "anomaly", "--methods", "msp"]
-    _one_line(capsys, main([*evaluate, "--out", str(tiny_run / "checkpoints" / "1")]), "--out", "lies inside --run")
-    _one_line(capsys, main(["fit-stats", "--run", str(tiny_run), "--out", str(tiny_run / "stats.npz")]),
-              "--out", "lies inside --run")
+    if command == "evaluate":
+        args = ["evaluate", "--run", str(tiny_run), "--dataset", "smiyc", "--path", str(_smiyc(tmp_path / "t")),
+                "--track", "anomaly", "--methods", "msp", "--out", str(tiny_run / "checkpoints" / "1")]
+    else:
+        args = ["fit-stats", "--run", str(tiny_run), "--missing", "pooled", "--out", str(tiny_run / "stats.npz")]
+    _one_line(capsys, main(args), "--out", "lies inside --run")
     assert _tree(tiny_run) == before
 
 
@@ -96,21 +98,30 @@ def test_reading_a_run_logs_no_warning(tiny_run, caplog):
     assert [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING] == []
 
 
-def _cityscapes(root: Path, sizes) -> Path:
+def _cityscapes(root: Path, sizes, labels: bool) -> Path:
     rng = np.random.default_rng(2)
     for index, (height, width) in enumerate(sizes):
-        path = root / "leftImg8bit" / "train" / "city" / f"city_000000_00000{index}_leftImg8bit.png"
+        name = f"city_000000_00000{index}"
+        path = root / "leftImg8bit" / "train" / "city" / f"{name}_leftImg8bit.png"
         path.parent.mkdir(parents=True, exist_ok=True)
         cv2.imwrite(str(path), rng.integers(0, 256, (height, width, 3), dtype=np.uint8))
+        if labels:
+            label = root / "gtFine" / "train" / "city" / f"{name}_gtFine_labelIds.png"
+            label.parent.mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(label), np.full((height, width), 7, np.uint8))
     return root
 
 
-def test_fit_stats_on_cityscapes_images_needs_no_labels_and_one_size(tiny_run, tmp_path, capsys):
-    mixed = _cityscapes(tmp_path / "mixed", [(32, 64), (48, 64)])
+def test_fit_stats_on_cityscapes_frames_of_two_sizes_suggests_size(tiny_run, tmp_path, capsys):
+    mixed = _cityscapes(tmp_path / "mixed", [(32, 64), (48, 64)], labels=True)
     _one_line(capsys, main(["fit-stats", "--run", str(tiny_run), "--cityscapes", str(mixed), "--out",
                             str(tmp_path / "a.npz")]),
               "frames differ in size", "city_000000_000000 is 32x64", "city_000000_000001 is 48x64", "--size")
     assert not (tmp_path / "a.npz").exists()
-    assert main(["fit-stats", "--run", str(tiny_run), "--cityscapes", str(mixed), "--size", "32x64",
-                 "--missing", "pooled", "--out", str(tmp_path / "b.npz")]) == 0  # no gtFine/ in the tree
+
+
+def test_fit_stats_on_cityscapes_needs_no_labels(tiny_run, tmp_path):
+    images = _cityscapes(tmp_path / "images", [(32, 64), (48, 64)], labels=False)
+    assert main(["fit-stats", "--run", str(tiny_run), "--cityscapes", str(images), "--size", "32x64",
+                 "--missing", "pooled", "--out", str(tmp_path / "b.npz")]) == 0
     assert (tmp_path / "b.npz").is_file()

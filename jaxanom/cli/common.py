@@ -73,7 +73,8 @@ def add_scoring(parser) -> None:
     from jaxanom.metrics.anomaly import AP_CONVENTIONS
 
     parser.add_argument("--stats", help="SML statistics .npz (from fit-stats); needed by the sml* and cudam methods")
-    parser.add_argument("--methods", type=method_list, help=f"comma-separated, from {', '.join(METHODS)} (default: {DEFAULT_METHODS})")
+    parser.add_argument("--methods", type=method_list,
+                        help=f"comma-separated, from {', '.join(METHODS)} (default: {DEFAULT_METHODS})")
     parser.add_argument("--fpr-convention", choices=["first", "interp", "nearest", "strict"], default="first")
     parser.add_argument("--ap-convention", choices=AP_CONVENTIONS, default="step",
                         help="step (scikit-learn), trapz (SMIYC before 2023) or envelope (VOC, MMF Eq. 7)")
