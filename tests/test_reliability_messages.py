@@ -102,7 +102,7 @@ def test_save_stats_refuses_what_load_stats_would_naming_the_classes(tmp_path):
 def test_a_stats_file_that_is_no_npz_says_what_was_expected(tmp_path, capsys):
     picture = tmp_path / "some.png"
     picture.write_bytes(_png_header_only(4, 4))
-    with pytest.raises(ValueError, match=r"is not an \.npz file .*the statistics \.npz that jaxanom fit-stats"):
+    with pytest.raises(ValueError, match=r"is not a readable \.npz file .*the statistics \.npz that jaxanom fit-stats"):
         sml.load_stats(picture)
     np.save(tmp_path / "logits.npy", np.zeros((1, 4, 4, 3), np.float32))
     assert main(["score", "--logits", str(tmp_path / "logits.npy"), "--stats", str(picture), "--methods", "sml",

@@ -88,13 +88,13 @@ def run(args) -> None:
     from jaxanom.sml.policy import check_policy
 
     out = Path(args.out)
-    check_out_outside(args.out, {"--run": args.run})
     if out.is_dir():
         raise CommandError(f"--out {out}: is a folder; expected the path of the .npz file to write")
     if args.out.endswith(("/", os.sep)):
         raise CommandError(f"--out {args.out}: names a folder; expected the path of the .npz file to write")
     if out.suffix != ".npz":
         raise CommandError(f"--out {args.out}: expected a file name ending in .npz (what --stats reads)")
+    check_out_outside(args.out, {"--run": args.run})
     if out.exists() and not args.overwrite:
         raise CommandError(f"--out {out}: file exists; choose another or pass --overwrite")
     try:

@@ -200,7 +200,7 @@ def load_stats(path) -> tuple[jax.Array, jax.Array, np.ndarray]:
     with open(path, "rb") as f:
         start = f.read(6)
     if start[:4] != b"PK\x03\x04" and start != b"\x93NUMPY":  # neither .npz (a zip) nor .npy
-        raise ValueError(f"path {str(path)!r} is not an .npz file (it starts with {start!r}); expected the "
+        raise ValueError(f"path {str(path)!r} is not a readable .npz file (it starts with {start!r}); expected the "
                          "statistics .npz that jaxanom fit-stats (or sml.save_stats) writes")
     try:
         loaded = np.load(path, allow_pickle=False)
