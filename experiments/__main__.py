@@ -4,11 +4,16 @@
     python -m experiments --only cudam_table2     # one table
     python -m experiments --size 64 128 --train-frames 128 --steps 300   # smaller networks (RESULTS.md)
     python -m experiments --cityscapes /data/cityscapes --anomaly road_anomaly:/data/RoadAnomaly --out results/
+    python -m experiments --smoke                 # the same code on tiny networks, into experiments/smoke/
 
 Networks are cached in ``--runs`` by configuration, so tables that share a network train it once
 and a rerun only evaluates. Before the tables, ``--jobs`` processes (default 2) train every network
 and compute every seed they need (``experiments.jobs``); the tables then restore them. RESULTS.md
 is rewritten after every table from the ``<name>.json`` files present in ``--out``.
+
+``--out`` records how its results were made (``made_by.json``): a smoke run writes into
+``experiments/smoke/`` by default and refuses a folder holding results of a full run (a folder
+with results and no record counts as one), so it never replaces them.
 """
 from __future__ import annotations
 
@@ -22,17 +27,19 @@ import time
 import traceback
 from pathlib import Path
 
-from experiments.common import (COMPETENT_MIOU, HERE, RUNS, Scale, matched_sigma, matched_tau, report, run_table,
-                                table_jobs)
+from experiments.common import (ANOMALY_READERS, COMPETENT_MIOU, HERE, RUNS, Scale, matched_sigma, matched_tau,
+                                report, run_table, table_jobs)
 from experiments.jobs import Job, run_jobs
 from experiments.offroad_common import seed_jobs
 from experiments.stats import REPLICATES
-from jaxanom.io import write_bytes_atomic
+from jaxanom.io import write_bytes_atomic, write_json_atomic
 
 # Ordered so that the shared networks (plain, CuDAM) are trained by the first tables.
 EXPERIMENTS = ("sml_table3_table7", "cudam_table2", "msaam_table6", "cudam_table3", "cudam_table5",
                "cudam_fig5", "cudam_fig6", "sml_scarce_stats", "offroad_exp2", "offroad_table2", "offroad_table3",
                "mmf_table2")
+SMOKE_OUT = HERE / "smoke"
+MADE_BY = "made_by.json"  # how the results in an --out folder were made: {"smoke": bool, "command": str}
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -48,17 +55,51 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--jobs", type=int, default=2,
                         help="processes that train the networks and compute the seeds before the tables run "
                         "(default: %(default)s, about 1.4x the throughput of one on 2 CPU cores; 1: the tables do it)")
-    parser.add_argument("--smoke", action="store_true", help="a seconds-long run of the same code (tiny sizes)")
+    parser.add_argument("--smoke", action="store_true",
+                        help="the same code on tiny networks (2 training steps), into experiments/smoke/ unless --out "
+                        "says otherwise: about 10 minutes on 2 CPU cores, most of it compiling")
     parser.add_argument("--cityscapes", metavar="ROOT", help="train on Cityscapes instead of synthetic scenes")
     parser.add_argument("--anomaly", metavar="READER:ROOT",
                         help="score a real anomaly dataset: road_anomaly:<root> or smiyc:<track root>")
-    parser.add_argument("--out", type=Path, default=HERE, help="where tables and RESULTS.md go (default: experiments/)")
+    parser.add_argument("--out", type=Path,
+                        help="where tables and RESULTS.md go (default: experiments/, with --smoke experiments/smoke/)")
     parser.add_argument("--runs", type=Path, default=RUNS, help="trained networks (default: experiments/runs/)")
     args = parser.parse_args(argv)
-    for name in ("jobs", "seeds"):
-        if getattr(args, name) < 1:
-            parser.error(f"--{name}: expected a positive integer, got {getattr(args, name)}")
+    for name in ("jobs", "seeds", "steps", "train_frames"):
+        value = getattr(args, name)
+        if value is not None and value < 1:
+            parser.error(f"--{name.replace('_', '-')}: expected a positive integer, got {value}")
+    if args.size is not None and not all(n >= 16 and n % 16 == 0 for n in args.size):
+        parser.error(f"--size: expected H and W as positive multiples of 16 (the networks' output stride), "
+                     f"got {' '.join(map(str, args.size))}")
+    if args.anomaly is not None:
+        reader, _, root = args.anomaly.partition(":")
+        if reader not in ANOMALY_READERS or not root:
+            parser.error(f"--anomaly: expected READER:ROOT with READER in {', '.join(ANOMALY_READERS)}, "
+                         f"got {args.anomaly!r}")
+        if not Path(root).is_dir():
+            parser.error(f"--anomaly: the folder {root} does not exist")
+    if args.cityscapes is not None and not Path(args.cityscapes).is_dir():
+        parser.error(f"--cityscapes: the folder {args.cityscapes} does not exist")
+    args.out = args.out or (SMOKE_OUT if args.smoke else HERE)
+    if args.smoke and holds_full_results(args.out):
+        parser.error(f"--out {args.out}: holds the results of a full run, which a smoke run would overwrite; "
+                     f"choose another folder (the default for --smoke is {SMOKE_OUT})")
     return args
+
+
+def holds_full_results(out: Path) -> bool:
+    """Whether ``out`` holds results not recorded as a smoke run's (``MADE_BY``)."""
+    results = [out / "RESULTS.md", *(out / f"{name}.json" for name in EXPERIMENTS), *out.glob("real_*.md")]
+    if not any(path.exists() for path in results):
+        return False
+    return not made_by_smoke(out)
+
+
+def made_by_smoke(out: Path) -> bool:
+    """Whether ``out``'s ``MADE_BY`` record says a smoke run wrote it."""
+    made_by = out / MADE_BY
+    return made_by.is_file() and json.loads(made_by.read_text()).get("smoke") is True
 
 
 def scale_from(args: argparse.Namespace) -> Scale:
@@ -72,6 +113,8 @@ def scale_from(args: argparse.Namespace) -> Scale:
 def main(argv=None) -> None:
     args = parse_args(argv)
     scale = scale_from(args)
+    write_json_atomic(args.out / MADE_BY, {"smoke": args.smoke, "command": " ".join(["python -m experiments",
+                                                                                     *(argv or sys.argv[1:])])})
     import jax
 
     jax.config.update("jax_compilation_cache_dir", str(args.runs / "jax_cache"))
@@ -119,7 +162,10 @@ def write_results(out_dir: Path, failures: dict[str, str] | None = None) -> Path
     results = [json.loads((out_dir / f"{name}.json").read_text()) for name in EXPERIMENTS
                if name not in failures and (out_dir / f"{name}.json").exists()]
     real = [path.read_text() for path in sorted(out_dir.glob("real_*.md"))]
-    return write_bytes_atomic(out_dir / "RESULTS.md", (summary(results, failures) + real_section(real) + "\n").encode())
+    smoke = ("> **A smoke run** (`python -m experiments --smoke`): tiny networks trained for a few steps show that "
+             "the code runs; their findings say nothing about the papers.\n\n" if made_by_smoke(out_dir) else "")
+    text = smoke + summary(results, failures) + real_section(real) + "\n"
+    return write_bytes_atomic(out_dir / "RESULTS.md", text.encode())
 
 
 def real_section(tables: list[str]) -> str:

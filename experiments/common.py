@@ -102,7 +102,7 @@ class Scale:
 
     @classmethod
     def smoke(cls) -> "Scale":
-        """A seconds-long run of the same code (tests)."""
+        """The smallest run of the same code (``--smoke``, tests): tiny networks trained for 2 steps."""
         return cls(train_frames=4, height=64, width=96, batch_size=4, steps=2, stats_frames=2,
                    val_frames=2, anomaly_frames=2, model="deeplabv3plus_tiny")
 

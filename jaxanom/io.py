@@ -7,6 +7,7 @@ alone would leave it 0o600, unreadable to colleagues).
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import tempfile
@@ -24,8 +25,9 @@ def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> Path:
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as error:
         Path(tmp).unlink(missing_ok=True)
+        _name_file(error, path)
         raise
     return path
 
@@ -39,10 +41,18 @@ def write_with_atomic(path: str | os.PathLike, write) -> Path:
     try:
         write(tmp)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as error:
         Path(tmp).unlink(missing_ok=True)
+        _name_file(error, path)
         raise
     return path
+
+
+def _name_file(error: BaseException, path: Path) -> None:
+    """Give an OSError without a file name (a full disk, as ``write`` and ``fsync`` report it) ``path``,
+    so that its message says where writing failed."""
+    if isinstance(error, OSError) and error.filename is None:
+        error.filename = str(path)
 
 
 def _temporary(path: Path) -> tuple[int, str]:
@@ -106,7 +116,11 @@ class NpyWriter:
         if rows.shape != self.shape[1:] or self.written >= self.shape[0]:
             raise ValueError(f"rows: expected slice {self.written} of shape {self.shape[1:]} for "
                              f"{self.path} of shape {self.shape}, got {rows.shape}")
-        self._file.write(rows.tobytes())
+        try:
+            self._file.write(rows.tobytes())
+        except OSError as error:
+            _name_file(error, self.path)
+            raise
         self.written += 1
 
     def close(self) -> Path:
@@ -114,15 +128,21 @@ class NpyWriter:
         if self.written != self.shape[0]:
             self.abort()
             raise ValueError(f"{self.path}: expected {self.shape[0]} slices, got {self.written}")
-        self._file.flush()
-        os.fsync(self._file.fileno())
-        self._file.close()
-        os.replace(self._tmp, self.path)
+        try:
+            self._file.flush()
+            os.fsync(self._file.fileno())
+            self._file.close()
+            os.replace(self._tmp, self.path)
+        except OSError as error:
+            self.abort()
+            _name_file(error, self.path)
+            raise
         return self.path
 
     def abort(self) -> None:
         """Drop the temporary file."""
-        self._file.close()
+        with contextlib.suppress(OSError):  # closing flushes: the full disk that made the writer give up
+            self._file.close()
         Path(self._tmp).unlink(missing_ok=True)
 
     def __enter__(self) -> "NpyWriter":

@@ -72,7 +72,8 @@ def class_statistics(predict: Callable, batches: Iterable[dict]):
 
 def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, options: dict | None = None,
                     mode: str = "exact", fpr_convention: str = "first", ap_convention: str = "step",
-                    keep_curves: bool = False, track: str | None = None) -> tuple[dict, dict]:
+                    keep_curves: bool = False, track: str | None = None,
+                    spill_dir: str | Path | None = None) -> tuple[dict, dict]:
     """Pooled metrics per method over batches ``{"logits", "label", "image"?, "name"?,
     "attention_up"?, "attention_positions"?, "roi"?, "mmf_maps"?}``.
 
@@ -85,7 +86,9 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
     ``track`` (``"anomaly"`` / ``"obstacle"``): also SegmentMeIfYouCan's component metrics at
     the pooled best-F1 threshold (``metrics[name]["components"]``) and, per frame, the pixel
     metrics (None where the frame lacks a class) and component metrics
-    (``metrics[name]["frames"]``); score maps wait in a temporary folder between the passes.
+    (``metrics[name]["frames"]``); score maps wait in a temporary folder between the passes,
+    ``.jaxanom-maps-*.tmp`` in ``spill_dir`` (default: the system's temporary folder): the CLI
+    spills into its claimed ``--out``, whose take-over removes what a killed run left.
     Returns ``(metrics[name], curves[name])``; ``curves[name] = {"roc": (fpr, tpr), "pr":
     (recall, precision), "scores": [(H, W) per frame], "labels": [(H, W) per frame, outside the
     ROI 255]}`` when ``keep_curves`` (it keeps every score on the host: small sets only).
@@ -94,7 +97,8 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
     import tempfile
 
     accumulators, kept, used, frames = {}, {}, {}, []
-    spill = tempfile.TemporaryDirectory(prefix="jaxanom-maps-") if track is not None else None
+    spill = (tempfile.TemporaryDirectory(prefix=".jaxanom-maps-", suffix=".tmp", dir=spill_dir)
+             if track is not None else None)
     for batch in outputs:
         batch_scores, options_used = score_all(method_names, inputs_of(batch, stats), options)
         for name, values in options_used.items():

@@ -40,7 +40,12 @@ import numpy as np
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".webp")
 FORMATS = ("npy", "png", "smiyc")
 SETTINGS_FILE = "settings.json"
-SMIYC_DATASETS = ("AnomalyTrack-all", "ObstacleTrack-all", "LostAndFound-test", "LostAndFound-train")
+# The dataset folders SegmentMeIfYouCan's kit reads maps from: each split of a track reads its
+# full set's folder (AnomalyTrack-validation reads AnomalyTrack-all's maps, ObstacleTrack-night
+# ObstacleTrack-all's, the Fishyscapes subsets LostAndFound-*'s), so no other name is ever read.
+SMIYC_DATASETS = ("AnomalyTrack-all", "ObstacleTrack-all", "LostAndFound-test", "LostAndFound-train",
+                  "RoadObstacleWeather-v1", "RoadObstacleExtra-v1", "SmallObstacleDataset-train",
+                  "SmallObstacleDataset-val", "SmallObstacleDataset-test")
 FLOAT16_MAX = float(np.finfo(np.float16).max)
 # the maps predict writes (``output_file``), found in a folder without knowing its settings
 MAP_PATTERNS = ("npy/*/*.npy", "png/*/*.png", "anomaly_p/*/*/*.hdf5")
@@ -84,9 +89,10 @@ class PredictSettings:
             raise ValueError(f"size: expected (height, width) >= 1, got {self.size}")
         if self.batch_size < 1:
             raise ValueError(f"batch_size: expected >= 1, got {self.batch_size}")
-        if "smiyc" in self.formats and not _plain_name(self.dataset):
-            raise ValueError(f"dataset: the smiyc format needs the benchmark's dataset name (e.g. "
-                             f"{', '.join(SMIYC_DATASETS)}), a plain folder name, got {self.dataset!r}")
+        if "smiyc" in self.formats and self.dataset not in SMIYC_DATASETS:
+            raise ValueError(f"dataset: the smiyc format needs a dataset folder the benchmark's kit reads, one of "
+                             f"{', '.join(SMIYC_DATASETS)} (a split such as AnomalyTrack-validation reads its full "
+                             f"set's), got {self.dataset!r}")
         if self.slic_step is not None and self.slic_step < 1:
             raise ValueError(f"slic_step: expected >= 1, got {self.slic_step}")
 

@@ -40,6 +40,14 @@ def nonnegative_int(text: str) -> int:
     return value
 
 
+def method_list(text: str) -> str:
+    """argparse type of ``--methods``: comma-separated names, none of them empty (so ``""`` is not
+    read as "the default list")."""
+    if not all(name.strip() for name in text.split(",")):
+        raise argparse.ArgumentTypeError(f"expected comma-separated method names, got {text!r}")
+    return text
+
+
 def size_hw(text: str | None, flag: str = "--size") -> tuple[int, int] | None:
     """``(H, W)`` from ``HxW`` (e.g. ``512x1024``), or None for None."""
     if text is None:
@@ -54,8 +62,9 @@ def add_common(parser, progress: bool, overwrite: bool = True) -> None:
     """``--overwrite`` and ``--no-progress`` where a command has them."""
     if overwrite:
         parser.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty output folder")
-    if progress:
-        parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    if progress:  # a bar drawn into a log file or a pipe is a wall of carriage returns
+        parser.add_argument("--no-progress", action="store_true", default=not sys.stderr.isatty(),
+                            help="no progress bar (the default where stderr is not a terminal)")
 
 
 class _KeepIndented(argparse.HelpFormatter):
@@ -70,7 +79,8 @@ def add_methods(parser, default: str = DEFAULT_METHODS, extra: str = "") -> None
     """``--methods`` (every registered method listed with its description under the help) and ``--plugin``."""
     from jaxanom.app.scoring import describe
 
-    parser.add_argument("--methods", help=f"comma-separated names of the methods listed below (default: {default})"
+    parser.add_argument("--methods", type=method_list,
+                        help=f"comma-separated names of the methods listed below (default: {default})"
                         + extra)
     parser.add_argument("--plugin", action="append", default=[], metavar="MODULE",
                         help="import this Python module first, which registers its own methods (repeatable)")
@@ -125,6 +135,17 @@ def out_folder(path: str, overwrite: bool, *, hint: str = "pass --overwrite") ->
         raise CommandError(f"--out {folder}: folder exists and is not empty; choose another or {hint}")
     _outputs.append((folder, existed))
     return folder
+
+
+def check_out_outside(out: str, read: dict[str, str | None]) -> None:
+    """CommandError when ``out`` is, or lies inside, a folder the command reads (``{flag: folder}``,
+    None where not given): a command that reads a run never writes into it."""
+    from jaxanom.app.predict import inside
+
+    for flag, folder in read.items():
+        if folder is not None and inside(Path(out), Path(folder)):
+            raise CommandError(f"--out {out}: lies inside {flag} {folder}, which this command only reads; "
+                               "choose a folder outside it")
 
 
 def end_outputs(failed: bool) -> None:

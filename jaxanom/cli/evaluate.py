@@ -1,8 +1,8 @@
 """``jaxanom evaluate``: pooled anomaly metrics of a trained run on an anomaly dataset."""
 from __future__ import annotations
 
-from jaxanom.cli.common import (DEFAULT_METHODS, CommandError, add_common, add_scoring, load_plugins, load_stats,
-                                nonnegative_int, out_folder, positive_int)
+from jaxanom.cli.common import (DEFAULT_METHODS, CommandError, add_common, add_scoring, check_out_outside, load_plugins,
+                                load_stats, nonnegative_int, out_folder, positive_int)
 
 DATASETS = {
     "synthetic": "synthetic anomaly split (PATH = split name: anomaly, anomaly_small, anomaly_large)",
@@ -63,6 +63,7 @@ def run(args) -> None:
     if track is None:
         raise CommandError("--track: the smiyc dataset holds either track; pass --track anomaly (RoadAnomaly21) or "
                            "--track obstacle (RoadObstacle21)")
+    check_out_outside(args.out, {"--run": args.run, "--mmf": args.mmf})
     load_plugins(args)
     stats = load_stats(args.stats)
     if args.cudam_sigma is not None:
@@ -82,7 +83,7 @@ def run(args) -> None:
     out = out_folder(args.out, args.overwrite)
     metrics, _ = anomaly_results(batches, names, stats=stats, options=options,
                                  fpr_convention=args.fpr_convention, ap_convention=args.ap_convention,
-                                 track=None if track == "none" else track)
+                                 track=None if track == "none" else track, spill_dir=out)
     record = {"dataset": args.dataset, "path": args.path, "frames": len(source), "metrics": metrics}
     if args.mmf:
         record["mmf"] = args.mmf

@@ -5,7 +5,7 @@ import os
 import sys
 from pathlib import Path
 
-from jaxanom.cli.common import CLAIM, CommandError, add_common, claim, positive_int, size_hw
+from jaxanom.cli.common import CLAIM, CommandError, add_common, check_out_outside, claim, positive_int, size_hw
 from jaxanom.sml.policy import DEFAULT_POLICY, DEFAULT_STRENGTH, POLICIES
 
 _LIBRARY_ADVICE = 'pass missing="pooled" or a policy ("min_count", "shrink")'  # sml.policy.finalize's
@@ -21,8 +21,9 @@ def add_parser(commands) -> None:
     parser.add_argument("--frames", type=positive_int, default=200,
                         help="training frames to use, at most the run's (default: %(default)s)")
     parser.add_argument("--cityscapes", metavar="DIR",
-                        help="fit on the train split of this Cityscapes folder (official layout) instead of the run's "
-                        "training data, e.g. for a network from convert-weights")
+                        help="fit on the train split of this Cityscapes folder (official layout; its leftImg8bit/ "
+                        "only: the statistics need no labels) instead of the run's training data, e.g. for a network "
+                        "from convert-weights")
     parser.add_argument("--size", help="HxW the frames are resized to first, e.g. 512x1024 (default: as read)")
     parser.add_argument("--out", required=True, help="output .npz file")
     parser.add_argument("--missing", choices=["error", "pooled"], default="error",
@@ -56,6 +57,27 @@ def stats_table(final) -> str:
     return "\n".join(lines)
 
 
+class OneSize:
+    """The frames of a random-access source, ValueError naming ``what`` and ``--size`` when one's size
+    differs from the first's (frames are batched, and a batch holds frames of one size)."""
+
+    def __init__(self, source, what: str):
+        self.source, self.what, self.first = source, what, None
+
+    def __len__(self) -> int:
+        return len(self.source)
+
+    def __getitem__(self, index: int) -> dict:
+        frame = self.source[index]
+        seen = (frame.get("name", str(index)), frame["image"].shape[:2])
+        self.first = self.first or seen
+        if seen[1] != self.first[1]:
+            raise ValueError(f"{self.what}: frames differ in size ({self.first[0]} is {self.first[1][0]}x"
+                             f"{self.first[1][1]}, {seen[0]} is {seen[1][0]}x{seen[1][1]}); pass --size HxW to "
+                             "resize them to one")
+        return frame
+
+
 def run(args) -> None:
     from jaxanom import sml
     from jaxanom.data.pipeline import evaluation_batches
@@ -72,6 +94,7 @@ def run(args) -> None:
         raise CommandError(f"--out {args.out}: names a folder; expected the path of the .npz file to write")
     if out.suffix != ".npz":
         raise CommandError(f"--out {args.out}: expected a file name ending in .npz (what --stats reads)")
+    check_out_outside(args.out, {"--run": args.run})
     if out.exists() and not args.overwrite:
         raise CommandError(f"--out {out}: file exists; choose another or pass --overwrite")
     try:
@@ -80,12 +103,14 @@ def run(args) -> None:
         raise CommandError(f"--policy, --min-count, --strength: {error}") from None
     size = size_hw(args.size)
     experiment, variables = load_variables(args.run)
-    if args.cityscapes:
-        source = FirstFrames(Cityscapes(args.cityscapes, "train"), args.frames)
+    if args.cityscapes:  # the statistics use the network's predictions only: no labels read
+        source = FirstFrames(Cityscapes(args.cityscapes, "train", with_labels=False), args.frames)
     else:
         source = frames(experiment, "train", args.frames)
     if size is not None:
         source = Resized(source, *size)
+    elif args.cityscapes:
+        source = OneSize(source, f"--cityscapes {args.cityscapes}")
     out.parent.mkdir(parents=True, exist_ok=True)
     claim(out.parent / f"{out.name}{CLAIM}", f"--out {out}")
     batches = evaluation_batches(source, batch_size=experiment.batch_size)

@@ -25,20 +25,25 @@ def _train_ids(raw: np.ndarray, path: Path) -> np.ndarray:
 
 class Cityscapes(FrameReader):
     """``Cityscapes(root, split)[i]`` -> image, trainId label (255 = ignore), name ``<city>_<seq>_<frame>``;
-    with ``with_disparity``: ``"disparity"`` (H, W) float32 pixels (0 invalid) and ``"camera"``."""
+    with ``with_disparity``: ``"disparity"`` (H, W) float32 pixels (0 invalid) and ``"camera"``.
+    ``with_labels=False``: image and name only, and ``gtFine/`` need not exist (e.g. for statistics
+    of a network's predictions)."""
 
-    def __init__(self, root: str | Path, split: str = "train", with_disparity: bool = False):
+    def __init__(self, root: str | Path, split: str = "train", with_disparity: bool = False,
+                 with_labels: bool = True):
         image_dir = require_dir(Path(root) / "leftImg8bit" / split, "Cityscapes images")
-        label_dir = require_dir(Path(root) / "gtFine" / split, "Cityscapes fine labels")
+        label_dir = require_dir(Path(root) / "gtFine" / split, "Cityscapes fine labels") if with_labels else None
         images = sorted(image_dir.glob(f"*/*{_IMAGE_SUFFIX}"))
         if not images:
             raise FileNotFoundError(f"Cityscapes images: no <city>/*{_IMAGE_SUFFIX} in {image_dir}")
         frames = []
         for image in images:
             name = image.name[: -len(_IMAGE_SUFFIX)]
-            label = label_dir / image.parent.name / f"{name}_gtFine_labelIds.png"
-            frames.append((name, image, require_file(label, "Cityscapes label")))
+            label = None if label_dir is None else require_file(
+                label_dir / image.parent.name / f"{name}_gtFine_labelIds.png", "Cityscapes label")
+            frames.append((name, image, label))
         super().__init__(frames, _train_ids)
+        self.with_labels = with_labels
         self._stereo = []
         if with_disparity:
             for name, image, _ in frames:
@@ -48,12 +53,17 @@ class Cityscapes(FrameReader):
                     require_file(Path(root) / "camera" / split / city / f"{name}_camera.json", "Cityscapes camera")))
 
     def __getitem__(self, index: int) -> dict:
-        frame = super().__getitem__(index)
+        if self.with_labels:
+            frame = super().__getitem__(index)
+        elif 0 <= index < len(self.frames):
+            frame = {"image": self.read_image(index), "name": self.frames[index][0]}
+        else:
+            raise IndexError(f"index {index} out of range for {len(self.frames)} frames")
         if self._stereo:
             disparity_path, camera_path = self._stereo[index]
             frame["disparity"] = read_disparity(disparity_path)
-            if frame["disparity"].shape != frame["label"].shape:
+            if frame["disparity"].shape != frame["image"].shape[:2]:
                 raise ValueError(f"disparity: size {frame['disparity'].shape} of {disparity_path} differs from "
-                                 f"its image's {frame['label'].shape}")
+                                 f"its image's {frame['image'].shape[:2]}")
             frame["camera"] = read_camera(camera_path)
         return frame

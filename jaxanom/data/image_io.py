@@ -34,7 +34,12 @@ def require_file(path: Path, what: str) -> Path:
 def _decode(path: Path, what: str, flags: int) -> np.ndarray:
     """Decode the file strictly: ValueError naming it when truncated, corrupt or unsupported."""
     data = require_file(path, what).read_bytes()
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), flags) if data else None
+    try:
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), flags) if data else None
+    except cv2.error as error:  # OpenCV refuses images above its pixel limit (2^30 by default) this way
+        reason = "more pixels than OpenCV decodes (OPENCV_IO_MAX_IMAGE_PIXELS, 2^30 by default)" if (
+            "CV_IO_MAX_IMAGE_PIXELS" in str(error)) else str(error).strip().splitlines()[-1]
+        raise ValueError(f"{what}: cannot decode {path} ({reason})") from None
     jpeg = data[:2] == b"\xff\xd8"
     if image is None or (jpeg and data.find(b"\xff\xd9", data.find(b"\xff\xda")) < 0):
         raise ValueError(f"{what}: cannot decode {path} (truncated, corrupt or unsupported format)")

@@ -43,6 +43,9 @@ class SegmentMeIfYouCan(FrameReader):
             if not images:
                 raise FileNotFoundError(f"SegmentMeIfYouCan image: no {name}{{{','.join(_IMAGE_EXTENSIONS)}}} "
                                         f"in {image_dir} for label {label}")
+            if len(images) > 1:  # which one the labels belong to is not ours to guess
+                raise ValueError(f"SegmentMeIfYouCan image: {' and '.join(map(str, images))} share the frame name "
+                                 f"{name!r}; keep one image per frame")
             frames.append((name, images[0], label))
         super().__init__(frames, _anomaly_labels)
         self._disparity = []

@@ -185,6 +185,7 @@ def save_stats(path, mean, std, counts, *, status=None, policy: dict | None = No
         raise ValueError(f"mean, std and counts must all have shape (C,), got {shapes}")
     if not os.path.isdir(os.path.dirname(os.path.abspath(path))):
         raise ValueError(f"path must be in an existing folder, got {str(path)!r}")
+    _check_saved_stats(f"statistics for {str(path)!r}", arrays["mean"], arrays["std"], arrays["counts"])
     if policy is not None:
         arrays["policy"] = np.asarray(json.dumps(policy))
     buffer = io.BytesIO()
@@ -196,6 +197,11 @@ def load_stats(path) -> tuple[jax.Array, jax.Array, np.ndarray]:
     """Read ``(mean, std, counts)`` written by ``save_stats``; mean/std float32 ``(C,)``, counts int64."""
     if not os.path.isfile(path):
         raise ValueError(f"path must be an existing .npz statistics file, got {str(path)!r}")
+    with open(path, "rb") as f:
+        start = f.read(6)
+    if start[:4] != b"PK\x03\x04" and start != b"\x93NUMPY":  # neither .npz (a zip) nor .npy
+        raise ValueError(f"path {str(path)!r} is not a readable .npz file (it starts with {start!r}); expected the "
+                         "statistics .npz that jaxanom fit-stats (or sml.save_stats) writes")
     try:
         loaded = np.load(path, allow_pickle=False)
         arrays = None
@@ -210,7 +216,7 @@ def load_stats(path) -> tuple[jax.Array, jax.Array, np.ndarray]:
     absent = {"mean", "std", "counts"} - set(arrays)
     if absent:
         raise ValueError(f"{str(path)!r} must hold arrays mean, std, counts; missing {sorted(absent)}")
-    _check_saved_stats(str(path), **{name: arrays[name] for name in ("mean", "std", "counts")})
+    _check_saved_stats(repr(str(path)), **{name: arrays[name] for name in ("mean", "std", "counts")})
     return jnp.asarray(arrays["mean"], jnp.float32), jnp.asarray(arrays["std"], jnp.float32), arrays["counts"]
 
 
@@ -227,16 +233,17 @@ def load_stats_info(path) -> dict:
 
 
 def _check_saved_stats(path: str, mean, std, counts) -> None:
-    """What ``save_stats`` writes: three (C,) arrays, real numbers, mean finite, std > 0, counts >= 0."""
+    """What ``save_stats`` writes: three (C,) arrays, real numbers, mean finite, std > 0, counts >= 0
+    (ValueError naming the classes that break a rule); ``path``: how messages name the file."""
     shapes = {"mean": mean.shape, "std": std.shape, "counts": counts.shape}
     if len(set(shapes.values())) != 1 or mean.ndim != 1 or mean.size == 0:
-        raise ValueError(f"{path!r}: mean, std and counts must all have one shape (C,), got {shapes}")
+        raise ValueError(f"{path}: mean, std and counts must all have one shape (C,), got {shapes}")
     for name, values, kind in (("mean", mean, "f"), ("std", std, "f"), ("counts", counts, "iu")):
         if values.dtype.kind not in kind:
-            raise ValueError(f"{path!r}: {name} must be {'floating' if kind == 'f' else 'integer'}, got dtype {values.dtype}")
-    if not np.isfinite(mean).all():
-        raise ValueError(f"{path!r}: mean must be finite, got {mean.tolist()}")
-    if not (np.isfinite(std) & (std > 0)).all():
-        raise ValueError(f"{path!r}: std must be finite and > 0, got {std.tolist()}")
-    if (counts < 0).any():
-        raise ValueError(f"{path!r}: counts must be >= 0, got {counts.tolist()}")
+            raise ValueError(f"{path}: {name} must be {'floating' if kind == 'f' else 'integer'}, got dtype {values.dtype}")
+    for name, values, good, rule in (("mean", mean, np.isfinite(mean), "finite"),
+                                     ("std", std, np.isfinite(std) & (std > 0), "finite and > 0"),
+                                     ("counts", counts, counts >= 0, ">= 0")):
+        bad = np.flatnonzero(~good)
+        if bad.size:
+            raise ValueError(f"{path}: {name} must be {rule}; classes {bad.tolist()} have {values[bad].tolist()}")

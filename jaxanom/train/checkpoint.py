@@ -7,7 +7,9 @@ checkpoints intact.
 """
 from __future__ import annotations
 
+import contextlib
 import errno
+import logging
 import os
 import shutil
 from typing import Any
@@ -58,6 +60,21 @@ def _finite(leaves: list) -> list[bool]:
             for leaf in leaves]
 
 
+@contextlib.contextmanager
+def _without_read_only_notice():
+    """Within the block, orbax's warning "Given directory is read only", logged for every read-only
+    manager (readers open runs read-only on purpose), is dropped; its other messages pass."""
+    def keep(record: logging.LogRecord) -> bool:
+        return not str(record.msg).startswith("Given directory is read only")
+
+    logger = logging.getLogger("absl")
+    logger.addFilter(keep)
+    try:
+        yield
+    finally:
+        logger.removeFilter(keep)
+
+
 class Checkpointer:
     """Knows when a step is due (every ``save_every``), saves, keeps the last ``keep``, restores.
 
@@ -73,12 +90,14 @@ class Checkpointer:
             raise ValueError(f"save_every, keep: expected >= 1, got {save_every}, {keep}")
         self.directory = os.path.abspath(directory)
         self.save_every = save_every
-        if read_only:
-            options = ocp.CheckpointManagerOptions(read_only=True, create=False, cleanup_tmp_directories=False)
+        if read_only:  # every option a reader has no use for off, or orbax warns that it turns it off
+            options = ocp.CheckpointManagerOptions(read_only=True, create=False, cleanup_tmp_directories=False,
+                                                   save_interval_steps=0, max_to_keep=None)
         else:
             options = ocp.CheckpointManagerOptions(max_to_keep=keep, create=True, cleanup_tmp_directories=True)
-        self._manager = ocp.CheckpointManager(self.directory, options=options,
-                                              item_handlers={"state": _handler(), "data": ocp.JsonCheckpointHandler()})
+        with _without_read_only_notice():
+            self._manager = ocp.CheckpointManager(self.directory, options=options, item_handlers={
+                "state": _handler(), "data": ocp.JsonCheckpointHandler()})
 
     def latest_step(self) -> int | None:
         """The newest complete checkpoint's step, or None."""

@@ -37,13 +37,19 @@ def initialize_distributed(timeout: int | None = None) -> None:
     """
     if jax.distributed.is_initialized():
         return
-    timeout = int(os.environ.get("JAXANOM_DISTRIBUTED_TIMEOUT", 300)) if timeout is None else int(timeout)
+    if timeout is None:
+        timeout = _env_int("JAXANOM_DISTRIBUTED_TIMEOUT", 1) or 300
+    elif int(timeout) < 1:
+        raise ValueError(f"timeout: expected seconds >= 1, got {timeout}")
+    timeout = int(timeout)
     num_processes, process_id = _env_int("JAX_NUM_PROCESSES", 1), _env_int("JAX_PROCESS_ID", 0)
     if None not in (num_processes, process_id) and process_id >= num_processes:
         raise ValueError(f"JAX_PROCESS_ID: expected an id below JAX_NUM_PROCESSES={num_processes}, got {process_id}")
     address = os.environ.get("JAX_COORDINATOR_ADDRESS")
-    if address and process_id:
-        _wait_for(address, timeout)
+    if address:
+        host, port = _host_port(address)  # every process: JAX itself fails on a malformed one with a traceback
+        if process_id:
+            _wait_for(address, host, port, timeout)
     previous = jax.config.jax_cpu_collectives_implementation
     jax.config.update("jax_cpu_collectives_implementation", "gloo")  # CPU hosts; GPUs use NCCL
     watchdog = threading.Timer(timeout, _give_up, args=(address, timeout))
@@ -84,15 +90,21 @@ def _give_up(address: str | None, timeout: int) -> None:
     os._exit(2)
 
 
-def _wait_for(address: str, timeout: int) -> None:
-    """Until ``timeout`` seconds pass, try to reach the coordinator at ``host:port``; ValueError if it never answers."""
+def _host_port(address: str) -> tuple[str, int]:
+    """``(host, port)`` of ``JAX_COORDINATOR_ADDRESS`` (``host:port``, ``[ipv6]:port``); ValueError naming it."""
     host, _, port = address.rpartition(":")
-    if not host or not port.isdigit():
-        raise ValueError(f"JAX_COORDINATOR_ADDRESS: expected host:port, got {address!r}")
+    if not host.strip("[]") or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ValueError(f"JAX_COORDINATOR_ADDRESS: expected host:port with a port from 1 to 65535, got {address!r}")
+    return host.strip("[]"), int(port)
+
+
+def _wait_for(address: str, host: str, port: int, timeout: int) -> None:
+    """Until ``timeout`` seconds pass, try to reach the coordinator at ``host``:``port``; ValueError if it never
+    answers."""
     deadline = time.monotonic() + timeout
     while True:
         try:
-            socket.create_connection((host.strip("[]"), int(port)), timeout=min(5.0, timeout)).close()
+            socket.create_connection((host, port), timeout=min(5.0, timeout)).close()
             return
         except OSError as error:
             if time.monotonic() >= deadline:
