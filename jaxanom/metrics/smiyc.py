@@ -63,21 +63,28 @@ def frame_bins(scores, labels, num_bins: int = NUM_BINS) -> FrameBins:
     if values.size == 0:
         empty = np.zeros(0, np.int64)
         return FrameBins(np.zeros(0), empty, empty)
+    # sorted through float32 (exact): NumPy 2.x's own float16 sort (AVX-512) can leave ~1M values unsorted
+    classes = [np.sort(values[truth].astype(np.float32)).astype(np.float16),
+               np.sort(values[~truth].astype(np.float32)).astype(np.float16)]
     low, high = values.min(), values.max()
     with np.errstate(over="ignore"):
         width = high - low  # float16, as the kit computes it: inf past 65504
     eps = max(float(width) * 1e-2, 1e-2)
     parts = [[float(low) - eps, float(high) + eps]]
-    for part in (values[truth], values[~truth]):
-        if part.size:
-            parts.append(_numpy_quantiles(np.sort(part), min(num_bins // 2, part.size)))
+    parts += [_numpy_quantiles(part, min(num_bins // 2, part.size)) for part in classes if part.size]
     edges = np.unique(np.concatenate(parts))
     if np.isnan(edges).any():
         raise ValueError("scores: two consecutive scores of one class differ by more than float16 can hold "
                          f"({FLOAT16_MAX:g}); the kit's quantiles are NaN there")
-    positives = np.histogram(values[truth].astype(np.float64), edges)[0]
-    negatives = np.histogram(values[~truth].astype(np.float64), edges)[0]
-    return FrameBins(edges[:-1], positives.astype(np.int64), negatives.astype(np.int64))
+    positives, negatives = (_histogram(part.astype(np.float64), edges) for part in classes)
+    return FrameBins(edges[:-1], positives, negatives)
+
+
+def _histogram(ascending: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """``np.histogram(values, edges)[0]`` of sorted values, int64: [e_i, e_i+1), the last bin closed."""
+    below = np.concatenate([np.searchsorted(ascending, edges[:-1], "left"),
+                            np.searchsorted(ascending, edges[-1:], "right")])
+    return np.diff(below).astype(np.int64)
 
 
 def _frame_pixels(scores, labels) -> tuple[np.ndarray, np.ndarray]:
@@ -90,7 +97,8 @@ def _frame_pixels(scores, labels) -> tuple[np.ndarray, np.ndarray]:
     if scores.ndim != 2 or labels.shape != scores.shape:
         raise ValueError(f"labels: expected (H, W) maps of one shape, got scores {scores.shape}, labels {labels.shape}")
     if not np.isin(labels, (0, 1, 255)).all():
-        raise ValueError(f"labels: expected values in {{0, 1, 255}}, got {np.setdiff1d(labels, (0, 1, 255))[:5].tolist()}")
+        bad = np.setdiff1d(labels, (0, 1, 255))[:5].tolist()
+        raise ValueError(f"labels: expected values in {{0, 1, 255}}, got {bad}")
     keep = labels != 255
     values = scores[keep]
     if not (np.isfinite(values).all() and np.abs(values).max(initial=0.0) <= FLOAT16_MAX):
@@ -172,7 +180,8 @@ def above_threshold(scores, threshold: float) -> np.ndarray:
     return np.asarray(scores).astype(np.float16) > np.float16(threshold)
 
 
-def smiyc_frame_components(scores, labels, threshold: float, *, track: str = "anomaly") -> tuple[np.ndarray, np.ndarray]:
+def smiyc_frame_components(scores, labels, threshold: float, *,
+                           track: str = "anomaly") -> tuple[np.ndarray, np.ndarray]:
     """One frame's (sIoU per ground-truth component, PPV per predicted component) of the kit's
     mask ``above_threshold(scores, threshold)`` under the track's size rules."""
     _check_track(track)
