@@ -31,7 +31,8 @@ def synthetic_frames():
     and more than 384 pixels of a class (quantiles that do bin)."""
     rng = np.random.default_rng(20231)
     frames = []
-    for index, (h, w) in enumerate([(48, 64), (40, 56), (36, 52), (48, 64), (44, 60), (30, 40), (48, 64)]):
+    h, w = 46, 62  # one size: evaluate compiles its exact per-frame metrics once
+    for index in range(7):
         labels = np.zeros((h, w), np.uint8)
         labels[: h // 6] = 255  # void band (sky)
         if index != 1:  # frame 1: no anomaly
@@ -84,10 +85,10 @@ def real_frames(track: str):
 # The kit's numbers (driver in the module docstring). Pixel numbers: ap, auroc, fpr95,
 # tpr95_threshold, best_f1, best_f1_threshold; components per track: sIoU, PPV, mean F1.
 KIT_SYNTHETIC = {  # synthetic_frames() without the all-void frame 2
-    "pixels": (0.2794183439899112, 0.8141429576411497, 0.5736053719008265, -0.031316214379691634,
-               0.3921317083600599, 0.81494140625),
-    "anomaly": (0.1850323964175773, 0.5316590325491013, 0.28571428571428564),
-    "obstacle": (0.29178659364708864, 0.7186842900248468, 0.41469237832874195),
+    "pixels": (0.15932919917350818, 0.8121850499681716, 0.5515062454077884, -0.16974370971360966,
+               0.31169608136404425, 1.000808277578329),  # an interpolated edge: the mask is score > 1.0009766
+    "anomaly": (0.0, float("nan"), 0.0),  # no predicted component of 500 pixels: the mean PPV is 0 / 0
+    "obstacle": (0.24401898066454597, 0.4761119695849214, 0.33100233100233095),
 }
 KIT_REAL = {  # real_frames(track)
     ("anomaly", "redness"): ((0.09479000659691039, 0.3957448262522271, 0.8400885279192962, -0.035308837890625,
@@ -121,7 +122,7 @@ def test_synthetic_frames_equal_the_kit():
     for track in ("anomaly", "obstacle"):
         result = smiyc_component_metrics(scores, labels, track=track)
         assert result["threshold"] == KIT_SYNTHETIC["pixels"][5]
-        assert component_numbers(result) == pytest.approx(KIT_SYNTHETIC[track], rel=1e-12)
+        assert component_numbers(result) == pytest.approx(KIT_SYNTHETIC[track], rel=1e-12, nan_ok=True)
 
 
 @pytest.mark.parametrize("track", ["anomaly", "obstacle"])
@@ -196,3 +197,54 @@ def test_bad_input_names_the_argument():
         smiyc_pixel_metrics([good, good], [labels])
     with pytest.raises(ValueError, match="track"):
         smiyc_component_metrics([good], [labels], track="road")
+
+
+def test_evaluate_maps_from_predicts_tree_equal_the_kit(tmp_path, capsys):
+    """``jaxanom evaluate --maps`` on the tree ``predict --format smiyc`` writes (float16 HDF5 maps)
+    with ``--convention smiyc``: the kit's numbers, the exact ones kept beside them."""
+    import cv2
+
+    from jaxanom.app.predict import _write_hdf5, output_file
+    from jaxanom.cli import main
+
+    root = tmp_path / "track"
+    for folder in ("images", "labels_masks"):
+        (root / folder).mkdir(parents=True)
+    for index, (scores, labels) in enumerate(synthetic_frames()):
+        cv2.imwrite(str(root / "images" / f"{index}.png"), np.zeros((*labels.shape, 3), np.uint8))
+        cv2.imwrite(str(root / "labels_masks" / f"{index}_labels_semantic.png"), labels)
+        path = output_file(tmp_path / "pred", str(index), "synthetic", "smiyc", "ObstacleTrack-all")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        _write_hdf5(str(path), scores.astype(np.float16))
+    out = tmp_path / "eval"
+    assert main(["evaluate", "--maps", str(tmp_path / "pred"), "--dataset", "smiyc", "--path", str(root),
+                 "--track", "obstacle", "--convention", "smiyc", "--out", str(out)]) == 0
+    assert "| synthetic |" in capsys.readouterr().out
+    record = json.loads((out / "metrics.json").read_text())
+    assert record["convention"] == "smiyc" and record["maps"] == str(tmp_path / "pred")
+    m = record["metrics"]["synthetic"]
+    assert pixel_numbers(m) == pytest.approx(KIT_SYNTHETIC["pixels"], rel=1e-12)
+    assert m["components"]["threshold"] == KIT_SYNTHETIC["pixels"][5]
+    assert component_numbers(m["components"]) == pytest.approx(KIT_SYNTHETIC["obstacle"], rel=1e-12)
+    assert set(m["exact"]) == {"ap", "auroc", "fpr_at_tpr", "best_f1", "best_f1_threshold"}
+    assert m["exact"]["ap"] != m["ap"] and m["ap_conventions"]["step"] == m["exact"]["ap"]
+
+
+def test_evaluate_maps_names_what_is_missing(tmp_path, capsys):
+    from jaxanom.cli import main
+
+    root = tmp_path / "track"
+    for folder in ("images", "labels_masks"):
+        (root / folder).mkdir(parents=True)
+    (root / "images" / "a.png").write_bytes(b"")  # never decoded: the maps are looked for first
+    (root / "labels_masks" / "a_labels_semantic.png").write_bytes(b"")
+    (tmp_path / "pred" / "anomaly_p" / "msp" / "ObstacleTrack-all").mkdir(parents=True)
+    code = main(["evaluate", "--maps", str(tmp_path / "pred"), "--dataset", "smiyc", "--track", "obstacle",
+                 "--path", str(root), "--out", str(tmp_path / "o")])
+    error = capsys.readouterr().err.strip()
+    assert code == 2 and "--maps: 1 of 1 frames have no map in" in error and "a.hdf5" in error
+    assert len(error.splitlines()) == 1 and not (tmp_path / "o").exists()
+    with pytest.raises(ValueError, match="convention: expected one of"):
+        from jaxanom.app.evaluate import anomaly_results
+
+        anomaly_results(iter([]), ["msp"], convention="kit")
