@@ -21,7 +21,7 @@ import pytest
 
 from conftest import REALDATA
 from jaxanom.metrics.smiyc import (_numpy_quantiles, above_threshold, binned_metrics, frame_bins,
-                                   smiyc_component_metrics, smiyc_pixel_metrics)
+                                   smiyc_component_metrics, smiyc_pixel_metrics, to_unit_interval)
 
 
 def synthetic_frames():
@@ -150,18 +150,33 @@ def test_all_void_frame_adds_nothing():
 
 
 def test_frame_bins_by_hand():
-    """Normal scores 0.25, 0.5 and anomaly scores 0.5, 1 (under 384 per class: every value is an
-    edge): eps = max(0.01 * 0.75, 0.01) = 0.01, edges 0.24, 0.25, 0.5, 1, 1.01."""
-    bins = frame_bins(np.array([[0.25, 0.5, 0.5, 1.0, 7.0]], np.float32), np.array([[0, 0, 1, 1, 255]], np.uint8))
-    assert bins.lower_edges.tolist() == [0.24, 0.25, 0.5, 1.0]
+    """Normal scores 1, 2 and anomaly scores 2, 4 (under 384 per class: every value is an edge):
+    eps = max(0.01 * 3, 0.01) = 0.03, edges 0.97, 1, 2, 4, 4.03. The kit on this frame:
+    AP 0.8333333333333333, AUROC 0.875, FPR95 0.5 at 2, best F1 0.8 at 2."""
+    bins = frame_bins(np.array([[1.0, 2.0, 2.0, 4.0, 9.0]], np.float32), np.array([[0, 0, 1, 1, 255]], np.uint8))
+    assert bins.lower_edges.tolist() == [1 - 3 * 0.01, 1.0, 2.0, 4.0]
     assert bins.positives.tolist() == [0, 0, 1, 1] and bins.negatives.tolist() == [0, 1, 1, 0]
-    # merged with itself: points at 1, 0.5, 0.25, 0.24 after the origin; R = 1/2, 1, 1, 1;
-    # Prec = 1, 2/3, 1/2, 1/2: AP = 1/2 + 1/2 * 2/3; FPR = 0, 1/2, 1, 1: AUROC = (1/2 (1/2 + 1) + 1/2 (1 + 1)) / 2
-    result = binned_metrics([bins, bins])
-    assert result["ap"] == pytest.approx(0.5 + 1 / 3)
-    assert result["auroc"] == pytest.approx(0.875)
-    assert result["fpr_at_tpr"] == 0.5 and result["threshold_at_tpr"] == 0.5
-    assert result["best_f1"] == pytest.approx(0.8) and result["best_f1_threshold"] == 0.5  # F1 2/3, 4/5, 2/3, 2/3
+    # points at 4, 2, 1, 0.97 after the origin: R = 1/2, 1, 1, 1; Prec = 1, 2/3, 1/2, 1/2; FPR = 0, 1/2, 1, 1
+    result = binned_metrics([bins])
+    assert result["ap"] == pytest.approx(0.5 + 1 / 3, rel=1e-15)
+    assert result["auroc"] == pytest.approx(0.875, rel=1e-15)
+    assert result["fpr_at_tpr"] == 0.5 and result["threshold_at_tpr"] == 2.0
+    assert result["best_f1"] == pytest.approx(0.8) and result["best_f1_threshold"] == 2.0  # F1 2/3, 4/5, 2/3, 2/3
+
+
+def test_a_shared_top_edge_keeps_the_first_entry():
+    """Frame A: normal 3, anomaly 1; frame B: anomaly 3, normal 1. Both have the top edge 3; the
+    later frame's pixels come first (B's anomaly alone: TP 1, FP 0), and the kit keeps that entry
+    as a point before the edge's sum (TP 1, FP 1): AP = 1/2 + 1/2 * 1/2 = 0.75, AUROC 0.625, best
+    F1 2/3 at 3. In the other frame order: AP 0.5, AUROC 0.375, best F1 2/3 at 1. The kit gives
+    exactly these four numbers for both orders."""
+    a = (np.array([[3.0, 1.0]], np.float32), np.array([[0, 1]], np.uint8))
+    b = (np.array([[3.0, 1.0]], np.float32), np.array([[1, 0]], np.uint8))
+    forward = smiyc_pixel_metrics(*zip(a, b))
+    assert (forward["ap"], forward["auroc"], forward["best_f1_threshold"]) == (0.75, 0.625, 3.0)
+    backward = smiyc_pixel_metrics(*zip(b, a))
+    assert (backward["ap"], backward["auroc"], backward["best_f1_threshold"]) == (0.5, 0.375, 1.0)
+    assert forward["fpr_at_tpr"] == backward["fpr_at_tpr"] == 1.0
 
 
 def test_quantiles_subtract_neighbours_in_float16():
@@ -248,3 +263,41 @@ def test_evaluate_maps_names_what_is_missing(tmp_path, capsys):
         from jaxanom.app.evaluate import anomaly_results
 
         anomaly_results(iter([]), ["msp"], convention="kit")
+
+
+def test_unit_interval_keeps_the_exact_metrics_not_the_kits():
+    """The logistic map against its formula in float64; the exact metrics of the mapped synthetic
+    scores equal the raw ones' (scikit-learn's AP and AUROC as the reference), the kit's change."""
+    from sklearn.metrics import average_precision_score, roc_auc_score
+
+    scores, labels = zip(*synthetic_frames())
+    raw = [s for s in scores if np.abs(s).max() < 100]  # the huge frame saturates the map in float32
+    kept = [l for s, l in zip(scores, labels) if np.abs(s).max() < 100]
+    mapped = [np.asarray(to_unit_interval(s, 0.5, 2.0)) for s in raw]
+    assert mapped[0].dtype == np.float32 and all(0 <= m.min() and m.max() <= 1 for m in mapped)
+    np.testing.assert_allclose(mapped[0], 1 / (1 + np.exp(-(raw[0].astype(np.float64) - 0.5) / 2.0)), rtol=1e-6)
+    keep = np.concatenate([l.ravel() for l in kept]) != 255
+    truth = np.concatenate([l.ravel() for l in kept])[keep]
+    for metric in (average_precision_score, roc_auc_score):
+        before = metric(truth, np.concatenate([s.ravel() for s in raw])[keep])
+        after = metric(truth, np.concatenate([m.ravel() for m in mapped])[keep])
+        assert after == pytest.approx(before, rel=1e-12)
+    assert smiyc_pixel_metrics(mapped, kept)["ap"] != smiyc_pixel_metrics(raw, kept)["ap"]
+
+
+def test_predict_writes_the_unit_interval_map():
+    """``PredictSettings.unit_interval`` (``predict --unit-interval``): the scorer's maps are the
+    logistic of the method's scores; a bad pair is refused naming the setting."""
+    from jaxanom.app.predict import PredictSettings, Scorer
+
+    logits = np.random.default_rng(5).normal(size=(1, 6, 7, 4)).astype(np.float32) * 5
+    network = lambda images: {"logits": logits}  # noqa: E731
+    plain = Scorer(network, PredictSettings(methods=("max_logit",)))(
+        [{"input": np.zeros((6, 7, 3), np.uint8), "name": "a"}])["max_logit"]
+    mapped = Scorer(network, PredictSettings(methods=("max_logit",), unit_interval=(-3.0, 2.0)))(
+        [{"input": np.zeros((6, 7, 3), np.uint8), "name": "a"}])["max_logit"]
+    np.testing.assert_allclose(np.asarray(plain), -logits.max(-1), rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(mapped), 1 / (1 + np.exp(-(-logits.max(-1) + 3.0) / 2.0)), rtol=1e-5)
+    for bad in ((0.0, 0.0), (0.0,), (np.nan, 1.0)):
+        with pytest.raises(ValueError, match="unit_interval: expected"):
+            PredictSettings(methods=("msp",), unit_interval=bad)

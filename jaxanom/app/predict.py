@@ -48,7 +48,8 @@ class PredictSettings:
     each image's own size; ``batch_size``: images per device batch; ``dataset``: the SMIYC
     dataset name (format ``smiyc``); ``slic_step``: SLIC grid step of the ``*_superpixel``
     methods (None: ``superpixels.scaled_step`` of the working size); ``cudam_sigma``: Eq. 10's
-    weight (None: the paper-equivalent one).
+    weight (None: the paper-equivalent one); ``unit_interval``: (center, scale) to write
+    ``metrics.smiyc.to_unit_interval`` of every map instead of the score (None: the score).
     """
 
     methods: tuple[str, ...]
@@ -58,6 +59,7 @@ class PredictSettings:
     dataset: str | None = None
     slic_step: int | None = None
     cudam_sigma: float | None = None
+    unit_interval: tuple[float, float] | None = None
 
     def __post_init__(self):
         from jaxanom.app.methods import METHODS, NEEDS_MMF
@@ -79,6 +81,9 @@ class PredictSettings:
                              f"{', '.join(SMIYC_DATASETS)}), a plain folder name, got {self.dataset!r}")
         if self.slic_step is not None and self.slic_step < 1:
             raise ValueError(f"slic_step: expected >= 1, got {self.slic_step}")
+        if self.unit_interval is not None and not (len(self.unit_interval) == 2 and np.isfinite(self.unit_interval).all()
+                                                   and self.unit_interval[1] > 0):
+            raise ValueError(f"unit_interval: expected (center, scale > 0), finite, got {self.unit_interval}")
 
 
 def _plain_name(name) -> bool:
@@ -218,9 +223,14 @@ class Scorer:
         sigma = self.settings.cudam_sigma
         if "cudam" in self.settings.methods and sigma is None:
             sigma = paper_sigma(int(out["attention_positions"]))
-        return {name: scoring.score_batch(name, out["logits"], stats=self.stats, attention_up=out.get("attention_up"),
+        maps = {name: scoring.score_batch(name, out["logits"], stats=self.stats, attention_up=out.get("attention_up"),
                                           cudam_sigma=sigma, images=images, slic_step=self.settings.slic_step)
                 for name in self.settings.methods}
+        if self.settings.unit_interval is None:
+            return maps
+        from jaxanom.metrics.smiyc import to_unit_interval
+
+        return {name: to_unit_interval(score, *self.settings.unit_interval) for name, score in maps.items()}
 
 
 def native_map(score: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
