@@ -212,6 +212,8 @@ def test_bad_input_names_the_argument():
         smiyc_pixel_metrics([good, good], [labels])
     with pytest.raises(ValueError, match="track"):
         smiyc_component_metrics([good], [labels], track="road")
+    with pytest.raises(ValueError, match="labels: expected values in"):  # checked with a given threshold too
+        smiyc_component_metrics([good], [np.full((4, 5), 7, np.uint8)], track="obstacle", threshold=0.5)
 
 
 def test_evaluate_maps_from_predicts_tree_equal_the_kit(tmp_path, capsys):

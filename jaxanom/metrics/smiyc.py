@@ -6,8 +6,8 @@ configuration ``PixBinaryClass``, ``metrics/pixel_classification_curves.py``,
 ``metrics/instance_segmentation.py``) bins instead; this module computes what it computes, from
 the same inputs (docs/decisions/smiyc-convention.md):
 
-1. scores are float16 (the kit reads the float16 maps of ``anomaly_p/<method>/<dataset>/<frame>.hdf5``);
-   only non-void pixels (label < 255) count;
+1. scores are float16 (the kit reads the float16 maps of
+   ``anomaly_p/<method>/<dataset>/<frame>.hdf5``); only non-void pixels (label < 255) count;
 2. per frame, the bin edges are the score range widened by eps = max(0.01 (max - min), 0.01) on
    each side, plus ``np.quantile`` (linear) of the anomaly pixels at min(384, count) evenly
    spaced levels and of the normal pixels likewise, sorted without repeats; each bin [e_i, e_i+1)
@@ -25,8 +25,8 @@ neighbours in float16 before interpolating in float64; the range's half-width ep
 from a float16 difference (which overflows to inf past 65504: the outer edges become +-inf); the
 kit keeps the first sorted entry as a curve point even when the next frame shares its edge
 (with several frames sharing the top edge, the kit's order among them follows its unstable sort
-and its worker order: here the later frame comes first, as the kit does on small inputs). Where the kit fails (a
-frame with no non-void pixel: ``np.min`` of nothing), that frame is skipped here.
+and its worker order: here the later frame comes first, as the kit does on small inputs). Where
+the kit fails (a frame with no non-void pixel: ``np.min`` of nothing), that frame is skipped here.
 
 ``to_unit_interval`` maps any score into [0, 1] (logistic) for users who want the benchmark's
 documented range.
@@ -54,19 +54,17 @@ class FrameBins:
     negatives: np.ndarray
 
 
-def frame_bins(scores, labels, num_bins: int = NUM_BINS) -> FrameBins:
+def frame_bins(scores, labels) -> FrameBins:
     """The kit's percentile histogram of one frame (module docstring, step 2).
 
     scores: float (H, W) (rounded to float16 here, as the kit stores them); labels: integer
-    (H, W) in {0, 1, 255}. ``num_bins``: the kit's 768 (half per class). ValueError on bad input.
+    (H, W) in {0, 1, 255}. ValueError on bad input.
     """
     values, truth = _frame_pixels(scores, labels)
-    if num_bins < 2:
-        raise ValueError(f"num_bins: expected >= 2, got {num_bins}")
     if values.size == 0:
         empty = np.zeros(0, np.int64)
         return FrameBins(np.zeros(0), empty, empty)
-    # sorted through float32 (exact): NumPy 2.x's own float16 sort (AVX-512) can leave ~1M values unsorted
+    # sorted as float32 (exact): NumPy 2.x's float16 sort (AVX-512) can leave ~1M values unsorted
     classes = [np.sort(values[truth].astype(np.float32)).astype(np.float16),
                np.sort(values[~truth].astype(np.float32)).astype(np.float16)]
     low, high = values.min(), values.max()
@@ -74,7 +72,7 @@ def frame_bins(scores, labels, num_bins: int = NUM_BINS) -> FrameBins:
         width = high - low  # float16, as the kit computes it: inf past 65504
     eps = max(float(width) * 1e-2, 1e-2)
     parts = [[float(low) - eps, float(high) + eps]]
-    parts += [_numpy_quantiles(part, min(num_bins // 2, part.size)) for part in classes if part.size]
+    parts += [_numpy_quantiles(part, min(NUM_BINS // 2, part.size)) for part in classes if part.size]
     edges = np.unique(np.concatenate(parts))
     if np.isnan(edges).any():
         raise ValueError("scores: two consecutive scores of one class differ by more than float16 can hold "
@@ -93,15 +91,16 @@ def _frame_pixels(scores, labels) -> tuple[np.ndarray, np.ndarray]:
     if not np.issubdtype(labels.dtype, np.integer):
         raise ValueError(f"labels: expected an integer dtype (uint8 0/1/255), got {labels.dtype}")
     if scores.ndim != 2 or labels.shape != scores.shape:
-        raise ValueError(f"labels: expected (H, W) maps of one shape, got scores {scores.shape}, labels {labels.shape}")
+        raise ValueError(f"labels: expected (H, W) maps of one shape, got scores {scores.shape}, "
+                         f"labels {labels.shape}")
     if not np.isin(labels, (0, 1, 255)).all():
         bad = np.setdiff1d(labels, (0, 1, 255))[:5].tolist()
         raise ValueError(f"labels: expected values in {{0, 1, 255}}, got {bad}")
     keep = labels != 255
     values = scores[keep]
     if not (np.isfinite(values).all() and np.abs(values).max(initial=0.0) <= FLOAT16_MAX):
-        raise ValueError(f"scores: expected finite values within float16's range (|score| <= {FLOAT16_MAX:g}) on "
-                         "non-void pixels: the kit stores float16")
+        raise ValueError(f"scores: expected finite values within float16's range (|score| <= {FLOAT16_MAX:g}) "
+                         "on non-void pixels: the kit stores float16")
     return values.astype(np.float16), labels[keep] == 1
 
 
@@ -119,11 +118,12 @@ def _numpy_quantiles(ascending: np.ndarray, count: int) -> np.ndarray:
     a, b = ascending[below], ascending[above]
     with np.errstate(over="ignore", invalid="ignore"):
         step = (b - a).astype(np.float64)  # float16 difference: inf past 65504, as in the kit
-        return np.where(gamma >= 0.5, b.astype(np.float64) - step * (1 - gamma), a.astype(np.float64) + step * gamma)
+        a, b = a.astype(np.float64), b.astype(np.float64)
+        return np.where(gamma >= 0.5, b - step * (1 - gamma), a + step * gamma)
 
 
-def binned_metrics(frames: Iterable[FrameBins], tpr: float = 0.95) -> dict:
-    """AP, AUROC, FPR at ``tpr`` and the best-F1 threshold of the merged bins (steps 3-4).
+def binned_metrics(frames: Iterable[FrameBins]) -> dict:
+    """AP, AUROC, FPR at TPR 0.95 and the best-F1 threshold of the merged bins (steps 3-4).
 
     Returns a dict of Python numbers: ``ap``, ``auroc``, ``fpr_at_tpr``, ``threshold_at_tpr``
     (the edge of that point), ``best_f1``, ``best_f1_threshold`` (the kit's component threshold),
@@ -141,17 +141,19 @@ def binned_metrics(frames: Iterable[FrameBins], tpr: float = 0.95) -> dict:
     positives, negatives = (tp[-1], fp[-1]) if tp.size else (0.0, 0.0)
     for count, cls in ((positives, "anomaly (1)"), (negatives, "normal (0)")):
         if count == 0:
-            raise ValueError(f"labels: no {cls} pixel left after removing void (255); AP, AUROC and FPR are undefined")
+            raise ValueError(f"labels: no {cls} pixel left after removing void (255); AP, AUROC and FPR are "
+                             "undefined")
     # one point per edge, where all of its frames are summed; the kit also keeps the first entry
-    points = np.unique(np.concatenate([[0], np.flatnonzero(thresholds[:-1] != thresholds[1:]), [tp.size - 1]]))
+    last = np.flatnonzero(thresholds[:-1] != thresholds[1:])
+    points = np.unique(np.concatenate([[0], last, [tp.size - 1]]))
     tp = np.concatenate([[0.0], tp[points]])  # the origin: the first entry always holds a pixel
     fp = np.concatenate([[0.0], fp[points]])
-    thresholds = np.concatenate([[thresholds[0] + 1], thresholds[points]])
+    thresholds = np.concatenate([[np.inf], thresholds[points]])  # the origin's is never reported
     tpr_k, fpr_k = tp / positives, fp / negatives
     predicted = tp + fp
     precision = np.where(predicted > 0, tp / np.maximum(predicted, 1.0), 1.0)
     f1 = 2 * tp / (2 * tp + fp + (positives - tp))
-    first = int(np.searchsorted(tpr_k, tpr))  # TPR reaches 1 at the last point
+    first = int(np.searchsorted(tpr_k, 0.95))  # TPR reaches 1 at the last point
     best = int(np.argmax(f1))
     return {
         "ap": float(np.sum(np.diff(tpr_k) * precision[1:])),
@@ -159,18 +161,18 @@ def binned_metrics(frames: Iterable[FrameBins], tpr: float = 0.95) -> dict:
         "fpr_at_tpr": float(fpr_k[first]), "threshold_at_tpr": float(thresholds[first]),
         "best_f1": float(f1[best]), "best_f1_threshold": float(thresholds[best]),
         "num_thresholds": int(points.size), "num_positives": int(positives), "num_negatives": int(negatives),
-        "tpr": float(tpr), "convention": "smiyc",
+        "tpr": 0.95, "convention": "smiyc",
     }
 
 
-def smiyc_pixel_metrics(scores_per_frame, labels_per_frame, *, num_bins: int = NUM_BINS, tpr: float = 0.95) -> dict:
+def smiyc_pixel_metrics(scores_per_frame, labels_per_frame) -> dict:
     """The kit's pixel metrics of a dataset: ``binned_metrics`` of every frame's ``frame_bins``.
 
     scores_per_frame: sequence of float (H, W) maps; labels_per_frame: the matching (H, W)
     labels in {0, 1, 255}. Frames may differ in size; a frame without non-void pixels adds nothing.
     """
     pairs = _pairs(scores_per_frame, labels_per_frame)
-    return binned_metrics((frame_bins(s, l, num_bins) for s, l in pairs), tpr)
+    return binned_metrics(frame_bins(s, l) for s, l in pairs)
 
 
 def above_threshold(scores, threshold: float) -> np.ndarray:
@@ -183,14 +185,12 @@ def smiyc_frame_components(scores, labels, threshold: float, *,
     """One frame's (sIoU per ground-truth component, PPV per predicted component) of the kit's
     mask ``above_threshold(scores, threshold)`` under the track's size rules."""
     _check_track(track)
-    scores, labels = np.asarray(scores), np.asarray(labels)
-    if scores.ndim != 2 or labels.shape != scores.shape:
-        raise ValueError(f"labels: expected (H, W) maps of one shape, got scores {scores.shape}, labels {labels.shape}")
-    return image_components(above_threshold(scores, threshold), labels, *TRACKS[track])
+    _frame_pixels(scores, labels)  # validates
+    return image_components(above_threshold(scores, threshold), np.asarray(labels), *TRACKS[track])
 
 
 def smiyc_component_metrics(scores_per_frame, labels_per_frame, *, track: str = "anomaly",
-                            threshold: float | None = None, num_bins: int = NUM_BINS) -> dict:
+                            threshold: float | None = None) -> dict:
     """The kit's component metrics of a dataset (``SegEval-AnomalyTrack`` / ``-ObstacleTrack``):
     ``component_summary`` (``mean_siou``, ``mean_ppv``, ``f1``, ``f1_mean``, ...) of the masks
     ``above_threshold`` at ``threshold`` (default: the kit's best-F1 threshold,
@@ -198,7 +198,7 @@ def smiyc_component_metrics(scores_per_frame, labels_per_frame, *, track: str = 
     _check_track(track)
     pairs = _pairs(scores_per_frame, labels_per_frame)
     if threshold is None:
-        threshold = binned_metrics((frame_bins(s, l, num_bins) for s, l in pairs))["best_f1_threshold"]
+        threshold = binned_metrics(frame_bins(s, l) for s, l in pairs)["best_f1_threshold"]
     per_frame = [smiyc_frame_components(s, l, threshold, track=track) for s, l in pairs]
     summary = component_summary(np.concatenate([s for s, _ in per_frame]), np.concatenate([p for _, p in per_frame]))
     return {"threshold": float(threshold), "track": track, **summary}
