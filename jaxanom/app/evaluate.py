@@ -86,8 +86,7 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, cudam_
 
     if convention not in CONVENTIONS:
         raise ValueError(f"convention: expected one of {CONVENTIONS}, got {convention!r}")
-    binned = {}
-    accumulators, kept, sigmas, frames = {}, {}, set(), []
+    accumulators, kept, sigmas, frames, binned = {}, {}, set(), [], {}
     spill = tempfile.TemporaryDirectory(prefix="jaxanom-maps-") if track is not None else None
     for batch in outputs:
         names = list(batch["maps"]) if "maps" in batch else scoring.check_methods(
@@ -216,7 +215,8 @@ def dataset_reader(dataset: str, path: str, *, base: str | None = None, frames: 
     return reader(path, base)
 
 
-def saved_map_batches(folder: str | Path, source, methods: list[str] | None = None) -> tuple[list[str], Iterator[dict]]:
+def saved_map_batches(folder: str | Path, source,
+                      methods: list[str] | None = None) -> tuple[list[str], Iterator[dict]]:
     """``(methods, batches)``: the score maps ``jaxanom predict --format smiyc`` wrote into ``folder``
     (``anomaly_p/<method>/<dataset>/<frame>.hdf5``, float16 HDF5 dataset ``value``: the official
     SegmentMeIfYouCan submission tree) as one-frame batches ``{"maps": {method: (1, H, W)},

@@ -110,6 +110,8 @@ def run(args) -> None:
         from jaxanom.app.reports import write_pictures
 
         write_pictures(out, predict, source, stats, args.pictures)
+    if args.convention == "smiyc":
+        print("The official SegmentMeIfYouCan kit's numbers (binned; the exact ones: metrics.json, \"exact\"):")
     print(results_table(metrics))
     if args.all_conventions:
         print("\n" + conventions_table(metrics))
