@@ -18,7 +18,10 @@ from jaxanom.cudam_score import upsample_attention
 from jaxanom.metrics import AnomalyMetricAccumulator, anomaly_metrics, confusion_matrix, miou, per_class_iou
 from jaxanom.metrics import pixel_accuracy, pr_curve, restrict_to_roi, roc_curve
 from jaxanom.metrics.components import component_summary, frame_components
+from jaxanom.metrics.smiyc import binned_metrics, frame_bins, smiyc_frame_components
 from jaxanom.train.step import model_input
+
+CONVENTIONS = ("exact", "smiyc")  # jaxanom's exact curves; the official SegmentMeIfYouCan kit's bins
 
 
 def predictor(model, variables) -> Callable[[np.ndarray], dict]:
@@ -73,7 +76,7 @@ def class_statistics(predict: Callable, batches: Iterable[dict]):
 def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, options: dict | None = None,
                     mode: str = "exact", fpr_convention: str = "first", ap_convention: str = "step",
                     keep_curves: bool = False, track: str | None = None,
-                    spill_dir: str | Path | None = None) -> tuple[dict, dict]:
+                    spill_dir: str | Path | None = None, convention: str = "exact") -> tuple[dict, dict]:
     """Pooled metrics per method over batches ``{"logits", "label", "image"?, "name"?,
     "attention_up"?, "attention_positions"?, "roi"?, "mmf_maps"?}``.
 
@@ -93,18 +96,27 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
     (recall, precision), "scores": [(H, W) per frame], "labels": [(H, W) per frame, outside the
     ROI 255]}`` when ``keep_curves`` (it keeps every score on the host: small sets only).
     ``mode="binned"`` is not offered here because score ranges differ per method.
+    ``convention="smiyc"``: AP / AUROC / FPR / best F1 and the component threshold and mask as
+    the official SegmentMeIfYouCan kit computes them (``jaxanom.metrics.smiyc``); the exact
+    values move to ``metrics[name]["exact"]``. Batches may carry finished score maps
+    ``"maps": {name: (B, H, W)}`` instead of ``"logits"`` (``saved_map_batches``).
     """
     import tempfile
 
-    accumulators, kept, used, frames = {}, {}, {}, []
+    if convention not in CONVENTIONS:
+        raise ValueError(f"convention: expected one of {CONVENTIONS}, got {convention!r}")
+    accumulators, kept, used, frames, binned = {}, {}, {}, [], {}
     spill = (tempfile.TemporaryDirectory(prefix=".jaxanom-maps-", suffix=".tmp", dir=spill_dir)
              if track is not None else None)
     for batch in outputs:
-        batch_scores, options_used = score_all(method_names, inputs_of(batch, stats), options)
-        for name, values in options_used.items():
-            for key, value in values.items():
-                if value not in (seen := used.setdefault(name, {}).setdefault(key, [])):
-                    seen.append(value)
+        if "maps" in batch:  # finished score maps (saved_map_batches)
+            batch_scores = batch["maps"]
+        else:
+            batch_scores, options_used = score_all(method_names, inputs_of(batch, stats), options)
+            for name, values in options_used.items():
+                for key, value in values.items():
+                    if value not in (seen := used.setdefault(name, {}).setdefault(key, [])):
+                        seen.append(value)
         labels = np.asarray(batch["label"])
         if "roi" in batch:  # evaluate inside the region of interest only (MMF: the road)
             labels = restrict_to_roi(labels, batch["roi"])
@@ -117,6 +129,8 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
                 np.save(Path(spill.name) / f"label_{first + index}.npy", label)
         for name, score in batch_scores.items():
             accumulators.setdefault(name, AnomalyMetricAccumulator(mode)).update(score, labels)
+            if convention == "smiyc":
+                binned.setdefault(name, []).extend(map(frame_bins, np.asarray(score), labels))
             if keep_curves:
                 kept.setdefault(name, []).extend(zip(np.asarray(score), labels))
             if spill is not None:
@@ -131,11 +145,16 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
     for name, values in used.items():
         if values:
             metrics[name]["options"] = values
+    for name, per_frame in binned.items():
+        values = metrics[name]
+        values["exact"] = {key: values[key] for key in ("ap", "auroc", "fpr_at_tpr", "best_f1", "best_f1_threshold")}
+        values.update(binned_metrics(per_frame))
     if spill is not None:
+        rule = smiyc_frame_components if convention == "smiyc" else frame_components
         with spill:
             for name, values in metrics.items():
                 values["components"], values["frames"] = _component_pass(Path(spill.name), name, frames, track,
-                                                                         values["best_f1_threshold"])
+                                                                         values["best_f1_threshold"], rule)
     curves = {}
     for name, per_frame in kept.items():
         maps, truths = (list(x) for x in zip(*per_frame))
@@ -154,12 +173,13 @@ def _frame_pixel_metrics(score, label, fpr_convention: str, ap_convention: str) 
     return anomaly_metrics(score, label, fpr_convention=fpr_convention, ap_convention=ap_convention)
 
 
-def _component_pass(folder: Path, name: str, frames: list[dict], track: str, threshold: float):
-    """``(pooled, per_frame)``: component metrics of method ``name``'s spilled maps at ``threshold``."""
+def _component_pass(folder: Path, name: str, frames: list[dict], track: str, threshold: float, rule=frame_components):
+    """``(pooled, per_frame)``: component metrics of method ``name``'s spilled maps at ``threshold``
+    (``rule``: ``frame_components``, score >= threshold, or the kit's ``smiyc_frame_components``)."""
     per_frame, sious, ppvs = [], [], []
     for index, frame in enumerate(frames):
         label = np.load(folder / f"label_{index}.npy")
-        siou, ppv = frame_components(np.load(folder / f"{name}_{index}.npy"), label, threshold, track=track)
+        siou, ppv = rule(np.load(folder / f"{name}_{index}.npy"), label, threshold, track=track)
         sious.append(siou)
         ppvs.append(ppv)
         per_frame.append({"name": frame["name"], **(frame["pixels"][name] or {"ap": None}),
@@ -212,3 +232,48 @@ def dataset_reader(dataset: str, path: str, *, base: str | None = None, frames: 
         raise ValueError(f"--base: the {dataset} dataset needs the root of its base images")
     reader = data.FishyscapesLostAndFound if dataset == "fishyscapes-laf" else data.FishyscapesStatic
     return reader(path, base)
+
+
+def saved_map_batches(folder: str | Path, source,
+                      methods: list[str] | None = None) -> tuple[list[str], Iterator[dict]]:
+    """``(methods, batches)``: the score maps ``jaxanom predict --format smiyc`` wrote into ``folder``
+    (``anomaly_p/<method>/<dataset>/<frame>.hdf5``, float16 HDF5 dataset ``value``: the official
+    SegmentMeIfYouCan submission tree) as one-frame batches ``{"maps": {method: (1, H, W)},
+    "label", "name"}`` for ``anomaly_results``, in the order of ``source`` (a ``FrameReader``
+    whose frame names are the files' stems). ``methods``: default every method folder. Every file is
+    looked for before the first is read: FileNotFoundError naming what is missing."""
+    from jaxanom.app.predict import output_file
+
+    root = Path(folder) / "anomaly_p"
+    if not root.is_dir():
+        raise FileNotFoundError(f"no anomaly_p folder in {folder} (written by jaxanom predict --format smiyc)")
+    methods = list(methods) if methods else sorted(p.name for p in root.iterdir() if p.is_dir())
+    if not methods:
+        raise FileNotFoundError(f"no method folder in {root}")
+    names = [str(frame[0]) for frame in source.frames]  # a FrameReader's (name, image, label) without decoding
+    files = {}
+    for method in methods:
+        datasets = sorted(p.name for p in (root / method).iterdir() if p.is_dir()) if (root / method).is_dir() else []
+        if len(datasets) != 1:
+            raise FileNotFoundError(f"expected one dataset folder in {root / method}, found {datasets or 'none'}")
+        files[method] = [output_file(Path(folder), name, method, "smiyc", datasets[0]) for name in names]
+        missing = [f.name for f in files[method] if not f.is_file()]
+        if missing:
+            raise FileNotFoundError(f"{len(missing)} of {len(names)} frames have no map in "
+                                    f"{root / method / datasets[0]}, e.g. {', '.join(missing[:3])}")
+
+    def batches():
+        import h5py
+
+        for index in range(len(source)):
+            frame = source[index]
+            maps = {}
+            for method in methods:
+                with h5py.File(files[method][index], "r") as f:
+                    maps[method] = np.squeeze(f["value"][()])[None]
+                if maps[method].shape[1:] != frame["label"].shape:
+                    raise ValueError(f"maps: {files[method][index]} is {maps[method].shape[1:]}, its label "
+                                     f"{frame['label'].shape}")
+            yield {"maps": maps, "label": frame["label"][None], "name": [frame["name"]]}
+
+    return methods, batches()

@@ -66,7 +66,8 @@ class PredictSettings:
     them is read back (each is computed alone, so the maps do not depend on it); ``dataset``: the SMIYC
     dataset name (format ``smiyc``); ``slic_step``: SLIC grid step of the ``*_superpixel``
     methods (None: ``superpixels.scaled_step`` of the working size); ``cudam_sigma``: Eq. 10's
-    weight (None: the paper-equivalent one).
+    weight (None: the paper-equivalent one); ``unit_interval``: (center, scale) to write
+    ``metrics.smiyc.to_unit_interval`` of every map instead of the score (None: the score).
     """
 
     methods: tuple[str, ...]
@@ -76,6 +77,7 @@ class PredictSettings:
     dataset: str | None = None
     slic_step: int | None = None
     cudam_sigma: float | None = None
+    unit_interval: tuple[float, float] | None = None
 
     def __post_init__(self):
         from jaxanom.app.scoring import INPUTS, check
@@ -95,6 +97,9 @@ class PredictSettings:
                              f"set's), got {self.dataset!r}")
         if self.slic_step is not None and self.slic_step < 1:
             raise ValueError(f"slic_step: expected >= 1, got {self.slic_step}")
+        if self.unit_interval is not None and not (len(self.unit_interval) == 2 and np.isfinite(self.unit_interval).all()
+                                                   and self.unit_interval[1] > 0):
+            raise ValueError(f"unit_interval: expected (center, scale > 0), finite, got {self.unit_interval}")
 
 
 def _plain_name(name) -> bool:
@@ -312,7 +317,12 @@ class Scorer:
             self._checked.add(shape)
         out = self.predict(images)
         options = {"cudam_sigma": self.settings.cudam_sigma, "slic_step": self.settings.slic_step}
-        return score_all(self.settings.methods, inputs_of({**out, "image": images}, self.stats), options)[0]
+        maps = score_all(self.settings.methods, inputs_of({**out, "image": images}, self.stats), options)[0]
+        if self.settings.unit_interval is None:
+            return maps
+        from jaxanom.metrics.smiyc import to_unit_interval
+
+        return {name: to_unit_interval(score, *self.settings.unit_interval) for name, score in maps.items()}
 
 
 def native_map(score: np.ndarray, shape: tuple[int, int]) -> np.ndarray:

@@ -109,7 +109,9 @@ def add_scoring(parser) -> None:
     add_methods(parser)
     parser.add_argument("--fpr-convention", choices=["first", "interp", "nearest", "strict"], default="first")
     parser.add_argument("--ap-convention", choices=AP_CONVENTIONS, default="step",
-                        help="step (scikit-learn), trapz (SMIYC before 2023) or envelope (VOC, MMF Eq. 7)")
+                        help="on the exact curve: step (scikit-learn; the SMIYC kit's rule since August 2023, "
+                        "on its binned curve: evaluate --convention smiyc), trapz (np.trapz over the points: the "
+                        "kit's rule before August 2023) or envelope (VOC, MMF Eq. 7)")
     parser.add_argument("--out", required=True, help="output folder")
 
 

@@ -27,6 +27,9 @@ def add_parser(commands) -> None:
     model.add_argument("--mmf", help="an MMF pipeline: a folder written by `jaxanom demo mmf` (its results.json and "
                        f"runs/); frames need disparity; default methods {MMF_DEFAULT_METHODS}, in the road ROI "
                        "where the dataset has one")
+    model.add_argument("--maps", help="a folder written by `jaxanom predict --format smiyc` (anomaly_p/<method>/"
+                       "<dataset>/<frame>.hdf5, the SegmentMeIfYouCan submission tree, from any network): evaluate "
+                       "those maps; default methods: every method folder")
     parser.add_argument("--dataset", required=True, choices=list(DATASETS))
     parser.add_argument("--path", required=True, help="dataset folder (see the list above)")
     parser.add_argument("--base", help="base dataset root (Fishyscapes only)")
@@ -41,6 +44,10 @@ def add_parser(commands) -> None:
                         "the anomaly track's size rules (RoadAnomaly21, Road Anomaly, Fishyscapes) or the obstacle "
                         "track's (RoadObstacle21, Lost and Found); none: pixel metrics only. Default: the dataset's "
                         "track; smiyc needs it")
+    parser.add_argument("--convention", choices=["exact", "smiyc"], default="exact",
+                        help="exact (default): one curve point per distinct score; smiyc: AP, AUROC, FPR@95 and the "
+                        "component threshold as the official SegmentMeIfYouCan kit computes them (float16 scores, "
+                        "768 percentile bins per frame, mask score > t; the exact values stay in metrics.json)")
     parser.add_argument("--all-conventions", action="store_true",
                         help="also print AP (step, trapz, envelope) and FPR@95 (first, interp, nearest, strict) side "
                         "by side (metrics.json always holds them)")
@@ -55,7 +62,7 @@ def run(args) -> None:
     from jaxanom.data.pipeline import evaluation_batches
     from jaxanom.app.reports import conventions_table, results_table
     from jaxanom.app.demos.mmf import mmf_scored_batches
-    from jaxanom.app.evaluate import anomaly_results, dataset_reader, predictions, predictor
+    from jaxanom.app.evaluate import anomaly_results, dataset_reader, predictions, predictor, saved_map_batches
     from jaxanom.app.experiment import build_network, load_experiment, load_variables
     from jaxanom.io import write_json_atomic
 
@@ -63,7 +70,7 @@ def run(args) -> None:
     if track is None:
         raise CommandError("--track: the smiyc dataset holds either track; pass --track anomaly (RoadAnomaly21) or "
                            "--track obstacle (RoadObstacle21)")
-    check_out_outside(args.out, {"--run": args.run, "--mmf": args.mmf})
+    check_out_outside(args.out, {"--run": args.run, "--mmf": args.mmf, "--maps": args.maps})
     load_plugins(args)
     stats = load_stats(args.stats)
     if args.cudam_sigma is not None:
@@ -73,6 +80,12 @@ def run(args) -> None:
         names = scoring.check((args.methods or MMF_DEFAULT_METHODS).split(","),
                               scoring.provided(classes=None, stats=stats is not None, mmf_maps=True), options)
         source, batches = mmf_scored_batches(args.mmf, args.dataset, args.path, frames=args.frames, depth=args.depth)
+    elif args.maps:
+        source = dataset_reader(args.dataset, args.path, base=args.base, frames=args.frames, depth=args.depth)
+        try:
+            names, batches = saved_map_batches(args.maps, source, args.methods.split(",") if args.methods else None)
+        except FileNotFoundError as error:
+            raise CommandError(f"--maps: {error}") from None
     else:  # the frames' images come with every batch (evaluation_batches)
         names = scoring.check((args.methods or DEFAULT_METHODS).split(","),
                               scoring.run_inputs(load_experiment(args.run), stats=stats is not None), options)
@@ -83,20 +96,26 @@ def run(args) -> None:
     out = out_folder(args.out, args.overwrite)
     metrics, _ = anomaly_results(batches, names, stats=stats, options=options,
                                  fpr_convention=args.fpr_convention, ap_convention=args.ap_convention,
-                                 track=None if track == "none" else track, spill_dir=out)
-    record = {"dataset": args.dataset, "path": args.path, "frames": len(source), "metrics": metrics}
+                                 track=None if track == "none" else track, spill_dir=out,
+                                 convention=args.convention)
+    record = {"dataset": args.dataset, "path": args.path, "frames": len(source), "convention": args.convention,
+              "metrics": metrics}
     if args.mmf:
         record["mmf"] = args.mmf
+    if args.maps:
+        record["maps"] = args.maps
     if stats is not None:
         record["sml_statistics"] = statistics_record(args.stats)
     if "cudam" in metrics:
         record["cudam_sigma"] = {"values": metrics["cudam"]["options"]["cudam_sigma"],
                                  "source": "given" if args.cudam_sigma is not None else "paper-equivalent"}
     write_json_atomic(out / "metrics.json", record)
-    if args.pictures and not args.mmf:  # MMF's pictures: jaxanom demo mmf
+    if args.pictures and args.run:  # MMF's pictures: jaxanom demo mmf; maps': jaxanom predict --format png
         from jaxanom.app.reports import write_pictures
 
         write_pictures(out, predict, source, stats, args.pictures)
+    if args.convention == "smiyc":
+        print("The official SegmentMeIfYouCan kit's numbers (binned; the exact ones: metrics.json, \"exact\"):")
     print(results_table(metrics))
     if args.all_conventions:
         print("\n" + conventions_table(metrics))

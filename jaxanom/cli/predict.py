@@ -34,6 +34,9 @@ def add_parser(commands) -> None:
     parser.add_argument("--slic-step", type=positive_int,
                         help="SLIC grid step of the *_superpixel methods (default: ~2048 superpixels per image)")
     parser.add_argument("--cudam-sigma", type=float, help="CuDAM ensemble weight (default: paper-equivalent)")
+    parser.add_argument("--unit-interval", metavar="CENTER,SCALE",
+                        help="write 1 / (1 + exp(-(score - CENTER) / SCALE)) in [0, 1] instead of each score (the "
+                        "benchmark documents scores in [0, 1]); AP / AUROC / FPR keep their values, float16 ties do not")
     add_common(parser, progress=True)
     parser.set_defaults(handler=run)
 
@@ -54,7 +57,7 @@ def run(args) -> None:
     settings = PredictSettings(methods=tuple((args.methods or DEFAULT_METHODS).split(",")),
                                formats=tuple(args.format.split(",")), size=size_hw(args.size),
                                batch_size=args.batch_size, dataset=args.dataset, slic_step=args.slic_step,
-                               cudam_sigma=args.cudam_sigma)
+                               cudam_sigma=args.cudam_sigma, unit_interval=_pair(args.unit_interval))
     if "smiyc" in settings.formats:
         try:
             import h5py  # noqa: F401
@@ -97,3 +100,14 @@ def run(args) -> None:
     skipped = f", {left_out} images under --out left out" if left_out else ""
     print(f"jaxanom predict: {summary['written']} frames written, {summary['skipped']} already there{skipped}, "
           f"{len(settings.methods)} methods, formats {','.join(settings.formats)} -> {out}")
+
+
+def _pair(text: str | None) -> tuple[float, float] | None:
+    """``--unit-interval``'s (center, scale), checked by ``PredictSettings``."""
+    if text is None:
+        return None
+    try:
+        center, scale = (float(x) for x in text.split(","))
+    except ValueError:
+        raise CommandError(f"--unit-interval: expected CENTER,SCALE (two numbers), got {text!r}") from None
+    return center, scale
