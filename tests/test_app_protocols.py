@@ -45,3 +45,19 @@ def test_unknown_protocol_and_extra_pixel_maps_are_refused():
         get_protocol("erfnet")
     with pytest.raises(ValueError, match="reads image and label only"):
         resize_frame({**frame([0, 1]), "depth": np.zeros((36, 64), np.float32)}, (8, 8))
+
+
+def test_dropping_void_changes_every_method_but_void():
+    """``drop_void``: MSP over the 19 trainIds (the community's ERFNet scores); the void method still
+    reads the softmax of all 20 outputs."""
+    from jaxanom.app.scoring import inputs_of, score_all
+
+    logits = np.random.default_rng(3).normal(size=(1, 5, 6, 20)).astype(np.float32) * 4
+    logits[0, 0, 0, 19] = 40.0  # a pixel the void channel wins: its MSP differs with and without it
+    scores, _ = score_all(["msp", "void"], inputs_of({"logits": logits}), drop_void=True)
+    kept = np.exp(logits[..., :19] - logits[..., :19].max(-1, keepdims=True))
+    np.testing.assert_allclose(np.asarray(scores["msp"]), 1 - (kept / kept.sum(-1, keepdims=True)).max(-1), atol=1e-6)
+    every = np.exp(logits - logits.max(-1, keepdims=True))
+    np.testing.assert_allclose(np.asarray(scores["void"]), (every / every.sum(-1, keepdims=True))[..., 19], atol=1e-6)
+    kept_all, _ = score_all(["msp"], inputs_of({"logits": logits}))
+    assert not np.allclose(np.asarray(kept_all["msp"]), np.asarray(scores["msp"]))

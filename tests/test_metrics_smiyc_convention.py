@@ -296,9 +296,9 @@ def test_predict_writes_the_unit_interval_map():
     logits = np.random.default_rng(5).normal(size=(1, 6, 7, 4)).astype(np.float32) * 5
     network = lambda images: {"logits": logits}  # noqa: E731
     plain = Scorer(network, PredictSettings(methods=("max_logit",)))(
-        [{"input": np.zeros((6, 7, 3), np.uint8), "name": "a"}])["max_logit"]
+        [{"input": np.zeros((6, 7, 3), np.uint8), "name": "a"}])[0]["max_logit"]
     mapped = Scorer(network, PredictSettings(methods=("max_logit",), unit_interval=(-3.0, 2.0)))(
-        [{"input": np.zeros((6, 7, 3), np.uint8), "name": "a"}])["max_logit"]
+        [{"input": np.zeros((6, 7, 3), np.uint8), "name": "a"}])[0]["max_logit"]
     np.testing.assert_allclose(np.asarray(plain), -logits.max(-1), rtol=1e-6)
     np.testing.assert_allclose(np.asarray(mapped), 1 / (1 + np.exp(-(-logits.max(-1) + 3.0) / 2.0)), rtol=1e-5)
     for bad in ((0.0, 0.0), (0.0,), (np.nan, 1.0)):

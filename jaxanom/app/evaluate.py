@@ -66,6 +66,19 @@ def predictions(predict: Callable, batches: Iterable[dict]) -> Iterator[dict]:
         yield {**batch, **predict(batch["image"])}
 
 
+def protocol_predictions(predict: Callable, source, protocol, skipped: list | None = None) -> Iterator[dict]:
+    """One-frame batches of ``source`` (a frame reader) as ``protocol`` (``jaxanom.app.protocols``)
+    counts them, with the network's outputs added: each frame resized to the protocol's size, the
+    frames it skips left out (their names appended to ``skipped``) before the network runs."""
+    from jaxanom.data.pipeline import evaluation_batches
+
+    for batch in evaluation_batches(protocol.source(source), batch_size=1):
+        if protocol.counts(batch["label"]):
+            yield {**batch, **predict(batch["image"])}
+        elif skipped is not None:
+            skipped.extend(str(name) for name in batch.get("name", ["?"]))
+
+
 def class_statistics(predict: Callable, batches: Iterable[dict]):
     """SML class statistics (Eqs. 3-4, a ``sml.ClassStats``) of the network's logits over ``batches``."""
     from jaxanom import sml
@@ -76,7 +89,8 @@ def class_statistics(predict: Callable, batches: Iterable[dict]):
 def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, options: dict | None = None,
                     mode: str = "exact", fpr_convention: str = "first", ap_convention: str = "step",
                     keep_curves: bool = False, track: str | None = None,
-                    spill_dir: str | Path | None = None, convention: str = "exact") -> tuple[dict, dict]:
+                    spill_dir: str | Path | None = None, convention: str = "exact",
+                    drop_void: bool = False) -> tuple[dict, dict]:
     """Pooled metrics per method over batches ``{"logits", "label", "image"?, "name"?,
     "attention_up"?, "attention_positions"?, "roi"?, "mmf_maps"?}``.
 
@@ -99,7 +113,8 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
     ``convention="smiyc"``: AP / AUROC / FPR / best F1 and the component threshold and mask as
     the official SegmentMeIfYouCan kit computes them (``jaxanom.metrics.smiyc``); the exact
     values move to ``metrics[name]["exact"]``. Batches may carry finished score maps
-    ``"maps": {name: (B, H, W)}`` instead of ``"logits"`` (``saved_map_batches``).
+    ``"maps": {name: (B, H, W)}`` instead of ``"logits"`` (``saved_map_batches``). ``drop_void``:
+    the methods but ``void`` score the logits without a void channel (``app.scoring.score_all``).
     """
     import tempfile
 
@@ -112,7 +127,8 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
         if "maps" in batch:  # finished score maps (saved_map_batches)
             batch_scores = batch["maps"]
         else:
-            batch_scores, options_used = score_all(method_names, inputs_of(batch, stats), options)
+            batch_scores, options_used = score_all(method_names, inputs_of(batch, stats), options,
+                                                   drop_void=drop_void)
             for name, values in options_used.items():
                 for key, value in values.items():
                     if value not in (seen := used.setdefault(name, {}).setdefault(key, [])):

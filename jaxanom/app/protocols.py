@@ -19,7 +19,7 @@ reproduced by name (``jaxanom evaluate --protocol NAME``):
 from __future__ import annotations
 
 import dataclasses
-from typing import Iterable, Iterator, Mapping
+from typing import Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -41,16 +41,35 @@ class Protocol:
     ap_convention: str = "step"
     fpr_convention: str = "first"
 
+    def source(self, source: Sequence[Mapping]) -> Sequence[dict]:
+        """``source`` (``len`` and ``[i]`` of records ``{"image" (H, W, 3) uint8, "label" (H, W),
+        "name"?}``) with every frame resized to ``size`` when read, or ``source`` itself."""
+        return source if self.size is None else _Resized(source, self.size)
+
+    def counts(self, label) -> bool:
+        """Whether a frame of (resized) ``label`` counts: not when the protocol skips frames
+        without an anomaly pixel (1) and it has none."""
+        return not self.skip_frames_without_anomaly or bool(np.any(np.asarray(label) == 1))
+
     def frames(self, records: Iterable[Mapping]) -> Iterator[dict]:
-        """The records ``{"image" (H, W, 3) uint8, "label" (H, W) uint8, ...}`` this protocol
-        counts, resized to ``size`` if it has one (other pixel maps are not carried)."""
+        """The records this protocol counts, resized to ``size`` if it has one."""
         for record in records:
-            record = dict(record)
-            if self.size is not None:
-                record = resize_frame(record, self.size)
-            if self.skip_frames_without_anomaly and not np.any(np.asarray(record["label"]) == 1):
-                continue
-            yield record
+            record = dict(record) if self.size is None else resize_frame(record, self.size)
+            if self.counts(record["label"]):
+                yield record
+
+
+class _Resized:
+    """A frame source read through ``resize_frame`` (lazily: one frame in memory at a time)."""
+
+    def __init__(self, source: Sequence[Mapping], size: tuple[int, int]):
+        self._source, self._size = source, size
+
+    def __len__(self) -> int:
+        return len(self._source)
+
+    def __getitem__(self, index: int) -> dict:
+        return resize_frame(self._source[index], self._size)
 
 
 def resize_frame(record: Mapping, size: tuple[int, int]) -> dict:

@@ -57,16 +57,31 @@ def run_inputs(experiment, *, stats: bool) -> set[str]:
                     images=True)
 
 
-def score_all(method_names: Iterable[str], inputs: Mapping, options: Mapping | None = None) -> tuple[dict, dict]:
+def score_all(method_names: Iterable[str], inputs: Mapping, options: Mapping | None = None, *,
+              drop_void: bool = False) -> tuple[dict, dict]:
     """``(scores, used)``: each method's scores (B, H, W) of ``inputs`` and the options it used
-    (``Method.options``: defaults, ``options``, resolved for this batch)."""
+    (``Method.options``: defaults, ``options``, resolved for this batch). ``drop_void``: the
+    methods that do not read the void channel score the logits without it (a protocol's choice,
+    ``jaxanom.app.protocols``); the ``void`` method still reads every channel."""
     method_names = check(method_names, given(inputs), options)
+    without_void = _without_void(inputs) if drop_void and inputs.get("void_channel") is not None else inputs
     scores, used = {}, {}
     for name in method_names:
         method = get(name)
-        used[name] = method.options(inputs, options)
-        scores[name] = method.score(inputs, used[name])
+        method_inputs = inputs if "void_channel" in method.needs else without_void
+        used[name] = method.options(method_inputs, options)
+        scores[name] = method.score(method_inputs, used[name])
     return scores, used
+
+
+def _without_void(inputs: Mapping) -> dict:
+    """``inputs`` whose logits lack the void channel (and so no ``void_channel``)."""
+    import jax.numpy as jnp
+
+    channel = int(inputs["void_channel"])
+    logits = jnp.asarray(inputs["logits"])
+    kept = jnp.concatenate([logits[..., :channel], logits[..., channel + 1:]], axis=-1)
+    return {**{k: v for k, v in inputs.items() if k != "void_channel"}, "logits": kept}
 
 
 def describe() -> str:

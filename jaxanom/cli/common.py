@@ -107,7 +107,8 @@ def add_scoring(parser) -> None:
 
     parser.add_argument("--stats", help="SML statistics .npz (from fit-stats); needed by the sml* and cudam methods")
     add_methods(parser)
-    parser.add_argument("--fpr-convention", choices=["first", "interp", "nearest", "strict"], default="first")
+    parser.add_argument("--fpr-convention", choices=["first", "interp", "nearest", "strict"],
+                        help="FPR at 95%% TPR: first (default; Fishyscapes, SMIYC), interp (ood-metrics), nearest, strict")
     parser.add_argument("--ap-convention", choices=AP_CONVENTIONS, default="step",
                         help="on the exact curve: step (scikit-learn; the SMIYC kit's rule since August 2023, "
                         "on its binned curve: evaluate --convention smiyc), trapz (np.trapz over the points: the "

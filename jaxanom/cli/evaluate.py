@@ -4,6 +4,8 @@ from __future__ import annotations
 from jaxanom.cli.common import (DEFAULT_METHODS, CommandError, add_common, add_scoring, check_out_outside, load_plugins,
                                 load_stats, nonnegative_int, out_folder, positive_int)
 
+from jaxanom.app.protocols import PROTOCOLS
+
 DATASETS = {
     "synthetic": "synthetic anomaly split (PATH = split name: anomaly, anomaly_small, anomaly_large)",
     "road-anomaly": "Road Anomaly (PATH holds frames/ and frame_list.json)",
@@ -48,6 +50,9 @@ def add_parser(commands) -> None:
                         help="exact (default): one curve point per distinct score; smiyc: AP, AUROC, FPR@95 and the "
                         "component threshold as the official SegmentMeIfYouCan kit computes them (float16 scores, "
                         "768 percentile bins per frame, mask score > t; the exact values stay in metrics.json)")
+    parser.add_argument("--protocol", choices=list(PROTOCOLS), default="native",
+                        help="how frames become counted pixels (with --run): " + "; ".join(
+                            f"{p.name}: {p.description}" for p in PROTOCOLS.values()) + " (default: %(default)s)")
     parser.add_argument("--all-conventions", action="store_true",
                         help="also print AP (step, trapz, envelope) and FPR@95 (first, interp, nearest, strict) side "
                         "by side (metrics.json always holds them)")
@@ -59,10 +64,10 @@ def add_parser(commands) -> None:
 def run(args) -> None:
     from jaxanom.app import scoring
     from jaxanom._validate import check_number
-    from jaxanom.data.pipeline import evaluation_batches
+    from jaxanom.app.protocols import get_protocol
     from jaxanom.app.reports import conventions_table, results_table
     from jaxanom.app.demos.mmf import mmf_scored_batches
-    from jaxanom.app.evaluate import anomaly_results, dataset_reader, predictions, predictor, saved_map_batches
+    from jaxanom.app.evaluate import anomaly_results, dataset_reader, predictor, protocol_predictions, saved_map_batches
     from jaxanom.app.experiment import build_network, load_experiment, load_variables
     from jaxanom.io import write_json_atomic
 
@@ -71,6 +76,9 @@ def run(args) -> None:
         raise CommandError("--track: the smiyc dataset holds either track; pass --track anomaly (RoadAnomaly21) or "
                            "--track obstacle (RoadObstacle21)")
     check_out_outside(args.out, {"--run": args.run, "--mmf": args.mmf, "--maps": args.maps})
+    protocol = get_protocol(args.protocol)
+    if protocol.name != "native" and not args.run:
+        raise CommandError(f"--protocol {protocol.name}: resizes the frames the network sees, so it needs --run")
     load_plugins(args)
     stats = load_stats(args.stats)
     if args.cudam_sigma is not None:
@@ -92,14 +100,18 @@ def run(args) -> None:
         source = dataset_reader(args.dataset, args.path, base=args.base, frames=args.frames, depth=args.depth)
         experiment, variables = load_variables(args.run)
         predict = predictor(build_network(experiment), variables)
-        batches = predictions(predict, evaluation_batches(source, batch_size=1))
+    skipped: list[str] = []
+    if args.run:
+        batches = protocol_predictions(predict, source, protocol, skipped)
     out = out_folder(args.out, args.overwrite)
     metrics, _ = anomaly_results(batches, names, stats=stats, options=options,
-                                 fpr_convention=args.fpr_convention, ap_convention=args.ap_convention,
-                                 track=None if track == "none" else track, spill_dir=out,
-                                 convention=args.convention)
+                                 fpr_convention=args.fpr_convention or protocol.fpr_convention,
+                                 ap_convention=args.ap_convention, track=None if track == "none" else track,
+                                 spill_dir=out, convention=args.convention, drop_void=protocol.drop_void)
     record = {"dataset": args.dataset, "path": args.path, "frames": len(source), "convention": args.convention,
-              "metrics": metrics}
+              "protocol": protocol.name, "metrics": metrics}
+    if skipped:
+        record["frames_skipped"] = skipped
     if args.mmf:
         record["mmf"] = args.mmf
     if args.maps:

@@ -79,7 +79,7 @@ def run(args) -> None:
                 writers[name].write(score)
     print(f"score maps of {len(logits)} images -> {out / 'scores'}/<method>.npy")
     if labels is not None:
-        metrics = {name: accumulators.pop(name).compute(fpr_convention=args.fpr_convention,  # freed in turn
+        metrics = {name: accumulators.pop(name).compute(fpr_convention=args.fpr_convention or "first",  # freed in turn
                                                         ap_convention=args.ap_convention) for name in names}
         write_json_atomic(out / "metrics.json", {"metrics": metrics})
         print(results_table(metrics))
