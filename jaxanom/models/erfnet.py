@@ -58,11 +58,16 @@ def _bn(x, train: bool, dtype: Dtype, name: str):
 
 
 class ConvTranspose2x(nn.Module):
-    """PyTorch's ``ConvTranspose2d(cin, features, k, stride=2, padding, output_padding)`` with bias:
-    (B, H, W, cin) -> (B, 2H, 2W, features) for the two kinds used here (k=3, padding=1,
-    output_padding=1 and k=2, padding=0). ``kernel`` is (k, k, features, cin): PyTorch's weight
-    (cin, features, k, k) with its axes reversed. Computed as a convolution of the input dilated by
-    2 with the kernel flipped, padded k-1-padding before and that plus output_padding after."""
+    """PyTorch's ``ConvTranspose2d(cin, features, k, stride=2, padding, output_padding)`` with bias, for
+    the sizes where it doubles H and W (k - 2 - 2 padding + output_padding = 0; here k=3, padding=1,
+    output_padding=1 and k=2, padding=0): (B, H, W, cin) -> (B, 2H, 2W, features). ``kernel`` is
+    (k, k, features, cin): PyTorch's weight (cin, features, k, k) with its axes reversed.
+
+    Computed per output phase (sub-pixel): output row 2i + a takes the taps ky with a + padding - ky
+    even, applied to input row i + (a + padding - ky) / 2. The few shifted copies of the input,
+    side by side, times one matrix (taps x cin, 4 x features; zero where a shift feeds no phase) give
+    all four phases at once; no zeros are inserted into the input (XLA's input-dilated convolution
+    was slower on the CPU, docs/decisions/erfnet.md)."""
 
     features: int
     kernel_size: int
@@ -72,16 +77,27 @@ class ConvTranspose2x(nn.Module):
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
-        k = self.kernel_size
+        k, p, cin = self.kernel_size, self.padding, x.shape[-1]
+        if k - 2 - 2 * p + self.output_padding:
+            raise ValueError(f"kernel_size, padding, output_padding: expected sizes that double H and W, got "
+                             f"{k}, {p}, {self.output_padding}")
         init = nn.initializers.variance_scaling(1.0, "fan_in", "normal", in_axis=-1, out_axis=-2)
-        kernel = self.param("kernel", init, (k, k, self.features, x.shape[-1]), jnp.float32)
+        kernel = self.param("kernel", init, (k, k, self.features, cin), jnp.float32)
         bias = self.param("bias", nn.initializers.zeros, (self.features,), jnp.float32)
-        before = k - 1 - self.padding
-        flipped = kernel[::-1, ::-1].swapaxes(2, 3).astype(self.dtype)  # HWIO
-        y = jax.lax.conv_general_dilated(x.astype(self.dtype), flipped, (1, 1),
-                                         [(before, before + self.output_padding)] * 2, lhs_dilation=(2, 2),
-                                         dimension_numbers=("NHWC", "HWIO", "NHWC"))
-        return y + bias.astype(self.dtype)
+        taps = [(a, tap, (a + p - tap) // 2) for a in (0, 1) for tap in range(k) if (a + p - tap) % 2 == 0]
+        shifts = sorted({shift for _, _, shift in taps})
+        matrix = jnp.zeros((len(shifts), len(shifts), cin, 2, 2, self.features), jnp.float32)
+        for a, ky, sy in taps:
+            for b, kx, sx in taps:
+                matrix = matrix.at[shifts.index(sy), shifts.index(sx), :, a, b, :].set(kernel[ky, kx].T)
+        before, after = max(0, -shifts[0]), max(0, shifts[-1])
+        padded = jnp.pad(x.astype(self.dtype), ((0, 0), (before, after), (before, after), (0, 0)))
+        bsz, h, w, _ = x.shape
+        views = [padded[:, before + sy: before + sy + h, before + sx: before + sx + w] for sy in shifts for sx in shifts]
+        patches = views[0] if len(views) == 1 else jnp.concatenate(views, -1)
+        y = patches @ matrix.reshape(-1, 4 * self.features).astype(self.dtype)
+        y = y.reshape(bsz, h, w, 2, 2, self.features).transpose(0, 1, 3, 2, 4, 5)
+        return y.reshape(bsz, 2 * h, 2 * w, self.features) + bias.astype(self.dtype)
 
 
 class Downsampler(nn.Module):
