@@ -68,6 +68,8 @@ if __name__ == "__main__":
         repeats = int(sys.argv[sys.argv.index("--repeats") + 1]) if "--repeats" in sys.argv else 5
         model, variables, net, weights = _networks(quick=False)
         print(weights)
-        print(markdown_table(cpu_rows("ERFNet forward", "", model, variables, net, SHAPES, repeats), columns))
+        for shape in SHAPES:  # a table per shape as it finishes (batch 8 takes minutes on one thread)
+            print(markdown_table(cpu_rows("ERFNet forward", "", model, variables, net, [shape], repeats), columns),
+                  flush=True)
     else:
         print(markdown_table(run(quick="--quick" in sys.argv), columns))
