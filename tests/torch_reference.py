@@ -8,6 +8,9 @@ definitions are pure Python, so they are then imported without running ``torchvi
 ``ESPNetTorch`` is our own PyTorch rendering of the ESPNet authors' network (with the light decoder,
 names as in their checkpoints), ``randomize_prelu`` also draws PReLU slopes.
 
+``ERFNetTorch`` is our own PyTorch rendering of ERFNet (float layout, or ``fused`` without ``bn1``);
+``erfnet_int8_state`` turns a float one into the int8 redistribution's layout.
+
 ``SMLDeepV3Plus`` is our own PyTorch rendering of the SML authors' ``DeepR101V3PlusD_OS8``
 (github shjung13/Standardized-max-logits, ``network/deepv3.py`` and ``network/Resnet.py``), with
 their parameter names so that their checkpoints' keys load into it: a deep stem packed as
