@@ -46,7 +46,8 @@ def main() -> dict:
     model, variables = from_torch(read_state_dict(require_realdata(*WEIGHTS)), "erfnet-cityscapes")
     results = {**segmentation_results(predictor(model, variables), antialiased, nearest),
                "input": [INPUT[1], INPUT[0]], "weights": "/".join(WEIGHTS), "authors_val_miou_float": AUTHORS_VAL_MIOU}
-    title = f"ERFNet (authors' Cityscapes weights, int8 redistribution) on {len(results['frames'])} Cityscapes train frames"
+    title = (f"ERFNet (authors' Cityscapes weights, int8 redistribution) on {len(results['frames'])} "
+             "Cityscapes train frames")
     intro = (f"Written by `python -m experiments.{NAME}`. Input 1024x512, antialiased bilinear resize, RGB in [0, 1]; "
              "labels resized by nearest neighbour at pixel centres; classes that occur or are predicted averaged. "
              "The community's protocol drops the void channel: the row '1024x512, 19 trainIds' is the one to quote. "

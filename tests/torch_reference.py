@@ -322,8 +322,9 @@ class _ERFEncoder(nn.Module):
 class _ERFDecoder(nn.Module):
     def __init__(self, classes: int, fused: bool):
         super().__init__()
-        self.layers = nn.ModuleList([_Upsampler(128, 64), _NonBottleneck1D(64, 1, fused), _NonBottleneck1D(64, 1, fused),
-                                     _Upsampler(64, 16), _NonBottleneck1D(16, 1, fused), _NonBottleneck1D(16, 1, fused)])
+        blocks = [_Upsampler(128, 64), _NonBottleneck1D(64, 1, fused), _NonBottleneck1D(64, 1, fused)]
+        blocks += [_Upsampler(64, 16), _NonBottleneck1D(16, 1, fused), _NonBottleneck1D(16, 1, fused)]
+        self.layers = nn.ModuleList(blocks)
         self.output_conv = nn.ConvTranspose2d(16, classes, 2, 2)
 
     def forward(self, x):
@@ -348,7 +349,8 @@ class ERFNetTorch(nn.Module):
 def erfnet_int8_state(net: ERFNetTorch) -> dict:
     """The state dict of ``net`` (float, with ``bn1``) in the int8 redistribution's layout: each
     block's ``bn1`` folded into ``conv1x3_1``, every conv weight quantised per tensor to qint8
-    (affine over [min, max]: a non-zero zero point, as in the real file), ``*.scale`` / ``*.zero_point`` output quantisation
+    (affine over [min, max]: a non-zero zero point, as in the real file), ``*.scale`` / ``*.zero_point``
+    output quantisation
     entries beside each conv, BN and residual add, and ``quant.*``. Also returns the fused float
     network whose weights are the dequantised ones: ``(state, ERFNetTorch(fused=True))``."""
     import warnings

@@ -93,7 +93,8 @@ class ConvTranspose2x(nn.Module):
         before, after = max(0, -shifts[0]), max(0, shifts[-1])
         padded = jnp.pad(x.astype(self.dtype), ((0, 0), (before, after), (before, after), (0, 0)))
         bsz, h, w, _ = x.shape
-        views = [padded[:, before + sy: before + sy + h, before + sx: before + sx + w] for sy in shifts for sx in shifts]
+        views = [padded[:, before + sy: before + sy + h, before + sx: before + sx + w]
+                 for sy in shifts for sx in shifts]
         patches = views[0] if len(views) == 1 else jnp.concatenate(views, -1)
         y = patches @ matrix.reshape(-1, 4 * self.features).astype(self.dtype)
         y = y.reshape(bsz, h, w, 2, 2, self.features).transpose(0, 1, 3, 2, 4, 5)

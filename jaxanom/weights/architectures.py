@@ -51,7 +51,8 @@ SML_PRESET = "deeplabv3plus_r101_sml"
 # The jaxanom.models preset that each DeepLabV3+ kind builds.
 PRESETS = {"torchvision-resnet18": "deeplabv3plus_r18", "torchvision-resnet50": "deeplabv3plus_r50",
            "torchvision-resnet101": "deeplabv3plus_r101", "sml-deeplabv3plus": SML_PRESET}
-RUN_KINDS = (*PRESETS, "espnet-cityscapes", "erfnet-cityscapes")  # the kinds that convert to a run folder (the VGGs do not)
+# the kinds that convert to a run folder (the VGGs do not)
+RUN_KINDS = (*PRESETS, "espnet-cityscapes", "erfnet-cityscapes")
 _SML_HEAD = {("aspp", "conv1x1"): "aspp.features.0", ("aspp", "atrous0"): "aspp.features.1",
              ("aspp", "atrous1"): "aspp.features.2", ("aspp", "atrous2"): "aspp.features.3",
              ("aspp", "image_pool"): "aspp.img_conv", ("aspp", "project"): "bot_aspp",
