@@ -8,6 +8,9 @@ definitions are pure Python, so they are then imported without running ``torchvi
 ``ESPNetTorch`` is our own PyTorch rendering of the ESPNet authors' network (with the light decoder,
 names as in their checkpoints), ``randomize_prelu`` also draws PReLU slopes.
 
+``ERFNetTorch`` is our own PyTorch rendering of ERFNet (float layout, or ``fused`` without ``bn1``);
+``erfnet_int8_state`` turns a float one into the int8 redistribution's layout.
+
 ``SMLDeepV3Plus`` is our own PyTorch rendering of the SML authors' ``DeepR101V3PlusD_OS8``
 (github shjung13/Standardized-max-logits, ``network/deepv3.py`` and ``network/Resnet.py``), with
 their parameter names so that their checkpoints' keys load into it: a deep stem packed as
@@ -255,3 +258,137 @@ def randomize_prelu(module: nn.Module, seed: int) -> nn.Module:
             if isinstance(layer, nn.PReLU):
                 layer.weight.copy_(torch.rand(layer.weight.shape, generator=gen) * 1.5 - 0.5)
     return module
+
+
+# ----------------------------------------------------------------------------- ERFNet
+# Our own rendering of ERFNet (Romera et al., T-ITS 2018) from its description: module names as in
+# the authors' checkpoints (``encoder.initial_block``, ``encoder.layers.<i>``, ``decoder.layers.<i>``,
+# ``decoder.output_conv``), so their state dicts load into it; NCHW; eval mode (no dropout).
+class _Downsampler(nn.Module):
+    def __init__(self, cin: int, cout: int):
+        super().__init__()
+        self.conv = nn.Conv2d(cin, cout - cin, 3, 2, 1)
+        self.bn = nn.BatchNorm2d(cout, eps=1e-3)
+
+    def forward(self, x):
+        return F.relu(self.bn(torch.cat([self.conv(x), F.max_pool2d(x, 2)], 1)))
+
+
+class _NonBottleneck1D(nn.Module):
+    """``fused=True``: ``bn1`` folded into ``conv1x3_1`` (the int8 redistribution's layout)."""
+
+    def __init__(self, channels: int, dilation: int, fused: bool = False):
+        super().__init__()
+        d = dilation
+        self.conv3x1_1 = nn.Conv2d(channels, channels, (3, 1), padding=(1, 0))
+        self.conv1x3_1 = nn.Conv2d(channels, channels, (1, 3), padding=(0, 1))
+        self.bn1 = nn.Identity() if fused else nn.BatchNorm2d(channels, eps=1e-3)
+        self.conv3x1_2 = nn.Conv2d(channels, channels, (3, 1), padding=(d, 0), dilation=(d, 1))
+        self.conv1x3_2 = nn.Conv2d(channels, channels, (1, 3), padding=(0, d), dilation=(1, d))
+        self.bn2 = nn.BatchNorm2d(channels, eps=1e-3)
+
+    def forward(self, x):
+        y = F.relu(self.bn1(self.conv1x3_1(F.relu(self.conv3x1_1(x)))))
+        y = self.bn2(self.conv1x3_2(F.relu(self.conv3x1_2(y))))
+        return F.relu(y + x)
+
+
+class _Upsampler(nn.Module):
+    def __init__(self, cin: int, cout: int):
+        super().__init__()
+        self.conv = nn.ConvTranspose2d(cin, cout, 3, 2, padding=1, output_padding=1)
+        self.bn = nn.BatchNorm2d(cout, eps=1e-3)
+
+    def forward(self, x):
+        return F.relu(self.bn(self.conv(x)))
+
+
+class _ERFEncoder(nn.Module):
+    def __init__(self, classes: int, fused: bool):
+        super().__init__()
+        self.initial_block = _Downsampler(3, 16)
+        blocks = [_Downsampler(16, 64), *(_NonBottleneck1D(64, 1, fused) for _ in range(5)), _Downsampler(64, 128)]
+        blocks += [_NonBottleneck1D(128, d, fused) for _ in range(2) for d in (2, 4, 8, 16)]
+        self.layers = nn.ModuleList(blocks)
+        self.output_conv = nn.Conv2d(128, classes, 1)  # the encoder-only training's classifier; unused here
+
+    def forward(self, x):
+        x = self.initial_block(x)
+        for layer in self.layers:
+            x = layer(x)
+        return x
+
+
+class _ERFDecoder(nn.Module):
+    def __init__(self, classes: int, fused: bool):
+        super().__init__()
+        blocks = [_Upsampler(128, 64), _NonBottleneck1D(64, 1, fused), _NonBottleneck1D(64, 1, fused)]
+        blocks += [_Upsampler(64, 16), _NonBottleneck1D(16, 1, fused), _NonBottleneck1D(16, 1, fused)]
+        self.layers = nn.ModuleList(blocks)
+        self.output_conv = nn.ConvTranspose2d(16, classes, 2, 2)
+
+    def forward(self, x):
+        for layer in self.layers:
+            x = layer(x)
+        return self.output_conv(x)
+
+
+class ERFNetTorch(nn.Module):
+    """ERFNet; ``forward`` returns eval-mode logits NCHW at the input size. ``fused``: without ``bn1``
+    (the int8 redistribution folded it into ``conv1x3_1``)."""
+
+    def __init__(self, classes: int = 20, fused: bool = False):
+        super().__init__()
+        self.encoder = _ERFEncoder(classes, fused)
+        self.decoder = _ERFDecoder(classes, fused)
+
+    def forward(self, x):
+        return self.decoder(self.encoder(x))
+
+
+def erfnet_int8_state(net: ERFNetTorch) -> dict:
+    """The state dict of ``net`` (float, with ``bn1``) in the int8 redistribution's layout: each
+    block's ``bn1`` folded into ``conv1x3_1``, every conv weight quantised per tensor to qint8
+    (affine over [min, max]: a non-zero zero point, as in the real file), ``*.scale`` / ``*.zero_point``
+    output quantisation
+    entries beside each conv, BN and residual add, and ``quant.*``. Also returns the fused float
+    network whose weights are the dequantised ones: ``(state, ERFNetTorch(fused=True))``."""
+    import warnings
+
+    fused = ERFNetTorch(net.decoder.output_conv.out_channels, fused=True).eval()
+    float_state = {}
+    with torch.no_grad():
+        for name, value in net.state_dict().items():
+            if ".bn1." not in name:
+                float_state[name] = value.clone()
+        for name, module in net.named_modules():
+            if isinstance(module, _NonBottleneck1D):
+                bn, conv = module.bn1, module.conv1x3_1
+                factor = bn.weight / torch.sqrt(bn.running_var + bn.eps)
+                float_state[f"{name}.conv1x3_1.weight"] = conv.weight * factor[:, None, None, None]
+                float_state[f"{name}.conv1x3_1.bias"] = (conv.bias - bn.running_mean) * factor + bn.bias
+    state, gen = {}, torch.Generator().manual_seed(7)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*quantize_per_tensor.*deprecated", category=UserWarning)
+        for name, value in float_state.items():
+            module, leaf = name.rsplit(".", 1)
+            if leaf == "weight" and value.ndim == 4:
+                low, high = float(value.min()), float(value.max())
+                scale = (high - low) / 255
+                q = torch.quantize_per_tensor(value, scale, int(round(-128 - low / scale)), torch.qint8)
+                state[name] = q
+                float_state[name] = q.dequantize()
+                state[f"{module}.scale"] = torch.rand((), generator=gen)
+                state[f"{module}.zero_point"] = torch.tensor(128)
+            else:
+                state[name] = value
+            if leaf == "running_var":
+                state[f"{module}.scale"] = torch.rand(1, generator=gen)
+                state[f"{module}.zero_point"] = torch.tensor([128])
+        for name, module in net.named_modules():
+            if isinstance(module, _NonBottleneck1D):
+                state[f"{name}.skip_add.scale"] = torch.rand((), generator=gen)
+                state[f"{name}.skip_add.zero_point"] = torch.tensor(128)
+    state["quant.scale"], state["quant.zero_point"] = torch.tensor([0.0079]), torch.tensor([0])
+    fused.load_state_dict(float_state, strict=True)
+    return state, fused

@@ -60,11 +60,11 @@ the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``:
     init_modules: tuple[str, ...] | None = None
 
     def __post_init__(self):
-        from jaxanom.models import model_family
+        from jaxanom.models import build_model, model_family
 
-        if model_family(self.model) == "espnet" and self.attention is not None:
-            raise ValueError(f"attention: ESPNet ({self.model}) has no attention block; expected None, "
-                             f"got {self.attention!r}")
+        if model_family(self.model) != "deeplabv3plus" and self.attention is not None:
+            raise ValueError(f"attention: {type(build_model(self.model)).__name__} ({self.model}) has no attention "
+                             f"block; expected None, got {self.attention!r}")
         if self.data not in DATASETS:
             raise ValueError(f"data: expected one of {DATASETS}, got {self.data!r}")
         if self.data != "synthetic" and not self.data_root:
@@ -104,10 +104,10 @@ def _tuples(values: dict) -> dict:
 
 
 def build_network(experiment: Experiment):
-    """The Flax module of ``experiment`` (an ESPNet is configured by its name and class count alone)."""
+    """The Flax module of ``experiment`` (an ESPNet or ERFNet is configured by its name and class count alone)."""
     from jaxanom.models import build_model, model_family
 
-    if model_family(experiment.model) == "espnet":
+    if model_family(experiment.model) != "deeplabv3plus":
         return build_model(experiment.model, num_classes=experiment.num_classes)
     return build_model(experiment.model, num_classes=experiment.num_classes, attention=experiment.attention,
                        output_stride=experiment.output_stride, cudam_position=experiment.cudam_position,

@@ -1,5 +1,5 @@
-"""Run folders of converted weights: ``write_run(folder, preset, model, variables)`` makes a DeepLabV3+
-or ESPNet run folder (``experiment.json`` and a step-0 checkpoint), which ``jaxanom evaluate --run``,
+"""Run folders of converted weights: ``write_run(folder, preset, model, variables)`` makes a DeepLabV3+,
+ESPNet or ERFNet run folder (``experiment.json`` and a step-0 checkpoint), which ``jaxanom evaluate --run``,
 ``predict --run`` and ``train --init-from`` read like any trained run.
 """
 from __future__ import annotations

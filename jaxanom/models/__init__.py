@@ -1,8 +1,9 @@
-"""Segmentation networks: ResNet backbones, DeepLabV3+ (with CuDAM / MSAAM), ESPNet, a registry by name."""
+"""Segmentation networks: ResNet backbones, DeepLabV3+ (with CuDAM / MSAAM), ESPNet, ERFNet, a registry by name."""
 from jaxanom.models.deeplab import DeepLabV3Plus
+from jaxanom.models.erfnet import ERFNet
 from jaxanom.models.espnet import ESPNet
 from jaxanom.models.registry import build_model, count_params, model_family, model_names
 from jaxanom.models.resnet import RESNETS, ResNet, ResNetSpec
 
-__all__ = ["DeepLabV3Plus", "ESPNet", "ResNet", "ResNetSpec", "RESNETS", "build_model", "count_params", "model_family",
+__all__ = ["DeepLabV3Plus", "ERFNet", "ESPNet", "ResNet", "ResNetSpec", "RESNETS", "build_model", "count_params", "model_family",
            "model_names"]

@@ -3,9 +3,10 @@
     model = build_model("deeplabv3plus_r101", num_classes=19, attention="cudam")
     build_model("deeplabv3plus_tiny", num_classes=19)   # small enough for CPU tests and demos
     build_model("espnet_p2_q8", num_classes=20)          # ESPNet, p and q in the name
+    build_model("erfnet", num_classes=20)                # ERFNet
 
 Keyword arguments override any field of ``DeepLabV3Plus`` (output_stride, attention, dtype...)
-or of ``ESPNet`` (dtype); ``model_family(name)`` says which of the two a name builds.
+or of ``ESPNet`` / ``ERFNet`` (dtype); ``model_family(name)`` says which of the three a name builds.
 """
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxanom.models.deeplab import DeepLabV3Plus
+from jaxanom.models.erfnet import ERFNet
 from jaxanom.models.espnet import ESPNet
 
 _PRESETS: dict[str, dict[str, Any]] = {
@@ -45,27 +47,31 @@ _ESPNET = re.compile(r"espnet_p([1-9]\d*)_q([1-9]\d*)")
 
 def model_names() -> tuple[str, ...]:
     """Names accepted by ``build_model`` (any ``espnet_p<P>_q<Q>``; the authors' Cityscapes one listed)."""
-    return (*_PRESETS, "espnet_p2_q8")
+    return (*_PRESETS, "espnet_p2_q8", "erfnet")
 
 
 def model_family(name: str) -> str:
-    """``"deeplabv3plus"`` or ``"espnet"``: the class ``build_model(name)`` builds."""
+    """``"deeplabv3plus"``, ``"espnet"`` or ``"erfnet"``: the class ``build_model(name)`` builds."""
     if name in _PRESETS:
         return "deeplabv3plus"
     if _ESPNET.fullmatch(name):
         return "espnet"
+    if name == "erfnet":
+        return "erfnet"
     raise ValueError(f"name: expected one of {model_names()} or espnet_p<P>_q<Q>, got {name!r}")
 
 
-def build_model(name: str, num_classes: int = 19, **overrides: Any) -> DeepLabV3Plus | ESPNet:
+def build_model(name: str, num_classes: int = 19, **overrides: Any) -> DeepLabV3Plus | ESPNet | ERFNet:
     """The network of a preset name; ``overrides`` replace preset fields."""
+    if model_family(name) == "erfnet":
+        return ERFNet(num_classes=num_classes, **overrides)
     if model_family(name) == "espnet":
         p, q = map(int, _ESPNET.fullmatch(name).groups())
         return ESPNet(num_classes=num_classes, p=p, q=q, **overrides)
     return DeepLabV3Plus(num_classes=num_classes, **{**_PRESETS[name], **overrides})
 
 
-def count_params(model: DeepLabV3Plus | ESPNet, image_size: tuple[int, int] = (64, 64)) -> int:
+def count_params(model: DeepLabV3Plus | ESPNet | ERFNet, image_size: tuple[int, int] = (64, 64)) -> int:
     """Number of trainable parameters of ``model``, found with ``jax.eval_shape`` (no allocation).
 
     The count does not depend on ``image_size``; it only has to be large enough to trace.

@@ -1,4 +1,4 @@
-"""Pretrained weights from PyTorch: torchvision ResNets and VGGs, the SML authors' DeepLabV3+, ESPNet.
+"""Pretrained weights from PyTorch: torchvision ResNets and VGGs, the SML authors' DeepLabV3+, ESPNet, ERFNet.
 
     from jaxanom.weights import from_torch, read_state_dict
 
@@ -8,8 +8,9 @@
 
 ``read_state_dict`` never unpickles arbitrary objects (``torch.load(weights_only=True)``);
 ``from_torch`` loads everything or raises a ValueError listing missing, unexpected and
-mis-shaped keys. ``jaxanom.app.runs.write_run`` (``jaxanom convert-weights``) stores a DeepLabV3+ or an ESPNet
-(``from_torch(state, "espnet-cityscapes")``, the ESPNet authors' Cityscapes weights) as a run folder
+mis-shaped keys. ``jaxanom.app.runs.write_run`` (``jaxanom convert-weights``) stores a DeepLabV3+, an ESPNet
+(``from_torch(state, "espnet-cityscapes")``, the ESPNet authors' Cityscapes weights) or an ERFNet
+(``"erfnet-cityscapes"``: the authors' float checkpoint or its int8 redistribution) as a run folder
 that ``evaluate --run`` and ``train --init-from`` read; ``write_vgg`` / ``read_vgg`` store a VGG.
 """
 from jaxanom.weights.architectures import KINDS, PRESETS, RUN_KINDS, SML_PRESET, from_torch, run_preset

@@ -23,6 +23,17 @@
   and ``level{2,3}_{i}``; convolutions wrapped in their ``C`` module are ``<name>.conv``;
   ``up_l3.0``, ``up_l2.0`` and ``classifier`` are 2x2 transposed convs (``Upsample2``).
   Images are normalised with ``jaxanom.models.espnet.normalize_espnet``.
+* ``erfnet-cityscapes``: the ERFNet authors' Cityscapes network (github Eromera/erfnet_pytorch,
+  ``trained_models/erfnet_pretrained.pth``; 20 classes: the 19 trainIds and void) ->
+  ``jaxanom.models.erfnet.ERFNet``, the class count read from ``decoder.output_conv``. Module paths
+  map one to one (``encoder.layers.<i>.conv3x1_1`` is ``encoder/layers_<i>/conv3x1_1``); the
+  transposed convs' weights (in, out, k, k) become kernels (k, k, out, in). Two layouts are read:
+  the authors' float checkpoint (keys prefixed ``module.``) and the int8 redistribution
+  (quantised conv weights, dequantised by ``read_state_dict``; each block's ``bn1`` folded into
+  ``conv1x3_1``, so the import gives ``bn1`` the identity: scale 1, shift 0, mean 0 and a variance
+  that makes var + eps exactly 1). Ignored: the encoder-only classifier ``encoder.output_conv``
+  and the int8 file's output quantisation (``quant.*``, ``<module>.scale`` / ``.zero_point``,
+  ``<block>.skip_add.*``). Images are scaled with ``jaxanom.models.erfnet.normalize_erfnet``.
 * ``torchvision-vgg16|vgg19``: ``features.{n}`` (conv with bias) -> ``jaxanom.models.vgg.VGG``
   with ``conv{b}_{i}``; the ``classifier`` is not used.
 """
@@ -35,12 +46,13 @@ import jax
 import numpy as np
 
 KINDS = ("torchvision-resnet18", "torchvision-resnet50", "torchvision-resnet101", "sml-deeplabv3plus",
-         "torchvision-vgg16", "torchvision-vgg19", "espnet-cityscapes")
+         "torchvision-vgg16", "torchvision-vgg19", "espnet-cityscapes", "erfnet-cityscapes")
 SML_PRESET = "deeplabv3plus_r101_sml"
 # The jaxanom.models preset that each DeepLabV3+ kind builds.
 PRESETS = {"torchvision-resnet18": "deeplabv3plus_r18", "torchvision-resnet50": "deeplabv3plus_r50",
            "torchvision-resnet101": "deeplabv3plus_r101", "sml-deeplabv3plus": SML_PRESET}
-RUN_KINDS = (*PRESETS, "espnet-cityscapes")  # the kinds that convert to a run folder (the VGGs do not)
+# the kinds that convert to a run folder (the VGGs do not)
+RUN_KINDS = (*PRESETS, "espnet-cityscapes", "erfnet-cityscapes")
 _SML_HEAD = {("aspp", "conv1x1"): "aspp.features.0", ("aspp", "atrous0"): "aspp.features.1",
              ("aspp", "atrous1"): "aspp.features.2", ("aspp", "atrous2"): "aspp.features.3",
              ("aspp", "image_pool"): "aspp.img_conv", ("aspp", "project"): "bot_aspp",
@@ -58,8 +70,9 @@ def from_torch(state_dict: Mapping, kind: str, num_classes: int = 19, *, key: ja
     ``key``: a ``jax.random`` key initialising the DeepLabV3+ head of the ``torchvision-resnet*``
     kinds (required there; the other kinds load every variable). ``model.apply(variables, images,
     train=False)`` takes images (B, H, W, 3) normalised with ImageNet's mean and std, except
-    ESPNet's (``model.normalize_input``). ``espnet-cityscapes`` takes its class count and p, q
-    from the checkpoint and ignores ``num_classes`` and ``output_stride``.
+    ESPNet's and ERFNet's (``model.normalize_input``). ``espnet-cityscapes`` (class count, p, q) and
+    ``erfnet-cityscapes`` (class count) read their configuration from the checkpoint and ignore
+    ``num_classes`` and ``output_stride``.
     Raises ValueError listing missing, unexpected and mis-shaped keys when the state dict does not
     fit ``kind`` (nothing is loaded partially).
     """
@@ -77,6 +90,11 @@ def from_torch(state_dict: Mapping, kind: str, num_classes: int = 19, *, key: ja
         template = jax.eval_shape(lambda x: model.init(jax.random.key(0), x, train=False), probe)
         what = f"{kind} (ESPNet p={model.p}, q={model.q}, {model.num_classes} classes)"
         return model, fill_variables(state, template, _espnet_name, lambda name: False, what)
+    if kind == "erfnet-cityscapes":
+        model, state = _erfnet_for(state)
+        template = jax.eval_shape(lambda x: model.init(jax.random.key(0), x, train=False), probe)
+        what = f"{kind} (ERFNet, {model.num_classes} classes)"
+        return model, fill_variables(state, template, _erfnet_name, _erfnet_unused, what)
     if kind.startswith("torchvision-vgg"):
         model = VGG(kind.removeprefix("torchvision-"))
         template = jax.eval_shape(lambda x: model.init(jax.random.key(0), x), probe)
@@ -105,6 +123,8 @@ def run_preset(kind: str, model) -> str | None:
         return None
     if kind == "espnet-cityscapes":
         return f"espnet_p{model.p}_q{model.q}"
+    if kind == "erfnet-cityscapes":
+        return "erfnet"
     return PRESETS[kind]
 
 
@@ -193,6 +213,41 @@ def _esp_name(prefix: str, layer: str, strided: bool) -> str:
     if layer in ("bn", "act"):
         return f"{prefix}.{layer}" if strided else f"{prefix}.bn.{layer}"
     return f"{prefix}.{layer}.conv"  # c1, d1, d2, ... wrapped in the authors' C / CDilated
+
+
+def _erfnet_for(state: Mapping):
+    """The ERFNet of the checkpoint's class count, and the state with an identity ``bn1`` in every
+    block when the checkpoint has none (the int8 layout, where it is folded into ``conv1x3_1``)."""
+    from jaxanom.models.erfnet import BN_EPSILON, ERFNet
+
+    classifier = state.get("decoder.output_conv.weight")
+    if classifier is None or classifier.ndim != 4:
+        raise ValueError("state dict does not match erfnet-cityscapes: expected the 2x2 transposed conv "
+                         "'decoder.output_conv.weight' (16, C, 2, 2), found none")
+    if not any(".bn1." in key for key in state):
+        unit = np.float32(1 - BN_EPSILON)  # float32(0.999) + 1e-3 is exactly 1 in float32: bn1 is x -> x
+        state = dict(state)
+        for key in [key for key in state if key.endswith(".conv1x3_1.bias")]:
+            block, channels = key.removesuffix(".conv1x3_1.bias"), state[key].shape
+            state |= {f"{block}.bn1.weight": np.ones(channels, np.float32),
+                      f"{block}.bn1.bias": np.zeros(channels, np.float32),
+                      f"{block}.bn1.running_mean": np.zeros(channels, np.float32),
+                      f"{block}.bn1.running_var": np.full(channels, unit, np.float32)}
+    return ERFNet(num_classes=int(classifier.shape[1])), state
+
+
+def _erfnet_name(path: tuple[str, ...]) -> str:
+    """A Flax ERFNet module -> the authors' PyTorch name (``layers_3`` -> ``layers.3``)."""
+    return ".".join(path).replace("layers_", "layers.")
+
+
+# The encoder-only training's classifier, and the int8 file's output quantisation parameters.
+_ERFNET_UNUSED = re.compile(r"encoder\.output_conv\..*|quant\.(scale|zero_point)|.*\.skip_add\.(scale|zero_point)"
+                            r"|.*\.(conv|bn|conv3x1_[12]|conv1x3_[12]|bn[12]|output_conv)\.(scale|zero_point)")
+
+
+def _erfnet_unused(key: str) -> bool:
+    return _ERFNET_UNUSED.fullmatch(key) is not None
 
 
 def _vgg_name(config: str):

@@ -8,7 +8,9 @@ The result is ``{name: float32 np.ndarray}`` in PyTorch's layout (convolutions O
 checkpoint (a dict holding ``"state_dict"``, ``"model"``, ``"model_state_dict"`` or ``"net"`` beside
 optimizer state) gives that state dict;
 DataParallel's ``module.`` prefix is removed. Integer entries (BatchNorm's
-``num_batches_tracked``) are kept as they are. A file that cannot be read raises ValueError
+``num_batches_tracked``) are kept as they are. Quantised tensors (``torch.qint8`` and the like, e.g.
+an int8 redistribution of a network) are dequantised with torch's own ``Tensor.dequantize()``
+(scale and zero point per tensor or per channel) to float32. A file that cannot be read raises ValueError
 naming it; a ``.pth`` file holding anything but tensors, numbers, strings and containers is refused
 by ``weights_only`` and never unpickled.
 """
@@ -17,6 +19,7 @@ from __future__ import annotations
 import os
 import pickle
 import re
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -42,7 +45,7 @@ def read_state_dict(path: str | os.PathLike) -> dict[str, np.ndarray]:
 def state_dict_arrays(state: Mapping, source: object = "state_dict") -> dict[str, np.ndarray]:
     """``state`` (tensors or arrays by name, or a checkpoint holding ``"state_dict"``) as NumPy.
 
-    Floating tensors become float32 arrays; ``module.`` prefixes are removed.
+    Floating tensors become float32 arrays, quantised ones are dequantised; ``module.`` prefixes are removed.
     """
     if not isinstance(state, Mapping):
         raise ValueError(f"{source}: expected a mapping of parameter names to tensors, got {type(state).__name__}")
@@ -69,6 +72,8 @@ def _to_numpy(value, where: str) -> np.ndarray:
             raise ValueError(f"{where}: a {str(value.layout).replace('torch.', '')} tensor; expected dense tensors "
                              "(save tensor.to_dense())")
         value = value.detach().cpu()
+        if value.is_quantized:  # integers with a scale and zero point: torch's own arithmetic gives the floats
+            value = value.dequantize()
         value = value.float() if value.is_floating_point() else value
         value = value.numpy()
     array = np.asarray(value) if isinstance(value, (np.ndarray, np.generic, int, float)) else None
@@ -105,7 +110,10 @@ def _read_torch(file: Path) -> Mapping:
         raise ValueError(f"weights file {file}: reading PyTorch checkpoints needs torch (pip install "
                          "'jaxanom[torch]'), or save the state dict as .npz or .safetensors elsewhere") from None
     try:
-        return torch.load(file, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():  # torch's own deprecation notes while it rebuilds quantised tensors
+            warnings.filterwarnings("ignore", message=r"(?s).*(TypedStorage is deprecated|quantize_per_tensor.*"
+                                    r"deprecated)", category=UserWarning)
+            return torch.load(file, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as error:  # objects only unpickling (running code) builds, or damage
         text = _plain(error)
         found = re.search(r"Unsupported global: \S+ \S+", text)
