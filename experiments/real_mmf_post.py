@@ -1,15 +1,18 @@
-"""MMF's post-processor (Eq. 6 over SLIC superpixels) on real uncertainty maps: the ESPNet
-authors' Cityscapes network on RoadObstacle21 (scored in its road region) and RoadAnomaly21;
+"""MMF's post-processor (Eq. 6 over SLIC superpixels) on real uncertainty maps of two networks: the
+ESPNet and ERFNet authors' Cityscapes weights (``real_common.NETWORKS``) on RoadObstacle21 (scored in
+its road region) and RoadAnomaly21;
 entropy (Eq. 1) and softmax distance (Eq. 2), each alone and through Eq. 6 with three SLIC
 segmentations; envelope AP (Eq. 7) and FPR95 with 95% bootstrap intervals over frames, paired
-for the findings; the per-frame time of SLIC + Eq. 6 at the native size.
+for the findings and across the networks (the same frame draws for every row of both); the
+per-frame time of SLIC + Eq. 6 at the native size.
 
-    python -m experiments.real_mmf_post   # writes real_mmf_post.json / .md beside this file (~10 min, 2 cores)
+    python -m experiments.real_mmf_post   # writes real_mmf_post.json / .md beside this file (~25 min, 2 shared cores)
 
 Set-up:
-* Network input as ``real_sml`` (each frame resized to 1024 wide, all 20 channels); the maps of
-  ``mmf.uncertainty`` (entropy normalised by log2 20, softmax distance, road probability =
-  softmax channel 0) are resized bilinearly to the frame's native size (1080x1920, 720x1280).
+* Network input as ``real_sml`` (each frame resized to 1024 wide, both networks' training scale;
+  ESPNet's 20 channels, ERFNet's 19 trainIds); the maps of ``mmf.uncertainty`` (entropy normalised
+  by log2 C, softmax distance, road probability = softmax channel 0) are resized bilinearly to the
+  frame's native size (1080x1920, 720x1280).
 * Eq. 6 (``mmf.postprocess.superpixel_score_batch``, road probability p_j from the same network)
   at the native size over SLIC superpixels from ``mmf.training_free.segment`` with the scaled
   step (``superpixels.scaled_step``: S = 32, K = 2040 at 1080x1920; S = 21, K = 2074 at
@@ -28,9 +31,9 @@ import time
 import cv2
 import numpy as np
 
-from experiments.real_common import HERE, anomaly_tracks, espnet, logits_of, resized, with_intervals
-from experiments.real_sml import WIDTH
-from experiments.stats import REPLICATES, difference, draws
+from experiments.real_common import HERE, NETWORKS, anomaly_tracks, logits_of, resized, same_frames, with_intervals
+from experiments.real_sml import STRONGER, WEAKER, WIDTH
+from experiments.stats import REPLICATES, difference, difference_change, draws, network_difference
 from jaxanom import scores as S
 from jaxanom.data.smiyc import SegmentMeIfYouCan
 from jaxanom.io import write_bytes_atomic, write_json_atomic
@@ -43,10 +46,6 @@ BASES = {"entropy": "entropy", "softmax distance": "distance"}  # row name: key 
 VARIANTS = (" + Eq. 6 (RGB SLIC)", " + Eq. 6 (connected)", " + Eq. 6 (SLIC on the map)")
 ROWS = ("max logit", *(base + suffix for base in BASES for suffix in ("", *VARIANTS)))
 TIMES = ("slic_rgb", "slic_connected", "slic_map (both maps)", "eq6 (one map)", "slic_rgb + eq6 (one map)")
-# MMF (seed 003) numbers on the Obstacle Track (ROI = road), as far as its text gives them; Table 2
-# (the ablation with the post-processor row) is an image: its values are not in the text.
-PAPER = {"entropy": "Table 1 Softmax Entropy: AP 55.41, FPR95 5.28 (their segmenter)",
-         "post": "Table 2 values not in the text; its text: FPR95 improves considerably, AP less"}
 
 
 def upsampled(x: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -65,23 +64,31 @@ def timed(fn, *args, **kwargs):
     return out, time.perf_counter() - start
 
 
-def frame_maps(logits: np.ndarray, image: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str, float]]:
-    """Every row's map at the image's (H, W) and the seconds of each SLIC and of Eq. 6."""
+def rgb_segments(image: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """The frame's two RGB SLIC segmentations (1, H, W) (the same for every network: computed once) and
+    their seconds."""
+    segs, seconds = {}, {}
+    segs["RGB SLIC"], seconds["slic_rgb"] = timed(segment, image[None], {})
+    segs["connected"], seconds["slic_connected"] = timed(segment, image[None], {}, connectivity=True)
+    return {name: seg["superpixels"] for name, seg in segs.items()}, seconds
+
+
+def frame_maps(logits: np.ndarray, image: np.ndarray, segments: tuple[dict, dict]
+               ) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """Every row's map at the image's (H, W) and the seconds of each SLIC and of Eq. 6; ``segments``:
+    ``rgb_segments(image)``."""
     shape = image.shape[:2]
     network = uncertainty_maps(logits)
     road = upsampled(network["road"], shape)[None]
     maps = {"max logit": upsampled(S.max_logit(logits), shape)}
     bases = {name: upsampled(network[key], shape) for name, key in BASES.items()}
-    segs, seconds = {}, {}
-    segs["RGB SLIC"], seconds["slic_rgb"] = timed(segment, image[None], {})
-    segs["connected"], seconds["slic_connected"] = timed(segment, image[None], {}, connectivity=True)
+    segs, seconds = segments[0], dict(segments[1])
     on_map, seconds["slic_map (both maps)"] = timed(segment, image[None], {k: v[None] for k, v in bases.items()},
                                                    slic_input="anomaly")
     eq6 = 0.0
     for name, value in bases.items():
         maps[name] = value
-        for variant, labels in zip(VARIANTS, (segs["RGB SLIC"]["superpixels"], segs["connected"]["superpixels"],
-                                              on_map[name])):
+        for variant, labels in zip(VARIANTS, (segs["RGB SLIC"], segs["connected"], on_map[name])):
             score, spent = timed(superpixel_score_batch, value[None], road, labels, on_map["num_segments"])
             maps[name + variant] = score[0]
             eq6 += spent
@@ -90,15 +97,19 @@ def frame_maps(logits: np.ndarray, image: np.ndarray) -> tuple[dict[str, np.ndar
     return maps, seconds
 
 
-def track_scores(predict, root, log=print):
-    """Non-void pixels of every row's map per frame, the labels, and per-frame timings."""
+def track_scores(predict, root, segments: dict, log=print):
+    """Non-void pixels of every row's map per frame, the labels, and per-frame timings; ``segments``
+    caches ``rgb_segments`` per (track, frame) for the next network."""
     frames = SegmentMeIfYouCan(root)
     scores, labels, times = {}, [], []
     for i in range(len(frames)):
         frame = frames[i]
         keep = frame["label"] != 255
         labels.append(frame["label"][keep])
-        maps, seconds = frame_maps(logits_of(predict, resized(frame["image"], WIDTH)), frame["image"])
+        if (root.name, i) not in segments:
+            segments[root.name, i] = rgb_segments(frame["image"])
+        maps, seconds = frame_maps(logits_of(predict, resized(frame["image"], WIDTH)), frame["image"],
+                                   segments[root.name, i])
         for name, value in maps.items():
             scores.setdefault(name, []).append(value[keep])
         times.append(seconds)
@@ -130,17 +141,41 @@ def timing(times: list[dict]) -> dict:
             for k in later[0]}
 
 
+def across(networks: dict, replicates: dict) -> dict:
+    """The stronger network against the weaker on the same frames, paired: every row's envelope AP and
+    FPR95 difference, and per finding both verdicts and how its gap changed (``difference_change``)."""
+    strong, weak = replicates[STRONGER], replicates[WEAKER]
+    rows = [{"score": name, "ap_difference": network_difference(strong, weak, name, "ap_envelope"),
+             "fpr_difference": network_difference(strong, weak, name, "fpr_at_tpr")} for name in ROWS]
+    changes = [{"finding": f["finding"], WEAKER: g["verdict"], STRONGER: f["verdict"],
+                "change": difference_change(strong, weak, f["a"], f["b"],
+                                            "fpr_at_tpr" if "FPR95" in f["finding"] else "ap_envelope")}
+               for f, g in zip(networks[STRONGER]["findings"], networks[WEAKER]["findings"])]
+    return {"rows": rows, "findings": changes}
+
+
 def main(log=print) -> dict:
-    _, predict = espnet()
     results = {"replicates": REPLICATES}
-    for track, root in sorted(anomaly_tracks().items(), key=lambda item: item[0] != "RoadObstacle21"):
-        scores, labels, times = track_scores(predict, root, log)
-        table, replicates = with_intervals(scores, labels, draws(len(labels)))
-        del scores
-        share = float(np.mean(np.concatenate(labels) == 1))  # a random score's AP
-        results[track] = {"frames": len(labels), "anomaly_share": share, "methods": table,
-                          "findings": findings(replicates), "seconds": timing(times)}
-        write_json_atomic(HERE / f"{NAME}.json", results)
+    tracks = sorted(anomaly_tracks().items(), key=lambda item: item[0] != "RoadObstacle21")
+    replicates, labels_of, multiplicities, segments = {}, {}, {}, {}
+    for network, load in NETWORKS.items():
+        _, predict = load()
+        for track, root in tracks:
+            log(f"{network}:")
+            scores, labels, times = track_scores(predict, root, segments, log)
+            same_frames(labels_of.setdefault(track, labels), labels, track)
+            draws_ = multiplicities.setdefault(track, draws(len(labels)))  # one set of draws per track: paired
+            table, replicates[track, network] = with_intervals(scores, labels, draws_)
+            del scores
+            share = float(np.mean(np.concatenate(labels) == 1))  # a random score's AP
+            entry = results.setdefault(track, {"frames": len(labels), "anomaly_share": share, "networks": {}})
+            entry["networks"][network] = {"methods": table, "findings": findings(replicates[track, network]),
+                                          "seconds": timing(times)}
+            write_json_atomic(HERE / f"{NAME}.json", results)
+    for track in labels_of:
+        results[track]["across"] = across(results[track]["networks"],
+                                          {network: replicates[track, network] for network in NETWORKS})
+    write_json_atomic(HERE / f"{NAME}.json", results)
     write_bytes_atomic(HERE / f"{NAME}.md", markdown(results).encode())
     return results
 
@@ -154,40 +189,62 @@ def _span(pair, digits: int = 1) -> str:
 
 
 def markdown(results: dict) -> str:
-    lines = ["# MMF's post-processor (Eq. 6) on real uncertainty maps (ESPNet, Cityscapes weights)", "",
-             "Written by `python -m experiments.real_mmf_post`. Network input 1024 wide; entropy (Eq. 1, / log2 20) "
+    lines = ["# MMF's post-processor (Eq. 6) on real uncertainty maps (ESPNet and ERFNet, the authors' Cityscapes "
+             "weights)", "",
+             "Written by `python -m experiments.real_mmf_post`. Network input 1024 wide (both networks' training "
+             "scale; ESPNet's 20 channels, ERFNet's 19 trainIds); entropy (Eq. 1, / log2 C) "
              "and softmax distance (Eq. 2) resized bilinearly to the native frame; Eq. 6 there over SLIC with the "
              "scaled step (K ~ 2048): on the RGB frame, the same connected, or on the map itself. AP is the "
              "envelope AP (MMF Eq. 7), step AP beside it; FPR95 at the first point with TPR >= 95%; in %, pooled "
              f"over non-void pixels (RoadObstacle21: the road region); [95% interval] from {results['replicates']} "
-             "bootstrap resamples of frames. Findings use paired intervals of the difference (held: beyond 0 in "
+             "bootstrap resamples of frames, the same draws for every row of both networks (paired, also across "
+             "networks). Findings use paired intervals of the difference (held: beyond 0 in "
              "the paper's direction). The paper's Table 2 (its ablation, with the post-processor row) is an image "
              "in seeds/003: its values are not in the text; the text says the post-processor improves FPR95 "
              "considerably on both sets and AP less (its input is the dissimilarity net's map, not an uncertainty "
              "map). The text's numbers around it (Obstacle Track / Lost and Found, ROI = road, AP / FPR95): the "
              "framework without assistant maps and post-processor 28.29 / 15.24 and 31.11 / 16.03; full MMF "
-             "(Table 1) 70.93 / 4.16 and 80.04 / 5.31. Paper column: the Obstacle Track numbers of the row's kind.", ""]
+             "(Table 1) 70.93 / 4.16 and 80.04 / 5.31; Table 1's Softmax Entropy row (their segmenter): "
+             "55.41 / 5.28.", ""]
     for track in ("RoadObstacle21", "RoadAnomaly21"):
         if track not in results:
             continue
         r = results[track]
+        nets = list(r["networks"])
+        rows = {row["score"]: row for row in r.get("across", {}).get("rows", [])}
         lines += [f"## {track} ({r['frames']} frames)", "",
                   f"Anomalous share of the scored pixels (the AP of a random score): {100 * r['anomaly_share']:.2f}%.", "",
-                  "| score | AP (envelope) | FPR95 | AP (step) | paper (Obstacle Track) |", "|---|---|---|---|---|"]
+                  "| score | " + " | ".join(f"{n} AP (envelope) | {n} FPR95 | {n} AP (step)" for n in nets)
+                  + (f" | {STRONGER} - {WEAKER}: AP (envelope); FPR95 |" if rows else " |"),
+                  "|---|" + "---|---|---|" * len(nets) + ("---|" if rows else "")]
         for name in ROWS:
-            m = r["methods"][name]
-            paper = PAPER["entropy"] if name == "entropy" else PAPER["post"] if "Eq. 6" in name else ""
-            lines.append(f"| {name} | {_pct(m['ap_envelope'])} {_span(m['interval']['ap_envelope'])} | "
-                         f"{_pct(m['fpr_at_tpr'])} {_span(m['interval']['fpr_at_tpr'])} | "
-                         f"{_pct(m['ap'])} {_span(m['interval']['ap'])} | {paper} |")
-        lines += ["", "| finding (paired difference, points) | 95% interval | verdict |", "|---|---|---|"]
-        lines += [f"| {f['finding']} | {_span(f['difference'], 3)} | {f['verdict']} |" for f in r["findings"]]
-        held = sum(f["verdict"] == "held" for f in r["findings"])
-        against = sum(f["verdict"] == "contradicted" for f in r["findings"])
-        lines += ["", f"{held} of {len(r['findings'])} findings held, {against} contradicted.", "",
-                  "Seconds per frame (median over frames 2..N; 2 CPU cores shared with other jobs, XLA:CPU; "
-                  "\"connected\" includes its own SLIC; \"SLIC on the map\" segments both maps): "
-                  + ", ".join(f"{k} {r['seconds'][k]['median']:.2f}" for k in TIMES) + ".", ""]
+            cells = [f"{_pct(m['ap_envelope'])} {_span(m['interval']['ap_envelope'])} | "
+                     f"{_pct(m['fpr_at_tpr'])} {_span(m['interval']['fpr_at_tpr'])} | "
+                     f"{_pct(m['ap'])} {_span(m['interval']['ap'])}" for m in (r["networks"][n]["methods"][name] for n in nets)]
+            change = [f"{_span(rows[name]['ap_difference'])}; {_span(rows[name]['fpr_difference'])}"] if rows else []
+            lines.append(f"| {name} | " + " | ".join(cells + change) + " |")
+        changes = {c["finding"]: c for c in r.get("across", {}).get("findings", [])}
+        lines += ["", "| finding (paired difference, points) | " + " | ".join(f"{n}: 95% interval | {n}: verdict" for n in nets)
+                  + (f" | change {STRONGER} - {WEAKER} |" if changes else " |"),
+                  "|---|" + "---|---|" * len(nets) + ("---|" if changes else "")]
+        found = [r["networks"][n]["findings"] for n in nets]
+        for i, first in enumerate(found[0]):
+            cells = [f"{_span(f[i]['difference'], 3)} | {f[i]['verdict']}" for f in found]
+            change = [_span(changes[first["finding"]]["change"], 3)] if changes else []
+            lines.append(f"| {first['finding']} | " + " | ".join(cells + change) + " |")
+        lines.append("")
+        for network, f in zip(nets, found):
+            held, against = sum(x["verdict"] == "held" for x in f), sum(x["verdict"] == "contradicted" for x in f)
+            lines.append(f"{network}: {held} of {len(f)} findings held, {against} contradicted.")
+        if changes:
+            changed = [c["finding"] for c in changes.values() if c[WEAKER] != c[STRONGER]]
+            lines.append(f"The stronger network changes the verdict of {len(changed)} of {len(changes)} findings"
+                         + (": " + "; ".join(changed) + "." if changed else "."))
+        lines += ["", "Seconds per frame (median over frames 2..N; 2 CPU cores shared with other jobs, XLA:CPU; "
+                  "\"connected\" includes its own SLIC; \"SLIC on the map\" segments both maps; the two RGB SLICs do not "
+                  "depend on the network: measured once, in the first network's pass, and reused): "
+                  + "; ".join(f"{n}: " + ", ".join(f"{k} {r['networks'][n]['seconds'][k]['median']:.2f}" for k in TIMES)
+                              for n in nets) + ".", ""]
     return "\n".join(lines)
 
 

@@ -1,16 +1,18 @@
-"""SML Tables 3 and 7 on real frames: the ESPNet authors' Cityscapes network on RoadAnomaly21 and
-RoadObstacle21, MSP / max logit / entropy / energy / SML, each without and with boundary
-suppression + dilated smoothing; SML statistics fitted on the 8 Cityscapes frames under every
-statistics policy; 95% bootstrap intervals over frames, paired for the findings.
+"""SML Tables 3 and 7 on real frames with two networks: the ESPNet and ERFNet authors' Cityscapes
+weights (``real_common.NETWORKS``) on RoadAnomaly21 and RoadObstacle21, MSP / max logit / entropy /
+energy / SML, each without and with boundary suppression + dilated smoothing; SML statistics fitted
+on the 8 Cityscapes frames under every statistics policy; 95% bootstrap intervals over frames, paired
+for the findings and across the networks (the same frame draws for every row of both).
 
-    python -m experiments.real_sml        # writes real_sml.json / real_sml.md beside this file (~20 min, 2 cores)
+    python -m experiments.real_sml        # writes real_sml.json / real_sml.md beside this file (~45 min, 2 shared cores)
 
-Set-up (decisions in docs/decisions/espnet.md and sml.md):
+Set-up (decisions in docs/decisions/espnet.md, real-networks.md and sml.md):
 * Input: every frame resized to 1024 pixels wide (height rounded to a multiple of 8), the scale
-  the weights were trained at (Cityscapes' 2048x1024 halved); the Cityscapes frames at 1024x512.
-  On RoadAnomaly21 this scale gives max logit AP 28.3 / FPR95 63.6 against 23.8 / 72.7 at the
-  native 1280x720 (measured while setting this up). All 20 channels are scored (the void channel
-  included, as measured by ``real_espnet_void``).
+  both networks were trained at (Cityscapes' 2048x1024 halved, 1024x512); the Cityscapes frames at
+  1024x512. On RoadAnomaly21 this scale gives ESPNet's max logit AP 28.3 / FPR95 63.6 against
+  23.8 / 72.7 at the native 1280x720 (measured while setting this up). ESPNet scores all 20
+  channels (its void channel included, as measured by ``real_espnet_void``); ERFNet its 19
+  trainIds (its void channel was trained with loss weight 0).
 * Post-processing (SML Eqs. 6-8 with the paper's width 4, 4 iterations, 7x7 Gaussian, dilation 6)
   runs on the network's output (1024 wide), the resolution the paper's parameters were designed
   for (its 2048x1024 Cityscapes frames at the network's stride-8 logits upsampled: boundaries a few
@@ -25,9 +27,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from experiments.real_common import (HERE, anomaly_tracks, espnet, logits_of, require_realdata, score_frames,
-                                     with_intervals)
-from experiments.stats import REPLICATES, difference, draws
+from experiments.real_common import (HERE, NETWORKS, anomaly_tracks, logits_of, require_realdata, same_frames,
+                                     score_frames, with_intervals)
+from experiments.stats import REPLICATES, difference, difference_change, draws, network_difference
 from jaxanom import scores as S
 from jaxanom import sml
 from jaxanom.data.cityscapes import Cityscapes
@@ -42,6 +44,7 @@ BASES = {"MSP": S.msp, "max logit": S.max_logit, "entropy": S.entropy, "energy":
 POST = " + post"  # boundary suppression + dilated smoothing
 PAPER = "none"  # the policy of the paper (its per-class estimate)
 MARGIN = 0.001  # a difference counts when its 95% interval excludes [-0.1, 0.1] points (negligible otherwise)
+STRONGER, WEAKER = "ERFNet", "ESPNet"  # 72% and 62% mIoU on the 8 Cityscapes frames
 
 
 def fit_statistics(predict) -> tuple[dict, dict]:
@@ -109,20 +112,45 @@ def policy_comparison(replicates: dict) -> list[dict]:
              "fpr_difference": difference(replicates, a, b, "fpr_at_tpr")} for a, b in pairs]
 
 
+def across(networks: dict, replicates: dict) -> dict:
+    """The stronger network against the weaker on the same frames, paired: every row's difference, and per
+    finding and policy both verdicts and how the finding's gap changed (``difference_change``)."""
+    strong, weak = replicates[STRONGER], replicates[WEAKER]
+    rows = [{"score": name, "ap_difference": network_difference(strong, weak, name, "ap"),
+             "fpr_difference": network_difference(strong, weak, name, "fpr_at_tpr")}
+            for name in networks[STRONGER]["methods"]]
+    changes = [{"finding": f["finding"], "policy": policy, WEAKER: g["verdict"], STRONGER: f["verdict"],
+                "ap_change": difference_change(strong, weak, f["a"], f["b"], "ap"),
+                "fpr_change": difference_change(strong, weak, f["a"], f["b"], "fpr_at_tpr")}
+               for policy in POLICIES
+               for f, g in zip(networks[STRONGER]["findings"][policy], networks[WEAKER]["findings"][policy])]
+    return {"rows": rows, "findings": changes}
+
+
 def main(log=print) -> dict:
-    model, predict = espnet()
-    finals, counts = fit_statistics(predict)
-    results = {"input_width": WIDTH, "replicates": REPLICATES, "class_pixels": counts["count"],
-               "statistics": {p: {"mean": np.asarray(m).tolist(), "std": np.asarray(s).tolist()}
-                              for p, (m, s) in finals.items()}}
-    for track, root in anomaly_tracks().items():
-        scores, labels = score_frames(predict, root, lambda logits: score_maps(logits, finals), log, width=WIDTH)
-        table, replicates = with_intervals(scores, labels, draws(len(labels)))
-        del scores
-        results[track] = {"frames": len(labels), "methods": table,
-                          "findings": {policy: findings(replicates, policy) for policy in POLICIES},
-                          "policies": policy_comparison(replicates)}
-        write_json_atomic(HERE / f"{NAME}.json", results)
+    results = {"input_width": WIDTH, "replicates": REPLICATES, "networks": {}}
+    replicates, labels_of, multiplicities = {}, {}, {}
+    for network, load in NETWORKS.items():
+        _, predict = load()
+        finals, counts = fit_statistics(predict)
+        results["networks"][network] = {
+            "class_pixels": counts["count"],
+            "statistics": {p: {"mean": np.asarray(m).tolist(), "std": np.asarray(s).tolist()} for p, (m, s) in finals.items()}}
+        for track, root in anomaly_tracks().items():
+            log(f"{network}:")
+            scores, labels = score_frames(predict, root, lambda logits: score_maps(logits, finals), log, width=WIDTH)
+            same_frames(labels_of.setdefault(track, labels), labels, track)
+            draws_ = multiplicities.setdefault(track, draws(len(labels)))  # one set of draws per track: paired
+            table, replicates[track, network] = with_intervals(scores, labels, draws_)
+            del scores
+            results.setdefault(track, {"frames": len(labels), "networks": {}})["networks"][network] = {
+                "methods": table, "findings": {policy: findings(replicates[track, network], policy) for policy in POLICIES},
+                "policies": policy_comparison(replicates[track, network])}
+            write_json_atomic(HERE / f"{NAME}.json", results)
+    for track in labels_of:
+        results[track]["across"] = across(results[track]["networks"],
+                                          {network: replicates[track, network] for network in NETWORKS})
+    write_json_atomic(HERE / f"{NAME}.json", results)
     write_bytes_atomic(HERE / f"{NAME}.md", markdown(results).encode())
     return results
 
@@ -135,34 +163,65 @@ def _span(pair) -> str:
     return f"[{_pct(pair[0])}, {_pct(pair[1])}]"
 
 
+def _cell(pair_ap, pair_fpr) -> str:
+    return f"{_span(pair_ap)}; {_span(pair_fpr)}"
+
+
 def markdown(results: dict) -> str:
-    lines = ["# SML Tables 3 and 7 on real frames (ESPNet, Cityscapes weights)", "",
-             "Written by `python -m experiments.real_sml`. Frames resized to 1024 wide; statistics from the 8 "
-             "Cityscapes frames at 1024x512; post-processing (\" + post\": boundary suppression + dilated "
-             "smoothing) at the network's output size; AP and FPR at 95% TPR in %, pooled over non-void pixels at "
-             f"the labels' size; [95% interval] from {results['replicates']} bootstrap resamples of frames. "
-             "Verdicts use paired intervals of the difference (held: the interval lies beyond +-0.1 points in the "
-             "paper's direction; contradicted: beyond them the other way). The paper's tables (Fishyscapes Lost & Found, DeepLabV3+ R101) are images in "
-             "seeds/002; its text gives the directions and, for suppression on SML, AP +4 and FPR95 -1.", "",
-             "Pixels predicted per class on the 8 statistics frames: "
-             + ", ".join(str(c) for c in results["class_pixels"]) + ".", ""]
+    networks = list(results["networks"])
+    lines = ["# SML Tables 3 and 7 on real frames (ESPNet and ERFNet, the authors' Cityscapes weights)", "",
+             "Written by `python -m experiments.real_sml`. Both networks were trained at 1024x512: frames resized to "
+             "1024 wide (aspect kept, area filter), the same input for both; ESPNet scores its 20 channels, ERFNet its "
+             "19 trainIds (its void channel was trained with weight 0). Statistics from the 8 Cityscapes frames at "
+             "1024x512; post-processing (\" + post\": boundary suppression + dilated smoothing) at the network's "
+             "output size; AP and FPR at 95% TPR in %, pooled over non-void pixels at the labels' size; [95% interval] "
+             f"from {results['replicates']} bootstrap resamples of frames, the same draws for every row of both "
+             "networks (paired, also across networks). Verdicts use paired intervals of the difference (held: the "
+             "interval lies beyond +-0.1 points in the paper's direction; contradicted: beyond them the other way). "
+             "The paper's tables (Fishyscapes Lost & Found, DeepLabV3+ R101) are images in seeds/002; its text gives "
+             "the directions and, for suppression on SML, AP +4 and FPR95 -1.", ""]
+    for network in networks:
+        lines.append(f"{network}: pixels predicted per class on the 8 statistics frames: "
+                     + ", ".join(str(c) for c in results["networks"][network]["class_pixels"]) + ".")
+    lines.append("")
     for track in ("RoadAnomaly21", "RoadObstacle21"):
         if track not in results:
             continue
         r = results[track]
-        lines += [f"## {track} ({r['frames']} frames)", "", "| score | AP | FPR95 |", "|---|---|---|"]
-        for name, m in r["methods"].items():
-            lines.append(f"| {name} | {_pct(m['ap'])} {_span(m['interval']['ap'])} | "
-                         f"{_pct(m['fpr_at_tpr'])} {_span(m['interval']['fpr_at_tpr'])} |")
-        lines += ["", "Findings, per statistics policy: verdict (paired AP difference; FPR95 difference).", "",
-                  "| finding | " + " | ".join(POLICIES) + " |", "|---|" + "---|" * len(POLICIES)]
-        for i, first in enumerate(r["findings"][PAPER]):
-            cells = [r["findings"][policy][i] for policy in POLICIES]
-            lines.append(f"| {first['finding']} | " + " | ".join(
-                f"{f['verdict']} ({_span(f['ap_difference'])}; {_span(f['fpr_difference'])})" for f in cells) + " |")
-        lines += ["", "| policy comparison (a - b) | AP difference | FPR95 difference |", "|---|---|---|"]
-        for p in r["policies"]:
-            lines.append(f"| {p['a']} - {p['b']} | {_span(p['ap_difference'])} | {_span(p['fpr_difference'])} |")
+        nets = [n for n in networks if n in r["networks"]]
+        rows = {row["score"]: row for row in r.get("across", {}).get("rows", [])}
+        lines += [f"## {track} ({r['frames']} frames)", "",
+                  "| score | " + " | ".join(f"{n} AP | {n} FPR95" for n in nets)
+                  + (f" | {STRONGER} - {WEAKER}: AP; FPR95 |" if rows else " |"),
+                  "|---|" + "---|---|" * len(nets) + ("---|" if rows else "")]
+        for name in r["networks"][nets[0]]["methods"]:
+            cells = [f"{_pct(m['ap'])} {_span(m['interval']['ap'])} | {_pct(m['fpr_at_tpr'])} "
+                     f"{_span(m['interval']['fpr_at_tpr'])}" for m in (r["networks"][n]["methods"][name] for n in nets)]
+            change = [_cell(rows[name]["ap_difference"], rows[name]["fpr_difference"])] if rows else []
+            lines.append(f"| {name} | " + " | ".join(cells + change) + " |")
+        for network in nets:
+            found = r["networks"][network]["findings"]
+            lines += ["", f"{network}: findings per statistics policy: verdict (paired AP difference; FPR95 difference).",
+                      "", "| finding | " + " | ".join(POLICIES) + " |", "|---|" + "---|" * len(POLICIES)]
+            for i, first in enumerate(found[PAPER]):
+                lines.append(f"| {first['finding']} | " + " | ".join(
+                    f"{f['verdict']} ({_cell(f['ap_difference'], f['fpr_difference'])})"
+                    for f in (found[policy][i] for policy in POLICIES)) + " |")
+        if "across" in r:
+            changed = [c for c in r["across"]["findings"] if c[WEAKER] != c[STRONGER]]
+            lines += ["", f"The stronger network changes the verdict: {len(changed)} of {len(r['across']['findings'])} "
+                      f"(finding, policy) verdicts differ between {WEAKER} and {STRONGER}. Change of the finding's "
+                      f"paired difference ({STRONGER}'s minus {WEAKER}'s, same draws), in points:", "",
+                      f"| finding | policy | {WEAKER} | {STRONGER} | AP change | FPR95 change |", "|---|---|---|---|---|---|"]
+            lines += [f"| {c['finding']} | {c['policy']} | {c[WEAKER]} | {c[STRONGER]} | {_span(c['ap_change'])} | "
+                      f"{_span(c['fpr_change'])} |" for c in changed]
+        policies = [p["a"] + " - " + p["b"] for p in r["networks"][nets[0]]["policies"]]
+        lines += ["", "| policy comparison (a - b) | " + " | ".join(f"{n} AP; FPR95 difference" for n in nets) + " |",
+                  "|---|" + "---|" * len(nets)]
+        for i, text in enumerate(policies):
+            lines.append(f"| {text} | " + " | ".join(
+                _cell(p["ap_difference"], p["fpr_difference"]) for p in (r["networks"][n]["policies"][i] for n in nets))
+                + " |")
         lines.append("")
     return "\n".join(lines)
 
