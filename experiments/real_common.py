@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -64,6 +65,25 @@ def erfnet():
 # 2048x1024 frames halved; ERFNet: its training script's default height 512), so the experiments feed
 # both the same frames resized to 1024 wide; ESPNet keeps its void channel (docs/decisions/espnet.md).
 NETWORKS = {"ESPNet": espnet, "ERFNet": erfnet}
+
+
+def per_network(run: Callable[[str], object]) -> dict[str, object]:
+    """``{network: run(network)}`` for every network of ``NETWORKS``, each in its own spawned process at
+    once (a forked JAX process is unsafe): two processes get twice the share of a busy machine."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(len(NETWORKS), mp_context=multiprocessing.get_context("spawn")) as pool:
+        return dict(zip(NETWORKS, pool.map(run, NETWORKS)))
+
+
+def selected_tracks(names: list[str] | None) -> dict[str, Path]:
+    """``anomaly_tracks()`` restricted to ``names`` (all when None), or exit naming the unknown ones."""
+    tracks = anomaly_tracks()
+    unknown = sorted(set(names or ()) - set(tracks))
+    if unknown:
+        sys.exit(f"--tracks: expected some of {sorted(tracks)}, got {unknown}")
+    return {name: root for name, root in tracks.items() if names is None or name in names}
 
 
 def logits_of(predict, image: np.ndarray) -> np.ndarray:

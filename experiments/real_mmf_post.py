@@ -6,7 +6,7 @@ segmentations; envelope AP (Eq. 7) and FPR95 with 95% bootstrap intervals over f
 for the findings and across the networks (the same frame draws for every row of both); the
 per-frame time of SLIC + Eq. 6 at the native size.
 
-    python -m experiments.real_mmf_post   # writes real_mmf_post.json / .md beside this file (~25 min, 2 shared cores)
+    python -m experiments.real_mmf_post [--tracks RoadAnomaly21]   # writes real_mmf_post.json / .md beside this file
 
 Set-up:
 * Network input as ``real_sml`` (each frame resized to 1024 wide, both networks' training scale;
@@ -26,13 +26,15 @@ Set-up:
 """
 from __future__ import annotations
 
+import functools
 import time
 
 import cv2
 import numpy as np
 
-from experiments.real_common import HERE, NETWORKS, anomaly_tracks, logits_of, resized, same_frames, with_intervals
-from experiments.real_sml import STRONGER, WEAKER, WIDTH
+from experiments.real_common import (HERE, NETWORKS, logits_of, per_network, resized, same_frames, selected_tracks,
+                                     with_intervals)
+from experiments.real_sml import STRONGER, WEAKER, WIDTH, arguments
 from experiments.stats import REPLICATES, difference, difference_change, draws, network_difference
 from jaxanom import scores as S
 from jaxanom.data.smiyc import SegmentMeIfYouCan
@@ -64,31 +66,23 @@ def timed(fn, *args, **kwargs):
     return out, time.perf_counter() - start
 
 
-def rgb_segments(image: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str, float]]:
-    """The frame's two RGB SLIC segmentations (1, H, W) (the same for every network: computed once) and
-    their seconds."""
-    segs, seconds = {}, {}
-    segs["RGB SLIC"], seconds["slic_rgb"] = timed(segment, image[None], {})
-    segs["connected"], seconds["slic_connected"] = timed(segment, image[None], {}, connectivity=True)
-    return {name: seg["superpixels"] for name, seg in segs.items()}, seconds
-
-
-def frame_maps(logits: np.ndarray, image: np.ndarray, segments: tuple[dict, dict]
-               ) -> tuple[dict[str, np.ndarray], dict[str, float]]:
-    """Every row's map at the image's (H, W) and the seconds of each SLIC and of Eq. 6; ``segments``:
-    ``rgb_segments(image)``."""
+def frame_maps(logits: np.ndarray, image: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """Every row's map at the image's (H, W) and the seconds of each SLIC and of Eq. 6."""
     shape = image.shape[:2]
     network = uncertainty_maps(logits)
     road = upsampled(network["road"], shape)[None]
     maps = {"max logit": upsampled(S.max_logit(logits), shape)}
     bases = {name: upsampled(network[key], shape) for name, key in BASES.items()}
-    segs, seconds = segments[0], dict(segments[1])
+    segs, seconds = {}, {}
+    segs["RGB SLIC"], seconds["slic_rgb"] = timed(segment, image[None], {})
+    segs["connected"], seconds["slic_connected"] = timed(segment, image[None], {}, connectivity=True)
     on_map, seconds["slic_map (both maps)"] = timed(segment, image[None], {k: v[None] for k, v in bases.items()},
                                                    slic_input="anomaly")
     eq6 = 0.0
     for name, value in bases.items():
         maps[name] = value
-        for variant, labels in zip(VARIANTS, (segs["RGB SLIC"], segs["connected"], on_map[name])):
+        for variant, labels in zip(VARIANTS, (segs["RGB SLIC"]["superpixels"], segs["connected"]["superpixels"],
+                                              on_map[name])):
             score, spent = timed(superpixel_score_batch, value[None], road, labels, on_map["num_segments"])
             maps[name + variant] = score[0]
             eq6 += spent
@@ -97,19 +91,15 @@ def frame_maps(logits: np.ndarray, image: np.ndarray, segments: tuple[dict, dict
     return maps, seconds
 
 
-def track_scores(predict, root, segments: dict, log=print):
-    """Non-void pixels of every row's map per frame, the labels, and per-frame timings; ``segments``
-    caches ``rgb_segments`` per (track, frame) for the next network."""
+def track_scores(predict, root, log=print):
+    """Non-void pixels of every row's map per frame, the labels, and per-frame timings."""
     frames = SegmentMeIfYouCan(root)
     scores, labels, times = {}, [], []
     for i in range(len(frames)):
         frame = frames[i]
         keep = frame["label"] != 255
         labels.append(frame["label"][keep])
-        if (root.name, i) not in segments:
-            segments[root.name, i] = rgb_segments(frame["image"])
-        maps, seconds = frame_maps(logits_of(predict, resized(frame["image"], WIDTH)), frame["image"],
-                                   segments[root.name, i])
+        maps, seconds = frame_maps(logits_of(predict, resized(frame["image"], WIDTH)), frame["image"])
         for name, value in maps.items():
             scores.setdefault(name, []).append(value[keep])
         times.append(seconds)
@@ -154,27 +144,35 @@ def across(networks: dict, replicates: dict) -> dict:
     return {"rows": rows, "findings": changes}
 
 
-def main(log=print) -> dict:
+def network_run(network: str, tracks: tuple[str, ...] | None = None, log=print) -> tuple[dict, dict, dict]:
+    """One network on every track of ``tracks``: ``(results[track], replicates[track], labels[track])``;
+    each track's frames resampled with ``draws(frames)`` (the same draws in every process: paired)."""
+    _, predict = NETWORKS[network]()
+    results, replicates, labels_of = {}, {}, {}
+    for track, root in sorted(selected_tracks(tracks).items(), key=lambda item: item[0] != "RoadObstacle21"):
+        scores, labels, times = track_scores(predict, root, lambda line: log(f"{network} {line}"))
+        table, replicates[track] = with_intervals(scores, labels, draws(len(labels)))
+        del scores
+        labels_of[track] = labels
+        results[track] = {"methods": table, "findings": findings(replicates[track]), "seconds": timing(times)}
+    return results, replicates, labels_of
+
+
+def main(tracks: list[str] | None = None) -> dict:
+    """Both networks at once (``per_network``) on ``tracks`` (default all), then paired across."""
+    selected_tracks(tracks)  # a wrong name fails before any work
+    runs = per_network(functools.partial(network_run, tracks=tracks))
     results = {"replicates": REPLICATES}
-    tracks = sorted(anomaly_tracks().items(), key=lambda item: item[0] != "RoadObstacle21")
-    replicates, labels_of, multiplicities, segments = {}, {}, {}, {}
-    for network, load in NETWORKS.items():
-        _, predict = load()
-        for track, root in tracks:
-            log(f"{network}:")
-            scores, labels, times = track_scores(predict, root, segments, log)
-            same_frames(labels_of.setdefault(track, labels), labels, track)
-            draws_ = multiplicities.setdefault(track, draws(len(labels)))  # one set of draws per track: paired
-            table, replicates[track, network] = with_intervals(scores, labels, draws_)
-            del scores
+    for network, (run, _, labels_of) in runs.items():
+        for track, entry in run.items():
+            labels = labels_of[track]
+            same_frames(runs[WEAKER][2][track], labels, track)
             share = float(np.mean(np.concatenate(labels) == 1))  # a random score's AP
-            entry = results.setdefault(track, {"frames": len(labels), "anomaly_share": share, "networks": {}})
-            entry["networks"][network] = {"methods": table, "findings": findings(replicates[track, network]),
-                                          "seconds": timing(times)}
-            write_json_atomic(HERE / f"{NAME}.json", results)
-    for track in labels_of:
-        results[track]["across"] = across(results[track]["networks"],
-                                          {network: replicates[track, network] for network in NETWORKS})
+            results.setdefault(track, {"frames": len(labels), "anomaly_share": share, "networks": {}})
+            results[track]["networks"][network] = entry
+    for track in runs[WEAKER][1]:
+        results[track]["across"] = across(results[track]["networks"], {network: runs[network][1][track]
+                                                                       for network in NETWORKS})
     write_json_atomic(HERE / f"{NAME}.json", results)
     write_bytes_atomic(HERE / f"{NAME}.md", markdown(results).encode())
     return results
@@ -241,12 +239,12 @@ def markdown(results: dict) -> str:
             lines.append(f"The stronger network changes the verdict of {len(changed)} of {len(changes)} findings"
                          + (": " + "; ".join(changed) + "." if changed else "."))
         lines += ["", "Seconds per frame (median over frames 2..N; 2 CPU cores shared with other jobs, XLA:CPU; "
-                  "\"connected\" includes its own SLIC; \"SLIC on the map\" segments both maps; the two RGB SLICs do not "
-                  "depend on the network: measured once, in the first network's pass, and reused): "
+                  "\"connected\" includes its own SLIC; \"SLIC on the map\" segments both maps; the networks ran at once, "
+                  "each in its own process): "
                   + "; ".join(f"{n}: " + ", ".join(f"{k} {r['networks'][n]['seconds'][k]['median']:.2f}" for k in TIMES)
                               for n in nets) + ".", ""]
     return "\n".join(lines)
 
 
 if __name__ == "__main__":
-    print(markdown(main()))
+    print(markdown(main(arguments().tracks)))
