@@ -206,9 +206,10 @@ def markdown(results: dict) -> str:
              "55.41 / 5.28.", ""]
     for track in ("RoadObstacle21", "RoadAnomaly21"):
         if track not in results:
+            lines += [f"## {track}", "", "Not in this run (`--tracks`).", ""]
             continue
         r = results[track]
-        nets = list(r["networks"])
+        nets = [n for n in NETWORKS if n in r["networks"]]  # JSON sorts keys: the table's order
         rows = {row["score"]: row for row in r.get("across", {}).get("rows", [])}
         lines += [f"## {track} ({r['frames']} frames)", "",
                   f"Anomalous share of the scored pixels (the AP of a random score): {100 * r['anomaly_share']:.2f}%.", "",

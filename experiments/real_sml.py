@@ -48,6 +48,8 @@ BASES = {"MSP": S.msp, "max logit": S.max_logit, "entropy": S.entropy, "energy":
 POST = " + post"  # boundary suppression + dilated smoothing
 PAPER = "none"  # the policy of the paper (its per-class estimate)
 MARGIN = 0.001  # a difference counts when its 95% interval excludes [-0.1, 0.1] points (negligible otherwise)
+ROWS = (*(name + suffix for name in BASES for suffix in ("", POST)),  # the tables' rows, as score_maps
+        *(f"SML ({policy}){suffix}" for policy in POLICIES for suffix in ("", POST, " + suppression", " + smoothing")))
 STRONGER, WEAKER = "ERFNet", "ESPNet"  # 72% and 62% mIoU on the 8 Cityscapes frames
 
 
@@ -183,7 +185,7 @@ def _cell(pair_ap, pair_fpr) -> str:
 
 
 def markdown(results: dict) -> str:
-    networks = list(results["networks"])
+    networks = [n for n in NETWORKS if n in results["networks"]]  # JSON sorts keys: the table's order
     lines = ["# SML Tables 3 and 7 on real frames (ESPNet and ERFNet, the authors' Cityscapes weights)", "",
              "Written by `python -m experiments.real_sml`. Both networks were trained at 1024x512: frames resized to "
              "1024 wide (aspect kept, area filter), the same input for both; ESPNet scores its 20 channels, ERFNet its "
@@ -201,6 +203,7 @@ def markdown(results: dict) -> str:
     lines.append("")
     for track in ("RoadAnomaly21", "RoadObstacle21"):
         if track not in results:
+            lines += [f"## {track}", "", "Not in this run (`--tracks`).", ""]
             continue
         r = results[track]
         nets = [n for n in networks if n in r["networks"]]
@@ -209,7 +212,7 @@ def markdown(results: dict) -> str:
                   "| score | " + " | ".join(f"{n} AP | {n} FPR95" for n in nets)
                   + (f" | {STRONGER} - {WEAKER}: AP; FPR95 |" if rows else " |"),
                   "|---|" + "---|---|" * len(nets) + ("---|" if rows else "")]
-        for name in r["networks"][nets[0]]["methods"]:
+        for name in ROWS:
             cells = [f"{_pct(m['ap'])} {_span(m['interval']['ap'])} | {_pct(m['fpr_at_tpr'])} "
                      f"{_span(m['interval']['fpr_at_tpr'])}" for m in (r["networks"][n]["methods"][name] for n in nets)]
             change = [_cell(rows[name]["ap_difference"], rows[name]["fpr_difference"])] if rows else []
