@@ -1,5 +1,5 @@
-"""What the real-data experiments share: the files of ../shared/realdata, the ESPNet authors'
-Cityscapes network, and the pooled metrics of their frames with bootstrap intervals
+"""What the real-data experiments share: the files of ../shared/realdata, the authors' Cityscapes
+networks (``NETWORKS``: ESPNet and ERFNet), and the pooled metrics of their frames with bootstrap intervals
 (``experiments.stats``).
 
 Frames are few (RoadAnomaly21: 10, RoadObstacle21: 30), so every pooled pixel metric comes with a
@@ -9,13 +9,15 @@ histograms of each score over ``stats.NUM_BINS`` bins at the quantiles of its po
 so a replicate costs a matrix product instead of a sort; the point estimates are exact
 (``jaxanom.metrics.anomaly_metrics``), and ``binned_metrics`` of all frames is reported beside them
 as the binning's check. Methods compared on the same frames are resampled with the same draws
-(paired): ``difference`` intervals come from the same replicates.
+(paired): ``difference`` intervals come from the same replicates. Both networks see the same
+frames in the same order, so their rows resampled with the same ``draws`` are paired too.
 """
 from __future__ import annotations
 
 import os
 import sys
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -25,7 +27,6 @@ from jaxanom.app.scoring import VOID_CHANNEL
 HERE = Path(__file__).parent
 REALDATA = Path(os.environ.get("JAXANOM_REALDATA", HERE.parent.parent / "shared" / "realdata"))
 CHECKPOINT = REALDATA / "espnet" / "espnet_p_2_q_8.pth"
-TRAIN_IDS = VOID_CHANNEL  # the ESPNet weights' channels 0..18 are the trainIds; channel 19 is their void class
 
 
 def require_realdata(*parts: str) -> Path:
@@ -44,6 +45,45 @@ def espnet():
 
     model, variables = from_torch(read_state_dict(require_realdata("espnet", CHECKPOINT.name)), "espnet-cityscapes")
     return model, predictor(model, variables)
+
+
+def erfnet():
+    """``(model, predict)``: the ERFNet authors' Cityscapes weights (the int8 redistribution, dequantised)
+    and their jitted forward pass on uint8 RGB batches, with the void channel dropped: the authors
+    trained it with loss weight 0 (``weight[19] = 0`` in their training script), so it carries no
+    signal, and the road-anomaly repositories that evaluate these weights drop it too."""
+    from jaxanom.app.evaluate import predictor
+    from jaxanom.weights import from_torch, read_state_dict
+
+    model, variables = from_torch(read_state_dict(require_realdata("erfnet", "erfnet_cityscapes_int8.pth")),
+                                  "erfnet-cityscapes")
+    forward = predictor(model, variables)
+    return model, lambda images: {"logits": forward(images)["logits"][..., :TRAIN_IDS]}
+
+
+# name -> loader () -> (model, predict). Both were trained on Cityscapes at 1024x512 (ESPNet: the
+# 2048x1024 frames halved; ERFNet: its training script's default height 512), so the experiments feed
+# both the same frames resized to 1024 wide; ESPNet keeps its void channel (docs/decisions/espnet.md).
+NETWORKS = {"ESPNet": espnet, "ERFNet": erfnet}
+
+
+def per_network(run: Callable[[str], object]) -> dict[str, object]:
+    """``{network: run(network)}`` for every network of ``NETWORKS``, each in its own spawned process at
+    once (a forked JAX process is unsafe): two processes get twice the share of a busy machine."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(len(NETWORKS), mp_context=multiprocessing.get_context("spawn")) as pool:
+        return dict(zip(NETWORKS, pool.map(run, NETWORKS)))
+
+
+def selected_tracks(names: list[str] | None) -> dict[str, Path]:
+    """``anomaly_tracks()`` restricted to ``names`` (all when None), or exit naming the unknown ones."""
+    tracks = anomaly_tracks()
+    unknown = sorted(set(names or ()) - set(tracks))
+    if unknown:
+        sys.exit(f"--tracks: expected some of {sorted(tracks)}, got {unknown}")
+    return {name: root for name, root in tracks.items() if names is None or name in names}
 
 
 def logits_of(predict, image: np.ndarray) -> np.ndarray:
@@ -90,6 +130,13 @@ def score_frames(predict, root: Path, score_maps, log=print, *,
             scores.setdefault(name, []).append(value[keep])
         log(f"  {root.name} {i + 1}/{len(frames)} {frame['name']}")
     return scores, labels
+
+
+def same_frames(first: list[np.ndarray], second: list[np.ndarray], track: str) -> None:
+    """Raise unless two networks' scored pixels are the same frames in the same order (their rows are
+    then paired by resampling both with the same draws)."""
+    if len(first) != len(second) or not all(np.array_equal(a, b) for a, b in zip(first, second)):
+        raise RuntimeError(f"{track}: the networks were scored on different frames or pixels; cannot pair them")
 
 
 def exact_metrics(scores: list[np.ndarray], labels: list[np.ndarray]) -> dict[str, float]:

@@ -1,16 +1,22 @@
-"""SML Tables 3 and 7 on real frames: the ESPNet authors' Cityscapes network on RoadAnomaly21 and
-RoadObstacle21, MSP / max logit / entropy / energy / SML, each without and with boundary
-suppression + dilated smoothing; SML statistics fitted on the 8 Cityscapes frames under every
-statistics policy; 95% bootstrap intervals over frames, paired for the findings.
+"""SML Tables 3 and 7 on real frames with two networks: the ESPNet and ERFNet authors' Cityscapes
+weights (``real_common.NETWORKS``) on RoadAnomaly21 and RoadObstacle21, MSP / max logit / entropy /
+energy / SML, each without and with boundary suppression + dilated smoothing; SML statistics fitted
+on the 8 Cityscapes frames under every statistics policy; 95% bootstrap intervals over frames, paired
+for the findings and across the networks (the same frame draws for every row of both).
 
-    python -m experiments.real_sml        # writes real_sml.json / real_sml.md beside this file (~20 min, 2 cores)
+    python -m experiments.real_sml [--tracks RoadAnomaly21]   # writes real_sml.json / .md beside this file
 
-Set-up (decisions in docs/decisions/espnet.md and sml.md):
+Both networks run at once, each in its own process. ``--tracks RoadAnomaly21`` took 20.7 min wall on
+2 CPU cores shared with ~25 other processes; RoadObstacle21 scores about twice its pixels (19.2M
+against 8.9M) in three times the frames.
+
+Set-up (decisions in docs/decisions/espnet.md, real-networks.md and sml.md):
 * Input: every frame resized to 1024 pixels wide (height rounded to a multiple of 8), the scale
-  the weights were trained at (Cityscapes' 2048x1024 halved); the Cityscapes frames at 1024x512.
-  On RoadAnomaly21 this scale gives max logit AP 28.3 / FPR95 63.6 against 23.8 / 72.7 at the
-  native 1280x720 (measured while setting this up). All 20 channels are scored (the void channel
-  included, as measured by ``real_espnet_void``).
+  both networks were trained at (Cityscapes' 2048x1024 halved, 1024x512); the Cityscapes frames at
+  1024x512. On RoadAnomaly21 this scale gives ESPNet's max logit AP 28.3 / FPR95 63.6 against
+  23.8 / 72.7 at the native 1280x720 (measured while setting this up). ESPNet scores all 20
+  channels (its void channel included, as measured by ``real_espnet_void``); ERFNet its 19
+  trainIds (its void channel was trained with loss weight 0).
 * Post-processing (SML Eqs. 6-8 with the paper's width 4, 4 iterations, 7x7 Gaussian, dilation 6)
   runs on the network's output (1024 wide), the resolution the paper's parameters were designed
   for (its 2048x1024 Cityscapes frames at the network's stride-8 logits upsampled: boundaries a few
@@ -22,12 +28,15 @@ Set-up (decisions in docs/decisions/espnet.md and sml.md):
 """
 from __future__ import annotations
 
+import argparse
+import functools
+
 import cv2
 import numpy as np
 
-from experiments.real_common import (HERE, anomaly_tracks, espnet, logits_of, require_realdata, score_frames,
-                                     with_intervals)
-from experiments.stats import REPLICATES, difference, draws
+from experiments.real_common import (HERE, NETWORKS, logits_of, per_network, require_realdata, same_frames,
+                                     score_frames, selected_tracks, with_intervals)
+from experiments.stats import REPLICATES, difference, difference_change, draws, network_difference
 from jaxanom import scores as S
 from jaxanom import sml
 from jaxanom.data.cityscapes import Cityscapes
@@ -35,13 +44,17 @@ from jaxanom.io import write_bytes_atomic, write_json_atomic
 
 NAME = "real_sml"
 WIDTH = 1024
+# The paper's estimate and the two pooled policies at the settings that came out best with ESPNet (its
+# earlier run also had shrink 1e4 and 1e5, each separably worse than shrink 1e6: docs/decisions/sml.md).
 POLICIES = {"none": dict(policy="none", missing="pooled"), "min_count 1e4": dict(policy="min_count", min_count=1e4),
-            "shrink 1e4": dict(policy="shrink", strength=1e4), "shrink 1e5": dict(policy="shrink", strength=1e5),
             "shrink 1e6": dict(policy="shrink", strength=1e6)}
 BASES = {"MSP": S.msp, "max logit": S.max_logit, "entropy": S.entropy, "energy": S.energy}
 POST = " + post"  # boundary suppression + dilated smoothing
 PAPER = "none"  # the policy of the paper (its per-class estimate)
 MARGIN = 0.001  # a difference counts when its 95% interval excludes [-0.1, 0.1] points (negligible otherwise)
+ROWS = (*(name + suffix for name in BASES for suffix in ("", POST)),  # the tables' rows, as score_maps
+        *(f"SML ({policy}){suffix}" for policy in POLICIES for suffix in ("", POST, " + suppression", " + smoothing")))
+STRONGER, WEAKER = "ERFNet", "ESPNet"  # 72% and 62% mIoU on the 8 Cityscapes frames
 
 
 def fit_statistics(predict) -> tuple[dict, dict]:
@@ -109,20 +122,56 @@ def policy_comparison(replicates: dict) -> list[dict]:
              "fpr_difference": difference(replicates, a, b, "fpr_at_tpr")} for a, b in pairs]
 
 
-def main(log=print) -> dict:
-    model, predict = espnet()
+def across(networks: dict, replicates: dict) -> dict:
+    """The stronger network against the weaker on the same frames, paired: every row's difference, and per
+    finding and policy both verdicts and how the finding's gap changed (``difference_change``)."""
+    strong, weak = replicates[STRONGER], replicates[WEAKER]
+    rows = [{"score": name, "ap_difference": network_difference(strong, weak, name, "ap"),
+             "fpr_difference": network_difference(strong, weak, name, "fpr_at_tpr")}
+            for name in networks[STRONGER]["methods"]]
+    changes = [{"finding": f["finding"], "policy": policy, WEAKER: g["verdict"], STRONGER: f["verdict"],
+                "ap_change": difference_change(strong, weak, f["a"], f["b"], "ap"),
+                "fpr_change": difference_change(strong, weak, f["a"], f["b"], "fpr_at_tpr")}
+               for policy in POLICIES
+               for f, g in zip(networks[STRONGER]["findings"][policy], networks[WEAKER]["findings"][policy])]
+    return {"rows": rows, "findings": changes}
+
+
+def network_run(network: str, tracks: tuple[str, ...] | None = None, log=print) -> tuple[dict, dict, dict]:
+    """One network on every track of ``tracks``: ``(results, replicates[track], labels[track])``; each
+    track's frames resampled with ``draws(frames)`` (deterministic: the same draws in every process, so
+    paired across networks)."""
+    _, predict = NETWORKS[network]()
     finals, counts = fit_statistics(predict)
-    results = {"input_width": WIDTH, "replicates": REPLICATES, "class_pixels": counts["count"],
+    results = {"class_pixels": counts["count"], "tracks": {},
                "statistics": {p: {"mean": np.asarray(m).tolist(), "std": np.asarray(s).tolist()}
                               for p, (m, s) in finals.items()}}
-    for track, root in anomaly_tracks().items():
-        scores, labels = score_frames(predict, root, lambda logits: score_maps(logits, finals), log, width=WIDTH)
-        table, replicates = with_intervals(scores, labels, draws(len(labels)))
+    replicates, labels_of = {}, {}
+    for track, root in selected_tracks(tracks).items():
+        scores, labels = score_frames(predict, root, lambda logits: score_maps(logits, finals),
+                                      lambda line: log(f"{network} {line}"), width=WIDTH)
+        table, replicates[track] = with_intervals(scores, labels, draws(len(labels)))
         del scores
-        results[track] = {"frames": len(labels), "methods": table,
-                          "findings": {policy: findings(replicates, policy) for policy in POLICIES},
-                          "policies": policy_comparison(replicates)}
-        write_json_atomic(HERE / f"{NAME}.json", results)
+        labels_of[track] = labels
+        results["tracks"][track] = {"methods": table, "policies": policy_comparison(replicates[track]),
+                                    "findings": {policy: findings(replicates[track], policy) for policy in POLICIES}}
+    return results, replicates, labels_of
+
+
+def main(tracks: list[str] | None = None) -> dict:
+    """Both networks at once (``per_network``) on ``tracks`` (default all), then paired across."""
+    selected_tracks(tracks)  # a wrong name fails before any work
+    runs = per_network(functools.partial(network_run, tracks=tracks))
+    results = {"input_width": WIDTH, "replicates": REPLICATES, "networks": {}}
+    for network, (run, _, labels_of) in runs.items():
+        results["networks"][network] = {k: v for k, v in run.items() if k != "tracks"}
+        for track, entry in run["tracks"].items():
+            same_frames(runs[WEAKER][2][track], labels_of[track], track)
+            results.setdefault(track, {"frames": len(labels_of[track]), "networks": {}})["networks"][network] = entry
+    for track in runs[WEAKER][1]:
+        results[track]["across"] = across(results[track]["networks"], {network: runs[network][1][track]
+                                                                       for network in NETWORKS})
+    write_json_atomic(HERE / f"{NAME}.json", results)
     write_bytes_atomic(HERE / f"{NAME}.md", markdown(results).encode())
     return results
 
@@ -135,37 +184,75 @@ def _span(pair) -> str:
     return f"[{_pct(pair[0])}, {_pct(pair[1])}]"
 
 
+def _cell(pair_ap, pair_fpr) -> str:
+    return f"{_span(pair_ap)}; {_span(pair_fpr)}"
+
+
 def markdown(results: dict) -> str:
-    lines = ["# SML Tables 3 and 7 on real frames (ESPNet, Cityscapes weights)", "",
-             "Written by `python -m experiments.real_sml`. Frames resized to 1024 wide; statistics from the 8 "
-             "Cityscapes frames at 1024x512; post-processing (\" + post\": boundary suppression + dilated "
-             "smoothing) at the network's output size; AP and FPR at 95% TPR in %, pooled over non-void pixels at "
-             f"the labels' size; [95% interval] from {results['replicates']} bootstrap resamples of frames. "
-             "Verdicts use paired intervals of the difference (held: the interval lies beyond +-0.1 points in the "
-             "paper's direction; contradicted: beyond them the other way). The paper's tables (Fishyscapes Lost & Found, DeepLabV3+ R101) are images in "
-             "seeds/002; its text gives the directions and, for suppression on SML, AP +4 and FPR95 -1.", "",
-             "Pixels predicted per class on the 8 statistics frames: "
-             + ", ".join(str(c) for c in results["class_pixels"]) + ".", ""]
+    networks = [n for n in NETWORKS if n in results["networks"]]  # JSON sorts keys: the table's order
+    lines = ["# SML Tables 3 and 7 on real frames (ESPNet and ERFNet, the authors' Cityscapes weights)", "",
+             "Written by `python -m experiments.real_sml`. Both networks were trained at 1024x512: frames resized to "
+             "1024 wide (aspect kept, area filter), the same input for both; ESPNet scores its 20 channels, ERFNet its "
+             "19 trainIds (its void channel was trained with weight 0). Statistics from the 8 Cityscapes frames at "
+             "1024x512; post-processing (\" + post\": boundary suppression + dilated smoothing) at the network's "
+             "output size; AP and FPR at 95% TPR in %, pooled over non-void pixels at the labels' size; [95% interval] "
+             f"from {results['replicates']} bootstrap resamples of frames, the same draws for every row of both "
+             "networks (paired, also across networks). Verdicts use paired intervals of the difference (held: the "
+             "interval lies beyond +-0.1 points in the paper's direction; contradicted: beyond them the other way). "
+             "The paper's tables (Fishyscapes Lost & Found, DeepLabV3+ R101) are images in seeds/002; its text gives "
+             "the directions and, for suppression on SML, AP +4 and FPR95 -1.", ""]
+    for network in networks:
+        lines.append(f"{network}: pixels predicted per class on the 8 statistics frames: "
+                     + ", ".join(str(c) for c in results["networks"][network]["class_pixels"]) + ".")
+    lines.append("")
     for track in ("RoadAnomaly21", "RoadObstacle21"):
         if track not in results:
+            lines += [f"## {track}", "", "Not in this run (`--tracks`).", ""]
             continue
         r = results[track]
-        lines += [f"## {track} ({r['frames']} frames)", "", "| score | AP | FPR95 |", "|---|---|---|"]
-        for name, m in r["methods"].items():
-            lines.append(f"| {name} | {_pct(m['ap'])} {_span(m['interval']['ap'])} | "
-                         f"{_pct(m['fpr_at_tpr'])} {_span(m['interval']['fpr_at_tpr'])} |")
-        lines += ["", "Findings, per statistics policy: verdict (paired AP difference; FPR95 difference).", "",
-                  "| finding | " + " | ".join(POLICIES) + " |", "|---|" + "---|" * len(POLICIES)]
-        for i, first in enumerate(r["findings"][PAPER]):
-            cells = [r["findings"][policy][i] for policy in POLICIES]
-            lines.append(f"| {first['finding']} | " + " | ".join(
-                f"{f['verdict']} ({_span(f['ap_difference'])}; {_span(f['fpr_difference'])})" for f in cells) + " |")
-        lines += ["", "| policy comparison (a - b) | AP difference | FPR95 difference |", "|---|---|---|"]
-        for p in r["policies"]:
-            lines.append(f"| {p['a']} - {p['b']} | {_span(p['ap_difference'])} | {_span(p['fpr_difference'])} |")
+        nets = [n for n in networks if n in r["networks"]]
+        rows = {row["score"]: row for row in r.get("across", {}).get("rows", [])}
+        lines += [f"## {track} ({r['frames']} frames)", "",
+                  "| score | " + " | ".join(f"{n} AP | {n} FPR95" for n in nets)
+                  + (f" | {STRONGER} - {WEAKER}: AP; FPR95 |" if rows else " |"),
+                  "|---|" + "---|---|" * len(nets) + ("---|" if rows else "")]
+        for name in ROWS:
+            cells = [f"{_pct(m['ap'])} {_span(m['interval']['ap'])} | {_pct(m['fpr_at_tpr'])} "
+                     f"{_span(m['interval']['fpr_at_tpr'])}" for m in (r["networks"][n]["methods"][name] for n in nets)]
+            change = [_cell(rows[name]["ap_difference"], rows[name]["fpr_difference"])] if rows else []
+            lines.append(f"| {name} | " + " | ".join(cells + change) + " |")
+        for network in nets:
+            found = r["networks"][network]["findings"]
+            lines += ["", f"{network}: findings per statistics policy: verdict (paired AP difference; FPR95 difference).",
+                      "", "| finding | " + " | ".join(POLICIES) + " |", "|---|" + "---|" * len(POLICIES)]
+            for i, first in enumerate(found[PAPER]):
+                lines.append(f"| {first['finding']} | " + " | ".join(
+                    f"{f['verdict']} ({_cell(f['ap_difference'], f['fpr_difference'])})"
+                    for f in (found[policy][i] for policy in POLICIES)) + " |")
+        if "across" in r:
+            changed = [c for c in r["across"]["findings"] if c[WEAKER] != c[STRONGER]]
+            lines += ["", f"The stronger network changes the verdict: {len(changed)} of {len(r['across']['findings'])} "
+                      f"(finding, policy) verdicts differ between {WEAKER} and {STRONGER}. Change of the finding's "
+                      f"paired difference ({STRONGER}'s minus {WEAKER}'s, same draws), in points:", "",
+                      f"| finding | policy | {WEAKER} | {STRONGER} | AP change | FPR95 change |", "|---|---|---|---|---|---|"]
+            lines += [f"| {c['finding']} | {c['policy']} | {c[WEAKER]} | {c[STRONGER]} | {_span(c['ap_change'])} | "
+                      f"{_span(c['fpr_change'])} |" for c in changed]
+        policies = [p["a"] + " - " + p["b"] for p in r["networks"][nets[0]]["policies"]]
+        lines += ["", "| policy comparison (a - b) | " + " | ".join(f"{n} AP; FPR95 difference" for n in nets) + " |",
+                  "|---|" + "---|" * len(nets)]
+        for i, text in enumerate(policies):
+            lines.append(f"| {text} | " + " | ".join(
+                _cell(p["ap_difference"], p["fpr_difference"]) for p in (r["networks"][n]["policies"][i] for n in nets))
+                + " |")
         lines.append("")
     return "\n".join(lines)
 
 
+def arguments(argv=None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tracks", nargs="+", help="RoadAnomaly21 and/or RoadObstacle21 (default: both)")
+    return parser.parse_args(argv)
+
+
 if __name__ == "__main__":
-    print(markdown(main()))
+    print(markdown(main(arguments().tracks)))

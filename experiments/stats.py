@@ -4,7 +4,9 @@ A pooled pixel metric (AP, FPR at 95% TPR, AUROC) is a function of the (negative
 counts per score bin, so a bootstrap replicate that resamples frames is a weighted sum of per-frame
 histograms (``frame_histograms``) over ``NUM_BINS`` bins at the quantiles of the pooled scores: a
 matrix product instead of a sort. Every row compared is resampled with the same draws (paired), so
-the interval of a difference comes from the differences of the replicates (``difference``).
+the interval of a difference comes from the differences of the replicates (``difference``); two
+networks scored on the same frames and resampled with the same draws are paired the same way
+(``network_difference``, ``difference_change``).
 
 ``hierarchical_draws`` adds a level for several seeds: a replicate draws seeds with replacement and,
 inside each drawn seed, its frames with replacement; a row's replicate value is the mean over the
@@ -90,6 +92,18 @@ def binned_auroc(histograms: np.ndarray) -> np.ndarray:
 def difference(replicates: dict, a: str, b: str, metric: str) -> tuple[float, float]:
     """95% interval of ``metric(a) - metric(b)`` over paired replicates."""
     return interval(replicates[a][metric] - replicates[b][metric])
+
+
+def network_difference(first: dict, second: dict, name: str, metric: str) -> tuple[float, float]:
+    """95% interval of ``metric(name)`` under ``first`` minus under ``second``: replicates of two networks
+    on the same frames, drawn with the same multiplicities (paired)."""
+    return interval(first[name][metric] - second[name][metric])
+
+
+def difference_change(first: dict, second: dict, a: str, b: str, metric: str) -> tuple[float, float]:
+    """95% interval of how ``metric(a) - metric(b)`` changes from ``second`` to ``first`` (two networks'
+    paired replicates, as ``network_difference``): whether a finding's gap grows or shrinks."""
+    return interval((first[a][metric] - first[b][metric]) - (second[a][metric] - second[b][metric]))
 
 
 # ----------------------------------------------------------------------------- seeds and frames

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 from sklearn.metrics import average_precision_score, precision_recall_curve, roc_curve
 
-from experiments.stats import binned_metrics, bootstrap, draws, frame_histograms, interval
+from experiments.stats import (binned_metrics, bootstrap, difference_change, draws, frame_histograms, interval,
+                               network_difference)
 
 
 def sklearn_metrics(scores: np.ndarray, labels: np.ndarray) -> tuple[float, float]:
@@ -81,6 +82,44 @@ def test_a_replicate_pools_frames_by_their_multiplicities(frames):
                                        rtol=1e-12)
         else:
             assert np.isnan(got["ap"][r])
+
+
+def test_two_networks_on_the_same_frames_are_paired_by_the_same_draws(frames):
+    """Each replicate of a cross-network difference is computed on the same repeated frames for both
+    networks: scikit-learn's AP and FPR95 of those pixels, per replicate, give the same intervals."""
+    from experiments.real_common import same_frames
+
+    scores, labels = (list(x) for x in zip(*frames))
+    rng = np.random.default_rng(7)
+    maps = {"first": {"a": scores, "b": [s + rng.integers(-4, 5, s.size) for s in scores]},
+            "second": {"a": [np.round(s * 0.5 + rng.integers(0, 3, s.size)) for s in scores],
+                       "b": [np.where(rng.random(s.size) < 0.5, s, 14 - s) for s in scores]}}
+    multiplicities = draws(len(frames), replicates=20, seed=4)
+    edges = np.arange(-4, 20) + 0.5  # one bin per integer score: the binned metrics are exact
+    replicates = {net: {m: bootstrap(frame_histograms(v, labels, edges), multiplicities) for m, v in methods.items()}
+                  for net, methods in maps.items()}
+    want = {}  # (net, method) -> (R, 2) scikit-learn AP and FPR95 of each replicate's pooled pixels
+    for net, methods in maps.items():
+        for m, values in methods.items():
+            rows = []
+            for counts in multiplicities:
+                s = np.concatenate([np.tile(values[f], k) for f, k in enumerate(counts)])
+                l = np.concatenate([np.tile(labels[f], k) for f, k in enumerate(counts)])
+                keep = l != 255
+                rows.append(sklearn_metrics(s[keep], l[keep]) if (l[keep] == 1).any() else (np.nan, np.nan))
+            want[net, m] = np.array(rows)
+    for k, metric in enumerate(("ap", "fpr_at_tpr")):
+        gap = want["first", "a"][:, k] - want["second", "a"][:, k]
+        np.testing.assert_allclose(network_difference(replicates["first"], replicates["second"], "a", metric),
+                                   np.nanpercentile(gap, [2.5, 97.5]), rtol=1e-9, atol=1e-12)
+        change = (want["first", "a"][:, k] - want["first", "b"][:, k]) - (want["second", "a"][:, k] - want["second", "b"][:, k])
+        np.testing.assert_allclose(difference_change(replicates["first"], replicates["second"], "a", "b", metric),
+                                   np.nanpercentile(change, [2.5, 97.5]), rtol=1e-9, atol=1e-12)
+    same_frames(labels, [l.copy() for l in labels], "track")
+    with pytest.raises(RuntimeError, match="track: the networks were scored on different frames"):
+        same_frames(labels, labels[:-1], "track")
+    with pytest.raises(RuntimeError, match="different frames"):
+        same_frames(labels, [labels[1], labels[0], *labels[2:]], "track")
 
 
 def test_interval_is_the_central_95_percent_without_nan():
