@@ -72,7 +72,7 @@ def run(quick: bool = False) -> list[dict]:
     image_mb = CLASSES * HEIGHT * WIDTH * 2 / 2**20
     sizes_mb = (20,) if quick else (50, 200)
     rows = []
-    peak, seconds = _peak_of("import jax, jaxanom.cli, jaxanom.app.methods; jax.numpy.zeros(1)")
+    peak, seconds = _peak_of("import jax, jaxanom.cli, jaxanom.app.scoring; jaxanom.app.scoring.names(); jax.numpy.zeros(1)")
     rows.append({"benchmark": "score peak memory", "case": "import only", "impl": "python + jax + jaxanom",
                  "input_mb": 0.0, "peak_mb": peak, "peak_minus_input_mb": peak, "seconds": seconds})
     for size in sizes_mb:

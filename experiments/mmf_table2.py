@@ -84,7 +84,7 @@ _TABLE4 = "a Table 4 row (an image in our copy; its numbers are not in the text)
 
 @dataclasses.dataclass(frozen=True)
 class Row:
-    """One line: ``method`` (``app.methods``) scored with dissimilarity net ``net`` (``"mmf"`` or a
+    """One line: ``method`` (``jaxanom.method_registry``) scored with dissimilarity net ``net`` (``"mmf"`` or a
     variant of ``DISSIM_VARIANTS``) of the pipeline with ``synthesizer``; ``paper``: a key of
     ``PAPER_TABLE1`` or what the paper gives instead; ``slic``: ``MMFConfig`` settings of the post-processor."""
 

@@ -84,8 +84,9 @@ def _without_void(inputs: Mapping) -> dict:
     return {**{k: v for k, v in inputs.items() if k != "void_channel"}, "logits": kept}
 
 
-def describe() -> str:
-    """Every method, one per line: its name and description (the commands' ``--help``)."""
-    known = names()
+def describe(unavailable: Iterable[str] = ()) -> str:
+    """Every method, one per line: its name and description (the commands' ``--help``), but those
+    that need an input of ``unavailable``."""
+    known = [name for name in names() if not get(name).needs & set(unavailable)]
     width = max(map(len, known))
     return "\n".join(f"  {name.ljust(width)}  {get(name).description}" for name in known)

@@ -75,17 +75,17 @@ class _KeepIndented(argparse.HelpFormatter):
                          for line in text.splitlines())
 
 
-def add_methods(parser, default: str = DEFAULT_METHODS, extra: str = "") -> None:
-    """``--methods`` (every registered method listed with its description under the help) and ``--plugin``."""
+def add_methods(parser, unavailable: tuple[str, ...] = ()) -> None:
+    """``--methods`` (the registered methods listed with their descriptions under the help, but those
+    needing an input of ``unavailable``) and ``--plugin``."""
     from jaxanom.app.scoring import describe
 
-    parser.add_argument("--methods", type=method_list,
-                        help=f"comma-separated names of the methods listed below (default: {default})"
-                        + extra)
+    parser.add_argument("--methods", type=method_list, help=f"comma-separated names of the methods listed below "
+                        f"(default: {DEFAULT_METHODS})")
     parser.add_argument("--plugin", action="append", default=[], metavar="MODULE",
                         help="import this Python module first, which registers its own methods (repeatable)")
     parser.formatter_class = _KeepIndented
-    parser.epilog = "methods (plug-ins add theirs):\n" + describe()
+    parser.epilog = "methods (plug-ins add theirs):\n" + describe(unavailable)
 
 
 def load_plugins(args) -> None:

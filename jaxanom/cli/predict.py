@@ -20,7 +20,7 @@ def add_parser(commands) -> None:
     parser.add_argument("images", nargs="+", help="image files, folders (their images) or quoted glob patterns")
     parser.add_argument("--run", required=True, help="run folder (train or convert-weights); read only")
     parser.add_argument("--out", required=True, help="output folder")
-    add_methods(parser)
+    add_methods(parser, unavailable=("mmf_maps",))  # no MMF pipeline here
     parser.add_argument("--stats", help="SML statistics .npz (from fit-stats); needed by the sml* and cudam methods")
     parser.add_argument("--format", default="npy", help=f"comma-separated, from {', '.join(FORMATS)} "
                         "(default: %(default)s)")
