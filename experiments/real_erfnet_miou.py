@@ -4,20 +4,20 @@ Cityscapes frames, with the protocol the road-anomaly repositories use for this 
     python -m experiments.real_erfnet_miou          # writes real_erfnet_miou.json / .md beside this file
 
 Each 2048x1024 frame is resized to 1024x512 with a triangle (bilinear) filter widened to the
-scale, i.e. antialiased (``jax.image.resize(..., antialias=True)``, PIL's BILINEAR on shrinking),
+scale, i.e. antialiased (``jaxanom.data.resize``: PIL's BILINEAR within one grey level),
 rounded to uint8 as PIL returns it, then scaled to [0, 1] (``ERFNet.normalize_input``). Labels
-(trainIds, 255 ignored) are resized to 1024x512 by nearest neighbour at pixel centres (PIL's
-NEAREST: row 2i + 1 of the original), or the logits upsampled to 2048x1024. The headline is the
+(trainIds, 255 ignored) are resized to 1024x512 by PIL's nearest neighbour (row 2i + 1 of the
+original), or the logits upsampled to 2048x1024. The headline is the
 argmax over the 19 trainId channels (the void channel dropped) at 1024x512; the other variants as
 ``experiments.real_espnet_miou``, whose code computes them.
 """
 from __future__ import annotations
 
-import jax
 import numpy as np
 
 from experiments.real_common import HERE, require_realdata
 from experiments.real_espnet_miou import markdown, segmentation_results
+from jaxanom.data.resize import resize_image_antialiased, resize_labels_nearest
 from jaxanom.io import write_bytes_atomic, write_json_atomic
 
 NAME = "real_erfnet_miou"
@@ -28,15 +28,12 @@ AUTHORS_VAL_MIOU = 72.2  # the float weights on the Cityscapes validation set (t
 
 def antialiased(image: np.ndarray) -> np.ndarray:
     """uint8 (H, W, 3) -> uint8 ``INPUT``, triangle filter widened when shrinking, rounded."""
-    out = jax.image.resize(image.astype(np.float32), (*INPUT, 3), "linear", antialias=True)
-    return np.clip(np.rint(np.asarray(out)), 0, 255).astype(np.uint8)
+    return resize_image_antialiased(image, INPUT)
 
 
 def nearest(label: np.ndarray) -> np.ndarray:
-    """(H, W) -> ``INPUT`` by nearest neighbour at pixel centres: source index floor((i + 0.5) * H / h)."""
-    rows = ((np.arange(INPUT[0]) + 0.5) * label.shape[0] / INPUT[0]).astype(int)
-    cols = ((np.arange(INPUT[1]) + 0.5) * label.shape[1] / INPUT[1]).astype(int)
-    return label[rows[:, None], cols[None, :]]
+    """(H, W) -> ``INPUT`` by PIL's nearest neighbour (for 2048x1024: row 2i + 1 of the original)."""
+    return resize_labels_nearest(label, INPUT)
 
 
 def main() -> dict:
