@@ -61,3 +61,40 @@ def test_dropping_void_changes_every_method_but_void():
     np.testing.assert_allclose(np.asarray(scores["void"]), (every / every.sum(-1, keepdims=True))[..., 19], atol=1e-6)
     kept_all, _ = score_all(["msp"], inputs_of({"logits": logits}))
     assert not np.allclose(np.asarray(kept_all["msp"]), np.asarray(scores["msp"]))
+
+
+def test_protocol_predictions_skip_frames_before_the_network_runs():
+    from jaxanom.app.evaluate import protocol_predictions
+
+    class Frames:
+        def __init__(self, records):
+            self.records = records
+
+        def __len__(self):
+            return len(self.records)
+
+        def __getitem__(self, index):
+            return self.records[index]
+
+    seen = []
+
+    def predict(images):
+        seen.append(images.shape)
+        return {"logits": np.zeros((*images.shape[:3], 20), np.float32)}
+
+    protocol = PROTOCOLS["erfnet-community"].__class__("t", "test", size=(8, 16), skip_frames_without_anomaly=True)
+    skipped = []
+    batches = list(protocol_predictions(predict, Frames([frame([0, 1], name="a"), frame([0, 255], name="b")]),
+                                        protocol, skipped))
+    assert [str(b["name"][0]) for b in batches] == ["a"] and skipped == ["b"]
+    assert seen == [(1, 8, 16, 3)] and batches[0]["label"].shape == (1, 8, 16)
+
+
+def test_evaluate_refuses_a_resizing_protocol_without_a_run(tmp_path, capsys):
+    from jaxanom.cli import main
+
+    (tmp_path / "maps").mkdir()
+    code = main(["evaluate", "--maps", str(tmp_path / "maps"), "--protocol", "erfnet-community", "--dataset",
+                 "road-anomaly", "--path", str(tmp_path), "--out", str(tmp_path / "out")])
+    assert code == 2 and "--protocol erfnet-community: resizes the frames the network sees, so it needs --run" \
+        in capsys.readouterr().err

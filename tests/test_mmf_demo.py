@@ -68,7 +68,8 @@ def test_evaluate_scores_a_dataset_with_the_trained_pipeline_without_changing_it
 
 
 def test_evaluate_mmf_refuses_what_it_cannot_score(demo_dir, tmp_path, capsys):
-    assert main(["evaluate", "--mmf", str(tmp_path), "--dataset", "synthetic", "--path", "anomaly",
+    (tmp_path / "not_a_demo").mkdir()
+    assert main(["evaluate", "--mmf", str(tmp_path / "not_a_demo"), "--dataset", "synthetic", "--path", "anomaly",
                  "--out", str(tmp_path / "a")]) == 2
     assert "results.json" in capsys.readouterr().err
     assert main(["evaluate", "--mmf", str(demo_dir), "--dataset", "fishyscapes-laf", "--path", str(tmp_path),

@@ -84,7 +84,7 @@ def resize_frame(record: Mapping, size: tuple[int, int]) -> dict:
 
 PROTOCOLS: dict[str, Protocol] = {
     "native": Protocol("native", "each image at its own size, every channel, every frame, FPR at the first "
-                       "point with TPR >= 95% (jaxanom's default)"),
+                       "point with TPR >= 95 percent (jaxanom's default)"),
     "erfnet-community": Protocol(
         "erfnet-community", "512x1024 PIL-style resize of images (antialiased) and labels (nearest), void channel "
         "dropped, frames without anomalies skipped, interpolated FPR95 (the public ERFNet evaluations)",
