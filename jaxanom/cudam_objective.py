@@ -45,8 +45,8 @@ class CuDAM(Objective):
     (``training_anomaly_score``) or ``"running_sml"`` (SML from class statistics of the
     network's own predictions, an EMA with ``sml_decay`` kept as this objective's state:
     ``jaxanom.sml.running``). ``class_weights``: of L_seg's cross-entropy. With
-    ``reward_prob=0`` and ``beta=0`` the loss is exactly the cross-entropy (no study iteration,
-    no penalised pixel): the attention module trained by L_seg alone (CuDAM Table III).
+    ``reward_prob=0`` and ``beta=0`` (no study iteration, no penalised pixel) the loss is the
+    plain cross-entropy, to the bit: the attention module trained by L_seg alone (CuDAM Table III).
     """
 
     needs: ClassVar[tuple[str, ...]] = ("attention",)
@@ -84,6 +84,10 @@ class CuDAM(Objective):
         from jaxanom.sml.running import running_sml_score, running_stats_update
 
         logits, labels, attention = outputs["logits"], batch["label"], outputs["attention"]
+        if self.reward_prob == 0 and self.beta == 0:
+            # L_seg alone, computed as the plain cross-entropy is: the full graph gives the same loss,
+            # but XLA fuses it differently and the gradient may differ in the last bit
+            return losses.cross_entropy(logits, labels, ignore, self.class_weights), {}, state
         k = None
         if self.attention_k == "running_sml":
             state = running_stats_update(state, logits, labels != ignore, self.sml_decay)
