@@ -149,12 +149,15 @@ def test_cudam_objective_owns_the_paper_equivalent_tau():
     assert loss(rewarded) != loss(dataclasses.replace(rewarded, tau=5e4))
 
 
-def test_cudam_without_reward_and_attention_loss_is_the_cross_entropy_bitwise():
-    """CuDAM Table III's "attention" row: the CuDAM network trained by L_seg alone. Same loss and
-    logits gradient to the bit, no gradient into the attention map."""
+@pytest.mark.parametrize("objective", [CuDAM(reward_prob=0.0, beta=0.0), MSAAM(lam=0.0)], ids=["cudam", "msaam"])
+def test_an_attention_objective_with_its_terms_off_is_the_cross_entropy_bitwise(objective):
+    """CuDAM Table III's "attention" row (the CuDAM network trained by L_seg alone), and what a run of
+    an earlier version trained with the plain loss on a CuDAM or MSAAM network reads as: the same
+    loss and logits gradient to the bit, no gradient into the module's output."""
     rng = np.random.default_rng(2)  # not make_batch's seed: its labels are the argmax of its draws
     outputs = {"logits": jnp.asarray(rng.normal(size=(2, 8, 8, 3)) * 3, jnp.float32),
-               "attention": jnp.asarray(rng.dirichlet(np.ones(16), 2).reshape(2, 4, 4), jnp.float32)}
+               "attention": jnp.asarray(rng.dirichlet(np.ones(16), 2).reshape(2, 4, 4), jnp.float32),
+               "branch_weights": jnp.asarray(rng.dirichlet(np.ones(3), 2), jnp.float32)}
     batch = {"label": make_batch(1, batch=2)["label"]}
 
     def value_and_grad(objective):
@@ -162,10 +165,10 @@ def test_cudam_without_reward_and_attention_loss_is_the_cross_entropy_bitwise():
         return jax.jit(jax.vmap(jax.value_and_grad(loss), in_axes=(None, 0)))(outputs, jax.random.split(KEY, 8))
 
     plain, plain_grad = value_and_grad(CrossEntropy())
-    cudam, cudam_grad = value_and_grad(CuDAM(reward_prob=0.0, beta=0.0))  # 8 steps' keys: never a study one
-    np.testing.assert_array_equal(plain, cudam)
-    np.testing.assert_array_equal(plain_grad["logits"], cudam_grad["logits"])
-    np.testing.assert_array_equal(cudam_grad["attention"], 0.0)
+    value, grad = value_and_grad(objective)  # 8 steps' keys: never a study one
+    np.testing.assert_array_equal(plain, value)
+    np.testing.assert_array_equal(plain_grad["logits"], grad["logits"])
+    np.testing.assert_array_equal(grad[objective.needs[0]], 0.0)
 
 
 def test_four_devices_step_equals_one_device_step():
