@@ -228,7 +228,7 @@ def _run(config: TrainConfig, model, train_data, val_data, variables, mesh, tx, 
     from tqdm.auto import tqdm
 
     bar = tqdm(total=config.steps, initial=start, disable=not (config.progress and is_main), dynamic_ncols=True)
-    unread = []  # (step, metrics on the device) since the last logging step
+    unread = []  # (step, images, metrics still on the device) since the last logging step
     tick = time.perf_counter()
     try:
         for step in range(start + 1, config.steps + 1):
