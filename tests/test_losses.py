@@ -274,8 +274,8 @@ def ref_msp_k(logits):
     return 1.0 - z.max(-1)
 
 
-@pytest.mark.parametrize("study", [True, False])
-@pytest.mark.parametrize("tau, literal, weights", [(None, False, None), (40.0, True, (1.0, 0.5, 2.0, 0.0))])
+@pytest.mark.parametrize("study, tau, literal, weights", [(True, None, False, None),
+                                                         (False, 40.0, True, (1.0, 0.5, 2.0, 0.0))])
 def test_cudam_objective_is_eq8_with_psi_and_lambda_on_the_network_logits(study, tau, literal, weights):
     from jaxanom.cudam_objective import CuDAM
     from jaxanom.cudam_score import paper_tau
