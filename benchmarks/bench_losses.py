@@ -23,7 +23,7 @@ import numpy as np
 
 from benchmarks.timing import environment, markdown_table, median_ms, torch_device
 from jaxanom import losses
-from jaxanom.train.step import LossConfig, objective
+from jaxanom.cudam_objective import CuDAM
 
 NUM_CLASSES, TAU, BETA = 19, 5e4, 0.5
 
@@ -59,13 +59,13 @@ def _torch_objective(torch, logits, attention, labels, cudam: bool):
 
 
 def _jax_fn(cudam: bool):
-    cfg = LossConfig(method="cudam" if cudam else "plain", reward_prob=1.0)
+    objective = CuDAM(tau=TAU, reward_prob=1.0)
     key = jax.random.key(0)
 
     def loss(logits, attention, labels):
         if not cudam:
             return losses.cross_entropy(logits, labels)
-        return objective({"logits": logits, "attention": attention}, labels, key, cfg)[0]
+        return objective.loss({"logits": logits, "attention": attention}, {"label": labels}, key, None, 255)[0]
 
     return jax.jit(jax.value_and_grad(loss, argnums=(0, 1)))
 

@@ -75,7 +75,8 @@ def _train_step_child(devices: int, quick: bool) -> dict:
     from jaxanom.train.optim import OptimConfig, make_optimizer
     from jaxanom.train.sharding import global_batch, make_mesh, replicated
     from jaxanom.train.state import TrainState
-    from jaxanom.train.step import LossConfig, make_steps, model_input
+    from jaxanom.cudam_objective import CuDAM
+    from jaxanom.train.step import make_steps, model_input
 
     batch, height, width = (4, 64, 128) if quick else (8, 128, 256)
     frames = [generate("train", i, 0, height=height, width=width) for i in range(batch)]
@@ -90,7 +91,7 @@ def _train_step_child(devices: int, quick: bool) -> dict:
         variables = jax.jit(model.init, static_argnames="train", out_shardings=replicated(mesh))(
             jax.random.key(0), model_input(local["image"][:1]), train=False)
         state = [jax.device_put(TrainState.create(variables, tx, jax.random.key(1)), replicated(mesh))]
-        train_step, _ = make_steps(model, tx, LossConfig(method="cudam"), mesh)
+        train_step, _ = make_steps(model, tx, CuDAM(tau=5e4), mesh)
         data = global_batch(local, mesh)
 
         def step():

@@ -52,7 +52,10 @@ from jaxanom.io import write_bytes_atomic, write_json_atomic
 from jaxanom.metrics import AnomalyMetricAccumulator, confusion_matrix, miou, pr_curve, roc_curve
 from jaxanom.train.loop import TrainConfig
 from jaxanom.train.optim import OptimConfig
-from jaxanom.train.step import LossConfig
+from jaxanom.cudam_objective import CuDAM
+from jaxanom.losses import CrossEntropy
+from jaxanom.msaam_objective import MSAAM
+from jaxanom.objectives import Objective
 
 HERE = Path(__file__).parent
 RUNS = HERE / "runs"
@@ -183,11 +186,11 @@ def matched_sigma(height: int, width: int) -> float:
     return equivalent_weight(PAPER_SIGMA, attention_positions(height, width), PAPER_TEST_POSITIONS)
 
 
-def network(scale: Scale, attention: str | None = None, loss: LossConfig = LossConfig(),
+def network(scale: Scale, attention: str | None = None, objective: Objective = CrossEntropy(),
             cudam_position: str = "deep", cudam_gate: str = "paper") -> Network:
-    """``scale.model`` (a DeepLabV3+) trained on ``scale``'s data with ``loss``."""
+    """``scale.model`` (a DeepLabV3+) trained on ``scale``'s data with ``objective``."""
     data = dict(data="cityscapes", data_root=scale.cityscapes_root) if scale.cityscapes_root else {}
-    train = TrainConfig(run_dir="", steps=scale.steps, seed=scale.seed, loss=loss, eval_every=scale.steps,
+    train = TrainConfig(run_dir="", steps=scale.steps, seed=scale.seed, objective=objective, eval_every=scale.steps,
                         save_every=scale.steps, keep=1, progress=False,
                         optim=OptimConfig(name="adamw", lr=2e-3, weight_decay=1e-4,
                                           warmup_steps=max(1, min(30, scale.steps // 10))))
@@ -206,17 +209,16 @@ def plain(scale: Scale) -> Network:
 def cudam(scale: Scale, position: str = "deep", gate: str = "paper", **loss) -> Network:
     """DeepLabV3+ with CuDAM trained with Eq. 8.
 
-    ``loss`` overrides ``LossConfig`` fields; tau defaults to ``matched_tau`` (for ``"output"``,
+    ``loss`` overrides ``CuDAM`` objective fields; tau defaults to ``matched_tau`` (for ``"output"``,
     whose map covers the whole crop, to the paper-equivalent tau of height * width positions).
     """
     tau = paper_tau(scale.height * scale.width) if position == "output" else matched_tau(scale)
-    config = LossConfig(method="cudam", **{"tau": tau, **loss})
-    return network(scale, "cudam", config, position, gate)
+    return network(scale, "cudam", CuDAM(**{"tau": tau, **loss}), position, gate)
 
 
 def msaam(scale: Scale) -> Network:
     """DeepLabV3+ with MSAAM trained with its loss (Eq. 7)."""
-    return network(scale, "msaam", LossConfig(method="msaam"))
+    return network(scale, "msaam", MSAAM())
 
 
 def control_scales(num_classes: int) -> tuple[float, ...]:
@@ -303,7 +305,7 @@ def trained(net: Network, runs: Path, log: Callable = print) -> dict:
         return _RESTORED[final]
     done = final.exists()
     log(f"  network {net.run_key}: {'restoring' if done else 'training'} {e.attention or 'plain'} "
-        f"({e.train.loss.method} loss, {e.train.steps} steps)")
+        f"({e.train.objective.name} objective, {e.train.steps} steps)")
     start = time.perf_counter()
     variables = run_training(e, run_dir, progress=False, validate=False)
     if not done:

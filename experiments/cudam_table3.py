@@ -1,18 +1,17 @@
 """CuDAM Table III: ablation of the attention module, the reward (Eq. 4) and the attention loss (Eq.
 7), scored with SML + attention (Eq. 10).
 
-The LossConfig fields that switch the components off: "attention" alone is the CuDAM network trained
-with plain cross-entropy; "no reward" is ``reward_prob=0`` (no study iteration ever); "no L_att" is
-``beta=0`` (the threshold beta * psi is 0 and attention is positive, so no pixel is penalised and
-the loss is exactly 0). Two rows of ours: L_att's k from running SML statistics
-(``attention_k="running_sml"``, the paper's K) instead of 1 - MSP, and the scale-free gate. Positive
+The CuDAM objective's fields that switch the components off: "no reward" is ``reward_prob=0`` (no
+study iteration ever); "no L_att" is ``beta=0`` (the threshold beta * psi is 0 and attention is
+positive, so no pixel is penalised and the loss is exactly 0); "attention" alone is both: the CuDAM
+network trained with exactly the plain cross-entropy. Two rows of ours: L_att's k from running SML
+statistics (``attention_k="running_sml"``, the paper's K) instead of 1 - MSP, and the scale-free gate. Positive
 control: Eq. 10 with an attention map on the anomalies only (``oracle_attention``) must beat SML of
 the same CuDAM network.
 
     python -m experiments --only cudam_table3
 """
-from experiments.common import Row, best, cudam, improves, network, oracle_control, oracle_rows, plain, worse
-from jaxanom.train.step import LossConfig
+from experiments.common import Row, best, cudam, improves, oracle_control, oracle_rows, plain, worse
 
 NAME = "cudam_table3"
 TITLE = "CuDAM Table III: attention / reward / attention-loss ablation"
@@ -20,7 +19,7 @@ TITLE = "CuDAM Table III: attention / reward / attention-loss ablation"
 
 def rows(scale):
     return [Row("none (plain network, SML)", plain(scale), "sml_post"),
-            Row("attention", network(scale, "cudam", LossConfig("plain")), "sml_post+att"),
+            Row("attention", cudam(scale, reward_prob=0.0, beta=0.0), "sml_post+att"),
             Row("attention + reward", cudam(scale, beta=0.0), "sml_post+att"),
             Row("attention + L_att", cudam(scale, reward_prob=0.0), "sml_post+att"),
             Row("attention + reward + L_att", cudam(scale), "sml_post+att"),

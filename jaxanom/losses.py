@@ -1,4 +1,5 @@
-"""Training losses: cross-entropy with ignore, CuDAM reward / attention loss / lambda, MSAAM loss.
+"""Training losses: cross-entropy with ignore, CuDAM reward / attention loss / lambda, MSAAM loss,
+and the plain cross-entropy objective (``CrossEntropy``, see ``jaxanom.objectives``).
 
 Every function takes a batch: logits ``(B, H, W, C)``, labels ``(B, H, W)`` int with ``ignore``
 (255) on void pixels, attention ``(B, H, W)`` already upsampled to label size, anomaly scores
@@ -17,10 +18,15 @@ Decisions where the papers are silent (see docs/papers/sml-cudam-msaam.md):
 """
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+
+from jaxanom._validate import check_number
+from jaxanom.objectives import Objective, register
 
 IGNORE = 255
 
@@ -160,3 +166,26 @@ def msaam_loss(logits, labels, branch_weights, lam: float, literal: bool = False
     variance = jnp.mean(jnp.var(branch_weights.astype(jnp.float32), axis=1))
     sign = 1.0 if literal else -1.0
     return cross_entropy(logits, labels, ignore, class_weights) + sign * lam * variance
+
+
+def check_class_weights(class_weights) -> None:
+    """ValueError unless ``class_weights`` is None or finite numbers >= 0 (the class count is checked
+    against the logits when the loss is traced)."""
+    for index, weight in enumerate(class_weights or ()):
+        check_number(f"class_weights[{index}]", weight, 0.0)
+
+
+@register
+@dataclasses.dataclass(frozen=True)
+class CrossEntropy(Objective):
+    """Softmax cross-entropy over the valid pixels (``cross_entropy``), optionally class-weighted;
+    reads the logits only, keeps no state."""
+
+    class_weights: tuple[float, ...] | None = None
+    name: str = dataclasses.field(default="cross_entropy", init=False)
+
+    def __post_init__(self):
+        check_class_weights(self.class_weights)
+
+    def loss(self, outputs, batch, key, state, ignore):
+        return cross_entropy(outputs["logits"], batch["label"], ignore, self.class_weights), {}, state

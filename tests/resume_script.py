@@ -15,7 +15,7 @@ import numpy as np  # noqa: E402
 
 from jaxanom.train.loop import TrainConfig, train  # noqa: E402
 from jaxanom.train.optim import OptimConfig  # noqa: E402
-from jaxanom.train.step import LossConfig  # noqa: E402
+from jaxanom.cudam_objective import CuDAM  # noqa: E402
 from tiny_models import IndexedBatches, TinySegNet, init_variables  # noqa: E402
 
 STEPS, SAVE_EVERY = 12, 3
@@ -23,7 +23,7 @@ STEPS, SAVE_EVERY = 12, 3
 
 def main(run_dir: str, delay_s: float) -> None:
     config = TrainConfig(run_dir=run_dir, steps=STEPS, save_every=SAVE_EVERY, keep=2, progress=False,
-                         loss=LossConfig(method="cudam"), optim=OptimConfig(lr=0.05, warmup_steps=2))
+                         objective=CuDAM(), optim=OptimConfig(lr=0.05, warmup_steps=2))
     state = train(config, TinySegNet(head="cudam"), IndexedBatches(seed=0, delay_s=delay_s),
                   variables=init_variables("cudam"))
     flat = {jax.tree_util.keystr(path): np.asarray(leaf)

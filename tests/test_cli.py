@@ -142,7 +142,7 @@ def test_train_resume_continues_its_own_run(tmp_path, capsys):
     assert main(["train", "--config", str(config), "--out", str(run), "--no-progress"]) == 2
     assert "not empty" in capsys.readouterr().err
     assert main(["train", "--resume", "--out", str(run), "--steps", "4", "--no-progress"]) == 2
-    assert "different experiment" in capsys.readouterr().err
+    assert "train.steps: the run in" in capsys.readouterr().err  # its poly schedule ends at step 3
     assert main(["train", "--resume", "--out", str(run), "--no-progress"]) == 0
     lines = (run / "log.jsonl").read_text().splitlines()
     assert [json.loads(line)["step"] for line in lines if "train/loss" in line] == [1, 2, 3]
@@ -175,34 +175,20 @@ def test_fit_stats_policy_table_warning_and_evaluate_records_it(demo_dir, tmp_pa
     assert json.loads((out2 / "metrics.json").read_text())["cudam_sigma"] == {"values": [3.0], "source": "given"}
 
 
-def test_train_writes_the_paper_equivalent_tau_for_its_map(tmp_path, capsys):
+def test_train_uses_the_paper_equivalent_tau_for_its_map(tmp_path, capsys):
     config = tmp_path / "exp.py"
-    config.write_text("import dataclasses\nfrom jaxanom.app.demos.sml_cudam import DemoConfig\nfrom jaxanom.train.step import LossConfig\n"
+    config.write_text("import dataclasses\nfrom jaxanom.app.demos.sml_cudam import DemoConfig\n"
+                      "from jaxanom.cudam_objective import CuDAM\n"
                       "e = DemoConfig.quick().experiment\n"
                       "experiment = dataclasses.replace(e, train=dataclasses.replace(e.train, steps=2, save_every=2, "
-                      "eval_every=2, loss=LossConfig(method='cudam')))\n")
+                      "eval_every=2, objective=CuDAM()))\n")
     run = tmp_path / "run"
     assert main(["train", "--config", str(config), "--out", str(run), "--cudam-position", "output",
                  "--no-progress"]) == 0
     saved = json.loads((run / "experiment.json").read_text())
-    assert saved["cudam_position"] == "output"
+    assert saved["cudam_position"] == "output" and saved["train"]["objective"]["tau"] is None
     # "output": the map covers the 64 x 96 crop itself; the paper's tau 5e4 is for 180 x 180 maps
-    assert saved["train"]["loss"]["tau"] == pytest.approx(5e4 * 64 * 96 / (180 * 180))
-    assert "CuDAM tau" in capsys.readouterr().out
-
-
-def test_cudam_tau_flag_and_config_tau_win_over_the_default():
-    import dataclasses
-
-    from jaxanom.cli.train import with_cudam_tau
-    from jaxanom.app.demos.sml_cudam import DemoConfig
-    from jaxanom.train.step import LossConfig
-
-    e = DemoConfig.quick().experiment
-    assert with_cudam_tau(e, 7.0).train.loss.tau == 7.0
-    assert with_cudam_tau(e, None).train.loss.tau == e.train.loss.tau != LossConfig.tau  # set by the config
-    paper = dataclasses.replace(e, train=dataclasses.replace(e.train, loss=LossConfig(method="cudam")))
-    assert with_cudam_tau(paper, None).train.loss.tau == pytest.approx(5e4 * 16 * 24 / (180 * 180))
+    assert f"CuDAM tau = {5e4 * 64 * 96 / (180 * 180):.6g} (position output" in capsys.readouterr().out
 
 
 def test_fit_stats_refuses_non_finite_statistics_and_names_its_flags(demo_dir, tmp_path, capsys):

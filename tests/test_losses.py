@@ -265,3 +265,71 @@ def test_bad_shapes_raise_value_error_naming_the_argument(call, name):
     logits, labels, attention, score = random_batch(18)
     with pytest.raises(ValueError, match=name):
         call(logits, labels, attention, score)
+
+
+# The objectives (jaxanom.objectives) composing these losses, against the same references.
+
+def ref_msp_k(logits):
+    z = np.exp(ref_log_softmax(logits))
+    return 1.0 - z.max(-1)
+
+
+@pytest.mark.parametrize("study, tau, literal, weights", [(True, None, False, None),
+                                                         (False, 40.0, True, (1.0, 0.5, 2.0, 0.0))])
+def test_cudam_objective_is_eq8_with_psi_and_lambda_on_the_network_logits(study, tau, literal, weights):
+    from jaxanom.cudam_objective import CuDAM
+    from jaxanom.cudam_score import paper_tau
+
+    logits, labels, attention, _ = random_batch(20, b=3, h=6, w=5)
+    attention = attention * np.where(np.random.default_rng(20).random(attention.shape) < 0.5, 0.1, 1.0)
+    objective = CuDAM(tau=tau, reward_prob=float(study), beta=0.7, attention_literal=literal, class_weights=weights)
+    loss, aux, state = jax.jit(lambda a, m, y: objective.loss({"logits": a, "attention": m}, {"label": y},
+                                                              jax.random.key(0), None, VOID))(logits, attention, labels)
+    # the map is at label size here, so up(.) is the identity
+    rewarded = logits.astype(np.float64) + study * (paper_tau(30) if tau is None else tau) * (
+        attention[..., None] * np.eye(4)[np.where(labels == VOID, 0, labels)] * (labels != VOID)[..., None])
+    seg = ref_cross_entropy(rewarded, labels, weights)
+    att = ref_attention_loss(attention, logits, labels, ref_msp_k(logits), 0.7, literal)
+    lam = ref_correct(logits, labels).sum() / (labels != VOID).sum()
+    assert att > 0 and bool(aux["study"]) == study and state is None
+    np.testing.assert_allclose([aux["seg_loss"], aux["attention_loss"], aux["lambda"], loss],
+                               [seg, att, lam, seg + lam * att], rtol=2e-5)
+
+
+def test_cudam_objective_with_running_sml_k_updates_its_state_first():
+    from jaxanom.cudam_objective import CuDAM
+    from jaxanom.sml.running import running_sml_score, running_stats_update
+
+    logits, labels, attention, _ = random_batch(21, b=2, h=6, w=5)
+    objective = CuDAM(tau=3.0, reward_prob=0.0, beta=2.0, attention_k="running_sml", sml_decay=0.9)
+    state = objective.init_state(4)
+    state = running_stats_update(state, logits * 0.5, labels != VOID, 0.9)  # an earlier batch
+    loss, aux, new_state = objective.loss({"logits": jnp.asarray(logits), "attention": jnp.asarray(attention)},
+                                          {"label": labels}, jax.random.key(0), state, VOID)
+    expected_state = running_stats_update(state, logits, labels != VOID, 0.9)
+    for got, want in zip(new_state, expected_state):
+        np.testing.assert_array_equal(got, want)
+    k = np.asarray(running_sml_score(expected_state, logits))
+    att = ref_attention_loss(attention, logits, labels, k, 2.0, False)
+    lam = ref_correct(logits, labels).sum() / (labels != VOID).sum()
+    assert att > 0
+    np.testing.assert_allclose(loss, ref_cross_entropy(logits, labels) + lam * att, rtol=2e-5)
+
+
+@pytest.mark.parametrize("literal", [False, True])
+def test_msaam_and_cross_entropy_objectives_match_numpy(literal):
+    from jaxanom.losses import CrossEntropy
+    from jaxanom.msaam_objective import MSAAM
+
+    logits, labels, _, _ = random_batch(22)
+    z = np.random.default_rng(22).normal(size=(2, 3))
+    branch = (np.exp(z) / np.exp(z).sum(1, keepdims=True)).astype(np.float32)
+    weights = (0.5, 1.0, 3.0, 1.0)
+    outputs, batch = {"logits": jnp.asarray(logits), "branch_weights": jnp.asarray(branch)}, {"label": labels}
+    loss, aux, state = MSAAM(lam=0.3, literal=literal, class_weights=weights).loss(outputs, batch, None, None, VOID)
+    variance = np.mean(np.var(branch.astype(np.float64), axis=1))
+    np.testing.assert_allclose(loss, ref_cross_entropy(logits, labels, weights) + (0.3 if literal else -0.3) * variance,
+                               rtol=1e-5)
+    assert aux == {} and state is None
+    loss, _, _ = CrossEntropy(class_weights=weights).loss(outputs, batch, None, None, VOID)
+    np.testing.assert_allclose(loss, ref_cross_entropy(logits, labels, weights), rtol=1e-5)

@@ -131,9 +131,9 @@ def test_dissimilarity_training_is_class_weighted(tmp_path):
     labels[0, :2, :2] = 1  # 4 of 200 pixels
     labels[1, -1] = 255
     weighted = _dissimilarity_train_config(MMFConfig(), tmp_path, "mmf", False, labels)
-    np.testing.assert_allclose(weighted.loss.class_weights, [190 / (2 * 186), 190 / (2 * 4)])
+    np.testing.assert_allclose(weighted.objective.class_weights, [190 / (2 * 186), 190 / (2 * 4)])
     assert _dissimilarity_train_config(MMFConfig(dissim_balance=False), tmp_path, "mmf", False,
-                                       labels).loss.class_weights is None
+                                       labels).objective.class_weights is None
     assert MMFConfig().part_key("dissimilarity") != MMFConfig(dissim_balance=False).part_key("dissimilarity")
 
 

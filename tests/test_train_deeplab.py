@@ -5,6 +5,8 @@ import jax
 import numpy as np
 import pytest
 
+from jaxanom.app.experiment import PAPER_OBJECTIVES
+from jaxanom.cudam_objective import CuDAM
 from jaxanom.models import build_model
 from jaxanom.train import step as step_lib
 from jaxanom.train.optim import OptimConfig, make_optimizer
@@ -19,7 +21,7 @@ def test_tiny_deeplab_with_cudam_trains():
     tx, _ = make_optimizer(OptimConfig(lr=0.01), 10)
     variables = numpy_variables(model, 32)
     state = jax.device_put(TrainState.create(variables, tx, jax.random.key(0)), replicated(mesh))
-    train, _ = step_lib.make_steps(model, tx, step_lib.LossConfig(method="cudam"), mesh)
+    train, _ = step_lib.make_steps(model, tx, CuDAM(), mesh)
     for seed in range(2):
         state, metrics = train(state, global_batch(make_batch(seed, batch=4, size=32), mesh))
         assert all(np.isfinite(float(value)) for value in metrics.values())
@@ -37,8 +39,7 @@ def test_tiny_deeplab_train_step_traces_for_every_attention(attention):
     model = build_model("deeplabv3plus_tiny", num_classes=3, attention=attention, output_stride=16)
     tx, _ = make_optimizer(OptimConfig(lr=0.01), 10)
     state = TrainState.create(numpy_variables(model, 32), tx, jax.random.key(0))
-    cfg = step_lib.LossConfig(method=attention or "plain")
-    step = functools.partial(step_lib.train_step, model=model, tx=tx, cfg=cfg)
+    step = functools.partial(step_lib.train_step, model=model, tx=tx, objective=PAPER_OBJECTIVES[attention]())
     new_state, metrics = jax.eval_shape(step, state, make_batch(0, batch=2, size=32))
     assert jax.tree.structure(new_state) == jax.tree.structure(state)
     assert all(a.shape == b.shape and a.dtype == b.dtype

@@ -1,4 +1,5 @@
-"""The training loop: logs, evaluation, NaN stop, checkpoints, resume after a crash and after SIGKILL."""
+"""The training loop: logs, evaluation, NaN stop, checkpoints, resume after a crash and after SIGKILL,
+extension to more steps, device-to-host reads on logging steps only, the objective's outputs."""
 import json
 import os
 import signal
@@ -11,9 +12,12 @@ import jax
 import numpy as np
 import pytest
 
+from jaxanom.cudam_objective import CuDAM
+from jaxanom.train import loop as loop_lib
 from jaxanom.train.checkpoint import Checkpointer, restore_checkpoint
 from jaxanom.train.loop import NonFiniteLossError, TrainConfig, train
 from jaxanom.train.optim import OptimConfig
+from jaxanom.train.restore import trained_variables
 from compiles import compiled_during
 from tiny_models import TinySegNet, init_variables, make_batch
 
@@ -175,3 +179,90 @@ def test_sigkill_and_resume_ends_with_bitwise_equal_parameters(tmp_path):
 def test_bad_first_batch_is_a_clear_error(tmp_path, change, message):
     with pytest.raises(ValueError, match=message):
         train(config(tmp_path), TinySegNet(), [change(make_batch(0))], variables=init_variables())
+
+
+@pytest.fixture
+def host_reads(monkeypatch):
+    """Counts device-to-host reads of jax Arrays, each tagged with how many train steps had been
+    dispatched when it happened. The CPU backend ignores ``jax.transfer_guard`` for ``float`` /
+    ``bool`` / ``device_get``, so the reads are counted where every one of them passes: an Array's
+    host value (``_value``), and NumPy's ``asarray`` / ``array`` of an Array (on the CPU those use the
+    buffer protocol instead)."""
+    from jax._src.array import ArrayImpl
+
+    dispatched, reads = [0], []
+    host_value = ArrayImpl._value
+
+    def read(self):
+        reads.append(dispatched[0])
+        return host_value.fget(self)
+
+    monkeypatch.setattr(ArrayImpl, "_value", property(read))
+    for name in ("asarray", "array"):
+        numpy_fn = getattr(np, name)
+
+        def counted(value, *args, _numpy_fn=numpy_fn, **kwargs):
+            if isinstance(value, jax.Array):
+                reads.append(dispatched[0])
+            return _numpy_fn(value, *args, **kwargs)
+
+        monkeypatch.setattr(np, name, counted)
+    make_steps = loop_lib.make_steps
+
+    def counting_make_steps(*args, **kwargs):
+        train_step, eval_step = make_steps(*args, **kwargs)
+
+        def step(state, batch):
+            dispatched[0] += 1
+            return train_step(state, batch)
+
+        return step, eval_step
+
+    monkeypatch.setattr(loop_lib, "make_steps", counting_make_steps)
+    return reads
+
+
+def test_metrics_are_read_on_logging_steps_only_and_the_objective_state_restores(tmp_path, host_reads):
+    """Nothing is read back from the device between logging steps (every 3rd here; the run saves and
+    evaluates at the end only), yet every step is logged; the run's objective state (running SML
+    statistics) is restored from its shape alone, as the objective declares it."""
+    objective = CuDAM(tau=2.5, attention_k="running_sml")  # settings of this test only: a fresh compile
+    cfg = config(tmp_path, objective=objective, log_every=3, save_every=6, eval_every=6)
+    state = train(cfg, TinySegNet(head="cudam"), batches(6), variables=init_variables("cudam"))
+    assert host_reads and set(host_reads) <= {0, 3, 6}, sorted(set(host_reads))
+    lines = [json.loads(line) for line in (tmp_path / "log.jsonl").read_text().splitlines()]
+    assert [line["step"] for line in lines] == [1, 2, 3, 4, 5, 6]
+    assert all(np.isfinite(line["train/loss"]) and line["train/images_per_s"] > 0 for line in lines)
+    np.testing.assert_allclose([line["train/lr"] for line in lines], [0.05 * (1 - t / 6) ** 0.9 for t in range(6)],
+                               rtol=1e-6)
+
+    restored = trained_variables(cfg, TinySegNet(head="cudam"), make_batch(0), complete=True)
+    for a, b in zip(jax.tree.leaves(jax.device_get(state.variables)), jax.tree.leaves(restored)):
+        np.testing.assert_array_equal(a, b)
+    saved, _ = restore_checkpoint(tmp_path / "checkpoints", jax.device_get(state))
+    assert saved.objective_state.count.shape == (3,) and float(np.sum(saved.objective_state.count)) > 0
+
+
+def test_a_network_without_the_objectives_outputs_is_refused_before_compiling(tmp_path):
+    with pytest.raises(ValueError, match=r"objective 'cudam' reads the model output\(s\) \['attention'\], which "
+                                         r"TinySegNet does not produce"):
+        compiled_during(lambda: train(config(tmp_path, objective=CuDAM()), TinySegNet(), batches(6)))
+    assert not (tmp_path / "checkpoints").exists()
+
+
+def test_a_finished_run_is_extended_bitwise_and_never_shortened(tmp_path):
+    """With a learning rate that does not depend on the step count (poly_power 0), 4 steps then 6
+    are the 6-step run; asking a 6-step run for 5 is refused, its checkpoints untouched."""
+    flat = OptimConfig(lr=0.05, poly_power=0.0)
+    full = train(config(tmp_path / "full", optim=flat, save_every=2), TinySegNet(), batches(6),
+                 variables=init_variables())
+    train(config(tmp_path / "run", optim=flat, steps=4, save_every=2), TinySegNet(), batches(6),
+          variables=init_variables())
+    extended = train(config(tmp_path / "run", optim=flat, save_every=2), TinySegNet(), batches(6),
+                     variables=init_variables())
+    assert int(extended.step) == 6 and steps_on_disk(tmp_path / "run" / "checkpoints") == [4, 6]
+    for a, b in zip(flat_params(full), flat_params(extended)):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match=r"steps: expected at least the 6 steps the run in .*run has trained, got 5"):
+        train(config(tmp_path / "run", optim=flat, steps=5, save_every=2), TinySegNet(), batches(6))
+    assert steps_on_disk(tmp_path / "run" / "checkpoints") == [4, 6]

@@ -1,4 +1,6 @@
-"""The pure train / eval steps, the optimizer and data-parallel sharding (4 simulated CPU devices)."""
+"""The pure train / eval steps with every registered objective, the optimizer and data-parallel
+sharding (4 simulated CPU devices)."""
+import dataclasses
 import functools
 
 import chex
@@ -9,41 +11,164 @@ import optax
 import pytest
 from sklearn.metrics import confusion_matrix as sk_confusion
 
+from jaxanom.cudam_objective import CuDAM
+from jaxanom.cudam_score import paper_tau
+from jaxanom.losses import CrossEntropy, cross_entropy
+from jaxanom.msaam_objective import MSAAM
+from jaxanom.objectives import Objective, objective_class, objective_from_dict, objective_names, register
 from jaxanom.train import step as step_lib
+from jaxanom.train.loop import TrainConfig
 from jaxanom.train.optim import OptimConfig, make_optimizer
 from jaxanom.train.sharding import global_batch, make_mesh, replicated
 from jaxanom.train.state import TrainState
 from tiny_models import TinySegNet, init_variables, make_batch
 
+KEY = jax.random.key(7)
+# the TinySegNet head that produces what an objective reads (a new objective's needs go here too)
+HEADS = {(): "plain", ("attention",): "cudam", ("branch_weights",): "msaam"}
+
+
+def head_for(name: str) -> str:
+    return HEADS[objective_class(name).needs]
+
 
 @functools.lru_cache(maxsize=None)
-def compiled(head, n_devices, lr, compute_dtype="float32"):
-    """Model, mesh, optimizer, loss config and the jitted steps; built once per setting."""
-    model = TinySegNet(head=head)
+def compiled(name, n_devices, lr, compute_dtype="float32"):
+    """Model, mesh, optimizer, objective (registered ``name``, defaults) and the jitted steps; built once."""
+    model = TinySegNet(head=head_for(name))
     mesh = make_mesh(jax.devices()[:n_devices])
     tx, _ = make_optimizer(OptimConfig(lr=lr), 100)
-    cfg = step_lib.LossConfig(method=head, compute_dtype=compute_dtype)
-    return (model, mesh, tx, cfg) + step_lib.make_steps(model, tx, cfg, mesh)
+    objective = objective_class(name)()
+    return (model, mesh, tx, objective) + step_lib.make_steps(model, tx, objective, mesh, compute_dtype=compute_dtype)
 
 
-def setup(head="plain", n_devices=4, lr=0.05, **kwargs):
+def setup(name="cross_entropy", n_devices=4, lr=0.05, **kwargs):
     """As ``compiled`` plus a fresh step-0 state (states are donated, so never shared)."""
-    model, mesh, tx, cfg, train, evaluate = compiled(head, n_devices, lr, **kwargs)
-    state = jax.device_put(TrainState.create(init_variables(head), tx, jax.random.key(1)), replicated(mesh))
-    return model, mesh, tx, cfg, state, train, evaluate
+    model, mesh, tx, objective, train, evaluate = compiled(name, n_devices, lr, **kwargs)
+    state = TrainState.create(init_variables(model.head), tx, jax.random.key(1), objective.init_state(3))
+    return model, mesh, tx, objective, jax.device_put(state, replicated(mesh)), train, evaluate
 
 
-@pytest.mark.parametrize("head", ["plain", "msaam"])
-def test_loss_falls_over_30_steps_on_a_fixed_batch(head):
-    _, mesh, _, _, state, train, _ = setup(head, lr=0.1)
-    batch = global_batch(make_batch(0), mesh)
-    history = []
+@register
+@dataclasses.dataclass(frozen=True)
+class CountingCrossEntropy(Objective):
+    """A user's objective: cross-entropy that counts its steps in its own state."""
+
+    name: str = dataclasses.field(default="test_counting_cross_entropy", init=False)
+
+    def init_state(self, num_classes):
+        return {"steps": jnp.zeros((), jnp.int32), "per_class": jnp.zeros(num_classes)}
+
+    def loss(self, outputs, batch, key, state, ignore):
+        state = {"steps": state["steps"] + 1, "per_class": state["per_class"] + 1.0}
+        return cross_entropy(outputs["logits"], batch["label"], ignore), {"seen": state["steps"]}, state
+
+
+@pytest.mark.parametrize("name", objective_names())
+def test_every_objective_trains_threads_its_state_and_lowers_the_cross_entropy(name):
+    """30 steps on a fixed batch; judged by the cross-entropy of the network's own logits, since an
+    objective's loss need not fall monotonically (CuDAM's alternates between rewarded and plain steps)."""
+    model, mesh, _, objective, state, train, _ = setup(name)
+    batch = make_batch(0)
+    forward = jax.jit(lambda v: cross_entropy(model.apply(v, batch["image"])["logits"], batch["label"]))
+    before = float(forward(jax.device_get(state.variables)))
+    losses = []
     for _ in range(30):
-        state, metrics = train(state, batch)
-        history.append(float(metrics["loss"]))
-    assert np.all(np.isfinite(history))
-    assert history[-1] < 0.5 * history[0]
+        old = state
+        state, metrics = train(state, global_batch(batch, mesh))
+        assert jax.tree.structure(state) == jax.tree.structure(old)
+        losses.append(float(metrics["loss"]))
+    assert np.all(np.isfinite(losses))
+    assert {value.dtype for value in metrics.values()} == {jnp.dtype(jnp.float32)}
+    assert float(forward(jax.device_get(state.variables))) < 0.75 * before
     assert int(state.step) == 30
+
+
+@pytest.mark.parametrize("name", objective_names())
+def test_every_objective_round_trips_through_its_dict_and_refuses_an_unknown_field(name):
+    cls = objective_class(name)
+    weighted = "class_weights" in {f.name for f in dataclasses.fields(cls)}
+    objective = cls(class_weights=(1.0, 2.0, 0.5)) if weighted else cls()
+    values = dataclasses.asdict(objective)
+    assert values["name"] == name
+    assert objective_from_dict({k: list(v) if isinstance(v, tuple) else v for k, v in values.items()}) == objective
+    with pytest.raises(ValueError, match=f"objective '{name}'.*bogus"):
+        objective_from_dict({**values, "bogus": 1})
+
+
+def test_unknown_objective_names_the_known_ones():
+    with pytest.raises(ValueError, match=r"objective: expected one of \('cross_entropy', 'cudam', 'msaam'.*'pebal'"):
+        objective_from_dict({"name": "pebal"})
+
+
+def test_an_objective_from_outside_the_package_is_registered_and_its_state_threaded():
+    assert "test_counting_cross_entropy" in objective_names()
+    assert objective_from_dict({"name": "test_counting_cross_entropy"}) == CountingCrossEntropy()
+    _, mesh, _, _, state, train, _ = setup("test_counting_cross_entropy")  # compiled by the test above
+    for seed in range(2):
+        state, metrics = train(state, global_batch(make_batch(seed), mesh))
+    assert int(state.objective_state["steps"]) == 2 and float(metrics["seen"]) == 2
+    np.testing.assert_array_equal(state.objective_state["per_class"], [2.0, 2.0, 2.0])
+
+    @dataclasses.dataclass(frozen=True)
+    class Impostor(Objective):
+        name: str = dataclasses.field(default="cudam", init=False)
+
+    with pytest.raises(ValueError, match="'cudam': already registered by CuDAM"):
+        register(Impostor)
+    with pytest.raises(ValueError, match="name: str"):
+        register(dataclasses.dataclass(frozen=True)(type("Nameless", (Objective,), {})))
+
+
+@pytest.mark.parametrize("name", ["cudam", "msaam"])
+def test_a_network_without_the_output_an_objective_reads_is_refused_when_traced(name):
+    model, objective = TinySegNet(), objective_class(name)()
+    tx, _ = make_optimizer(OptimConfig(lr=0.05), 100)
+    state = TrainState.create(init_variables(), tx, jax.random.key(0), objective.init_state(3))
+    step = functools.partial(step_lib.train_step, model=model, tx=tx, objective=objective)
+    with pytest.raises(ValueError, match=rf"objective '{name}' reads the model output\(s\) \['{objective.needs[0]}'\]"
+                                         r", which TinySegNet does not produce \(its outputs: \['logits'\]\)"):
+        jax.eval_shape(step, state, make_batch(0))
+
+
+def test_cudam_objective_owns_the_paper_equivalent_tau():
+    """tau=None is the paper's 5e4 rescaled to the map's h * w (here 4 x 4), whoever calls the loss."""
+    rng = np.random.default_rng(0)
+    logits = jnp.asarray(rng.normal(size=(2, 8, 8, 3)) * 3, jnp.float32)
+    z = rng.normal(size=(2, 16))
+    attention = jnp.asarray((np.exp(z) / np.exp(z).sum(1, keepdims=True)).reshape(2, 4, 4), jnp.float32)
+    batch, key = {"label": make_batch(0, batch=2)["label"]}, jax.random.key(3)
+
+    def loss(objective):
+        return float(jax.jit(lambda: objective.loss({"logits": logits, "attention": attention}, batch, key, None,
+                                                    255)[1]["seg_loss"])())
+
+    rewarded = CuDAM(reward_prob=1.0)
+    assert rewarded.reward_weight(16) == paper_tau(16) == pytest.approx(5e4 * 16 / (180 * 180))
+    assert loss(rewarded) == loss(dataclasses.replace(rewarded, tau=paper_tau(16)))
+    assert loss(rewarded) != loss(dataclasses.replace(rewarded, tau=5e4))
+
+
+@pytest.mark.parametrize("objective", [CuDAM(reward_prob=0.0, beta=0.0), MSAAM(lam=0.0)], ids=["cudam", "msaam"])
+def test_an_attention_objective_with_its_terms_off_is_the_cross_entropy_bitwise(objective):
+    """CuDAM Table III's "attention" row (the CuDAM network trained by L_seg alone), and what a run of
+    an earlier version trained with the plain loss on a CuDAM or MSAAM network reads as: the same
+    loss and logits gradient to the bit, no gradient into the module's output."""
+    rng = np.random.default_rng(2)  # not make_batch's seed: its labels are the argmax of its draws
+    outputs = {"logits": jnp.asarray(rng.normal(size=(2, 8, 8, 3)) * 3, jnp.float32),
+               "attention": jnp.asarray(rng.dirichlet(np.ones(16), 2).reshape(2, 4, 4), jnp.float32),
+               "branch_weights": jnp.asarray(rng.dirichlet(np.ones(3), 2), jnp.float32)}
+    batch = {"label": make_batch(1, batch=2)["label"]}
+
+    def value_and_grad(objective):
+        loss = lambda out, key: objective.loss(out, batch, key, None, 255)[0]  # noqa: E731
+        return jax.jit(jax.vmap(jax.value_and_grad(loss), in_axes=(None, 0)))(outputs, jax.random.split(KEY, 8))
+
+    plain, plain_grad = value_and_grad(CrossEntropy())
+    value, grad = value_and_grad(objective)  # 8 steps' keys: never a study one
+    np.testing.assert_array_equal(plain, value)
+    np.testing.assert_array_equal(plain_grad["logits"], grad["logits"])
+    np.testing.assert_array_equal(grad[objective.needs[0]], 0.0)
 
 
 def test_four_devices_step_equals_one_device_step():
@@ -61,11 +186,11 @@ def test_four_devices_step_equals_one_device_step():
 
 
 def test_cudam_step_compiles_once_donates_the_state_off_the_cpu_and_draws_study_iterations():
-    model, mesh, tx, cfg, state, _, _ = setup("cudam")
+    model, mesh, tx, objective, state, _, _ = setup("cudam")
 
     @chex.assert_max_traces(n=1)
     def traced(state, batch):
-        return step_lib.train_step(state, batch, model=model, tx=tx, cfg=cfg)
+        return step_lib.train_step(state, batch, model=model, tx=tx, objective=objective)
 
     train = step_lib.jit_train_step(traced, mesh)  # as make_steps does
     studies = []
@@ -166,8 +291,16 @@ def test_accumulation_averages_k_gradients_and_clipping_bounds_the_norm():
 @pytest.mark.parametrize("make, name", [
     (lambda: OptimConfig(name="adam"), "name"),
     (lambda: OptimConfig(accum_steps=0), "accum_steps"),
-    (lambda: step_lib.LossConfig(method="pebal"), "method"),
-    (lambda: step_lib.LossConfig(reward_prob=1.5), "reward_prob"),
+    (lambda: CuDAM(reward_prob=1.5), "reward_prob"),
+    (lambda: CuDAM(tau=-1.0), "tau"),
+    (lambda: CuDAM(attention_k="sml"), "attention_k"),
+    (lambda: CuDAM(sml_decay=0.0), "sml_decay"),
+    (lambda: MSAAM(lam=float("nan")), "lam"),
+    (lambda: CrossEntropy(class_weights=(1.0, -1.0)), r"class_weights\[1\]"),
+    (lambda: TrainConfig(run_dir="", compute_dtype="float16"), "compute_dtype"),
+    (lambda: TrainConfig(run_dir="", objective="cudam"), "objective: expected a jaxanom.objectives.Objective"),
+    (lambda: step_lib.make_steps(TinySegNet(), None, CrossEntropy(), make_mesh(), compute_dtype="half"),
+     "compute_dtype"),
     (lambda: make_optimizer(OptimConfig(warmup_steps=10), steps=10), "steps"),
     (lambda: global_batch({"image": np.zeros((3, 8, 8, 3))}, make_mesh()), "image"),
 ])

@@ -16,12 +16,19 @@ import jax
 import numpy as np
 
 from jaxanom._validate import check_count, check_fits_memory, check_number
+from jaxanom.cudam_objective import CuDAM
 from jaxanom.io import write_json_atomic
+from jaxanom.losses import CrossEntropy
+from jaxanom.msaam_objective import MSAAM
+from jaxanom.objectives import Objective, objective_from_dict
 from jaxanom.train.loop import TrainConfig
-from jaxanom.train.step import LossConfig
-from jaxanom.train.optim import OptimConfig
+from jaxanom.train.optim import OptimConfig, schedule_depends_on_steps
 
 DATASETS = ("synthetic", "cityscapes")
+# Each attention module's paper objective. A network and an objective agree when the objective reads
+# exactly the outputs the module's paper objective reads: "attention" for CuDAM's map,
+# "branch_weights" for MSAAM's (its "attention" output is for scoring), none without a module.
+PAPER_OBJECTIVES: dict[str | None, type[Objective]] = {None: CrossEntropy, "cudam": CuDAM, "msaam": MSAAM}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -29,7 +36,9 @@ class Experiment:
     """A network and its training data.
 
     ``model``: a ``jaxanom.models.build_model`` name; ``attention``: None, "cudam" or "msaam"
-    (None for ESPNet, which ignores the other DeepLabV3+ fields);
+    (None for ESPNet, which ignores the other DeepLabV3+ fields), trained with an objective
+    (``train.objective``) that reads what the module adds (``PAPER_OBJECTIVES``, checked by
+    ``check_objective`` before a run starts): the default is a plain network and cross-entropy;
     ``cudam_position``: "deep", "surface" or "output" (CuDAM Table V; ``DeepLabV3Plus``);
     ``cudam_gate``: "paper" or "scale_free" (Eq. 3 or its size-free deviation);
     ``data``: "synthetic" (generated ``train_frames`` frames of ``height`` x ``width``) or
@@ -42,7 +51,7 @@ the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``:
     """
 
     model: str = "deeplabv3plus_tiny"
-    attention: str | None = "cudam"
+    attention: str | None = None
     cudam_position: str = "deep"
     cudam_gate: str = "paper"
     output_stride: int = 16
@@ -91,16 +100,65 @@ the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``:
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "Experiment":
-        """The inverse of ``to_dict`` (lists become tuples, nested configs are rebuilt)."""
+        """The inverse of ``to_dict`` (lists become tuples, nested configs are rebuilt); also reads
+        the ``train.loss`` of earlier versions (``legacy_objective``)."""
         values = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
         train = dict(values.pop("train"))
-        train["loss"] = LossConfig(**_tuples(train["loss"]))
+        if "loss" in train:
+            train.update(legacy_objective(train.pop("loss"), values.get("attention")))
+        else:
+            train["objective"] = objective_from_dict(train["objective"])
         train["optim"] = OptimConfig(**train["optim"])
         return cls(**values, train=TrainConfig(**train))
 
 
-def _tuples(values: dict) -> dict:
-    return {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
+def legacy_objective(loss: dict[str, Any], attention: str | None) -> dict[str, Any]:
+    """``objective``, ``ignore`` and ``compute_dtype`` of a run written when the train config held one
+    ``loss`` with every paper's settings (``method``: "plain", "cudam" or "msaam").
+
+    The plain loss on a network with an attention module becomes that module's paper objective with
+    its own terms off (CuDAM ``reward_prob=0, beta=0``; MSAAM ``lam=0``): exactly the cross-entropy,
+    so such a run also resumes. A run whose CuDAM k came from running SML statistics cannot be read:
+    its checkpoints hold them under an earlier name."""
+    weights = tuple(loss["class_weights"]) if loss.get("class_weights") is not None else None
+    method = loss.get("method", "plain")
+    if method == "plain":
+        method = attention if attention in ("cudam", "msaam") else "plain"
+        loss = {**loss, "reward_prob": 0.0, "beta": 0.0, "msaam_lambda": 0.0}
+    if method == "cudam":
+        if loss.get("attention_k", "msp") != "msp":
+            raise ValueError("train.loss.attention_k: a run of an earlier jaxanom with attention_k="
+                             f"{loss['attention_k']!r} keeps its statistics in checkpoints this version cannot "
+                             "read; train it again")
+        objective = CuDAM(tau=loss.get("tau", 5e4), reward_prob=loss.get("reward_prob", 0.5),
+                          beta=loss.get("beta", 0.5), attention_literal=loss.get("attention_literal", False),
+                          class_weights=weights)
+    elif method == "msaam":
+        objective = MSAAM(lam=loss.get("msaam_lambda", 0.1), literal=loss.get("msaam_literal", False),
+                          class_weights=weights)
+    else:
+        objective = CrossEntropy(class_weights=weights)
+    return {"objective": objective, "ignore": loss.get("ignore", 255),
+            "compute_dtype": loss.get("compute_dtype", "float32")}
+
+
+def check_objective(experiment: Experiment) -> None:
+    """ValueError, in one line naming both, unless the network's attention module and the training
+    objective agree (``PAPER_OBJECTIVES``)."""
+    objective, attention = experiment.train.objective, experiment.attention
+    wanted = PAPER_OBJECTIVES[attention]
+    if tuple(objective.needs) == wanted.needs:
+        return
+    fits = [a for a, cls in PAPER_OBJECTIVES.items() if cls.needs == tuple(objective.needs)]
+    advice = f"attention={fits[0]!r} with it, or " if fits else ""
+    raise ValueError(
+        f"attention and train.objective disagree: attention={attention!r} is trained by an objective reading "
+        f"{_outputs(wanted.needs)}, but objective {objective.name!r} reads {_outputs(objective.needs)}; use "
+        f"{advice}train.objective={wanted.__name__}(...)")
+
+
+def _outputs(needs: tuple[str, ...]) -> str:
+    return "the logits only" if not needs else " and ".join(repr(name) for name in needs)
 
 
 def build_network(experiment: Experiment):
@@ -159,9 +217,10 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
     from jaxanom.train.loop import train
 
     run_dir = Path(run_dir)
+    check_objective(experiment)
     config_file = run_dir / "experiment.json"
-    if config_file.exists() and _read_json(config_file) != jsonable(experiment):
-        raise ValueError(f"run_dir: {run_dir} holds a run of a different experiment; choose another folder")
+    if config_file.exists():
+        check_same_run(load_experiment(run_dir), experiment, run_dir)
     # data and network first: a config that fails there leaves the folder as it was, free for a retry
     augment = Augment(crop_hw=tuple(experiment.crop), scale_range=tuple(experiment.scale_range))
     batches = training_batches(frames(experiment, "train"), batch_size=experiment.batch_size,
@@ -177,6 +236,48 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
     variables = initial_variables(experiment) if experiment.init_from and not started else None
     state = train(config, network, batches, val, variables)
     return jax.device_get(state.variables)
+
+
+def check_same_run(stored: Experiment, experiment: Experiment, run_dir: str | os.PathLike) -> None:
+    """ValueError naming the first field in which ``experiment`` differs from the run ``stored`` in
+    ``run_dir``. ``train.steps`` may differ (a run is extended, or stops earlier) when the learning
+    rate schedule does not depend on it and the run has not trained past the new count."""
+    differences = [(name, a, b) for name, a, b in _differences(jsonable(stored), jsonable(experiment))
+                   if name != "train.steps"]
+    if differences:
+        name, there, here = differences[0]
+        more = f" (and {len(differences) - 1} more)" if len(differences) > 1 else ""
+        raise ValueError(f"run_dir: {os.fspath(run_dir)} holds a run of a different experiment: {name} is {there!r} "
+                         f"there, {here!r} here{more}; choose another folder")
+    old, new = stored.train.steps, experiment.train.steps
+    if new != old and schedule_depends_on_steps(experiment.train.optim):
+        raise ValueError(
+            f"train.steps: the run in {os.fspath(run_dir)} has {old} steps and its learning rate decays to "
+            f"{experiment.train.optim.end_lr:g} at the last one (poly_power {experiment.train.optim.poly_power:g}), so "
+            f"{new} steps would not continue it; start a new run (init_from={os.fspath(run_dir)!r} starts from its "
+            "weights) or use a schedule that does not depend on the steps (optim.poly_power=0)")
+    trained = _trained_steps(Path(run_dir))
+    if trained > new:
+        raise ValueError(f"train.steps: expected at least the {trained} steps the run in {os.fspath(run_dir)} has "
+                         f"trained, got {new}")
+
+
+def _differences(a: Any, b: Any, prefix: str = "") -> list[tuple[str, Any, Any]]:
+    """``(dotted name, a's value, b's value)`` for each leaf where the JSON values ``a`` and ``b`` differ."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return [item for key in sorted(set(a) | set(b))
+                for item in _differences(a.get(key), b.get(key), f"{prefix}.{key}" if prefix else key)]
+    return [] if a == b else [(prefix, a, b)]
+
+
+def _trained_steps(run_dir: Path) -> int:
+    """The newest checkpoint's step in ``run_dir`` (0 without one); reads nothing but the folder names."""
+    from jaxanom.train.checkpoint import Checkpointer
+
+    if not (run_dir / "checkpoints").is_dir():
+        return 0
+    with Checkpointer(run_dir / "checkpoints", read_only=True) as checkpointer:
+        return checkpointer.latest_step() or 0
 
 
 def initial_variables(experiment: Experiment) -> dict:

@@ -42,7 +42,7 @@ from jaxanom.data.synthetic import SyntheticScenes
 from jaxanom.data.transforms import normalize
 from jaxanom.app.experiment import Experiment, build_network, jsonable, load_variables, run_training
 from jaxanom.io import write_bytes_atomic
-from jaxanom.losses import balanced_class_weights
+from jaxanom.losses import CrossEntropy, balanced_class_weights
 from jaxanom.mmf.perceptual import anomaly_map_batch, perceptual_difference_batch
 from jaxanom.mmf.postprocess import superpixel_score_batch
 from jaxanom.mmf.gan_train import GANConfig, train_gan, trained_generator
@@ -57,7 +57,6 @@ from jaxanom.models.spade_generator import SPADEGenerator
 from jaxanom.train.loop import TrainConfig, train
 from jaxanom.train.restore import trained_variables
 from jaxanom.train.optim import OptimConfig
-from jaxanom.train.step import LossConfig
 
 _SEGMENTER = Experiment(
     attention=None, train_frames=128, height=64, width=128, crop=(64, 128), scale_range=(0.75, 1.25), batch_size=8,
@@ -207,7 +206,7 @@ def _train_config(run_dir: Path, steps: int, lr: float, seed: int, progress: boo
     optim = OptimConfig(name="adamw", lr=lr, weight_decay=0.0 if adam else 1e-4, poly_power=0.0 if adam else 0.9)
     return TrainConfig(run_dir=str(run_dir), steps=steps, seed=seed, optim=optim, eval_every=steps,
                        save_every=max(1, steps // 2), keep=1, progress=progress,
-                       loss=LossConfig(class_weights=class_weights))
+                       objective=CrossEntropy(class_weights=class_weights))
 
 
 def _run_dir(config: MMFConfig, root: Path, part: str, name: str = "") -> Path:

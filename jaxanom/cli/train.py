@@ -37,9 +37,9 @@ def add_parser(commands) -> None:
     parser.add_argument("--cudam-gate", choices=["paper", "scale_free"],
                         help="Eq. 3 as printed, or with h*w*M_att (a deviation; see jaxanom.nn.cudam)")
     parser.add_argument("--cudam-tau", type=float,
-                        help="CuDAM reward weight (Eq. 4); default: the paper's 5e4 rescaled to this network's "
-                        "attention-map size at the crop size (equivalent_weight), unless a config file set "
-                        "another tau; the value used is written to experiment.json")
+                        help="CuDAM reward weight (Eq. 4); default: the CuDAM objective's, the paper's 5e4 rescaled to "
+                        "this network's attention-map size at the crop size (equivalent_weight), unless a config file "
+                        "set another tau; the value used is printed")
     add_common(parser, progress=True, overwrite=False)
     parser.set_defaults(handler=run)
 
@@ -47,7 +47,7 @@ def add_parser(commands) -> None:
 def run(args) -> None:
     import jax
 
-    from jaxanom.app.experiment import load_experiment, run_training
+    from jaxanom.app.experiment import attention_positions, check_objective, load_experiment, run_training
 
     if args.distributed:  # before any JAX work: loading the data or the model may touch devices
         from jaxanom.train.sharding import initialize_distributed
@@ -66,11 +66,11 @@ def run(args) -> None:
         if lead:
             out_folder(args.out, overwrite=False, hint="continue the run there with --resume")
     experiment = _override(experiment, args)
-    if not args.resume:
-        experiment = with_cudam_tau(experiment, args.cudam_tau)
-    if experiment.attention == "cudam":
-        print(f"CuDAM tau = {experiment.train.loss.tau:.6g} (position {experiment.cudam_position}, "
-              f"gate {experiment.cudam_gate})")
+    check_objective(experiment)
+    if experiment.train.objective.name == "cudam":
+        positions = attention_positions(experiment, *experiment.crop)
+        print(f"CuDAM tau = {experiment.train.objective.reward_weight(positions):.6g} (position "
+              f"{experiment.cudam_position}, gate {experiment.cudam_gate})")
     from jaxanom.train.loop import NonFiniteLossError
 
     try:
@@ -114,6 +114,10 @@ def _base_experiment(init_from: str | None):
 
 
 def _override(experiment, args):
+    """``experiment`` with the flags given. ``--attention`` also sets the objective to the module's
+    paper objective unless the config's objective already agrees with it (then its settings stay)."""
+    from jaxanom.app.experiment import PAPER_OBJECTIVES
+
     fields = {"model": args.model, "data": args.data, "data_root": args.data_root, "batch_size": args.batch_size,
               "cudam_position": args.cudam_position, "cudam_gate": args.cudam_gate}
     if args.init_from is not None:
@@ -123,31 +127,19 @@ def _override(experiment, args):
         fields["init_from"] = str(Path(args.init_from).resolve())
     if args.init_modules is not None:
         fields["init_modules"] = tuple(name for name in args.init_modules.split(",") if name)
-    if args.attention is not None:
-        fields["attention"] = None if args.attention == "none" else args.attention
     train = {"steps": args.steps, "seed": args.seed, "distributed": args.distributed or None}
     train = {k: v for k, v in train.items() if v is not None}
-    if "attention" in fields:
-        method = {None: "plain"}.get(fields["attention"], fields["attention"])
-        train["loss"] = dataclasses.replace(experiment.train.loss, method=method)
+    objective = experiment.train.objective
+    if args.attention is not None:
+        fields["attention"] = None if args.attention == "none" else args.attention
+        paper = PAPER_OBJECTIVES[fields["attention"]]
+        if tuple(objective.needs) != paper.needs:
+            objective = paper()
+    if args.cudam_tau is not None:
+        if objective.name != "cudam":
+            raise CommandError(f"--cudam-tau: the objective is {objective.name!r}, which has no reward weight "
+                               "(pass --attention cudam)")
+        objective = dataclasses.replace(objective, tau=args.cudam_tau)
+    train["objective"] = objective
     fields = {k: v for k, v in fields.items() if v is not None or k == "attention"}
     return dataclasses.replace(experiment, **fields, train=dataclasses.replace(experiment.train, **train))
-
-
-def with_cudam_tau(experiment, tau: float | None):
-    """``experiment`` with the reward weight ``tau``, or, when None and the loss has the library's
-    default (the paper's 5e4, tuned for 180 x 180 maps), the paper-equivalent tau for its map size."""
-    from jaxanom.cudam_score import paper_tau
-    from jaxanom.app.experiment import attention_positions
-    from jaxanom.train.step import LossConfig
-
-    if experiment.attention != "cudam":
-        if tau is not None:
-            raise CommandError("--cudam-tau: the network has no CuDAM module (pass --attention cudam)")
-        return experiment
-    if tau is None:
-        if experiment.train.loss.tau != LossConfig.tau:
-            return experiment
-        tau = paper_tau(attention_positions(experiment, *experiment.crop))
-    loss = dataclasses.replace(experiment.train.loss, tau=float(tau))
-    return dataclasses.replace(experiment, train=dataclasses.replace(experiment.train, loss=loss))

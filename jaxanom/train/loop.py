@@ -13,6 +13,11 @@ restarted).
 
 On CPU a run that is killed and resumed ends with parameters bitwise equal to an uninterrupted
 run (tests/test_train_loop.py); on GPUs this holds as far as their kernels are deterministic.
+
+The steps' metrics stay on the device until a logging step (every ``log_every`` steps, and every
+step that evaluates or saves, and the last): reading them back every step would make the host
+wait for each step before it dispatches the next. They are then read at once, checked for
+NaN/Inf (before anything is saved) and written, one line per step.
 """
 from __future__ import annotations
 
@@ -33,9 +38,10 @@ from jaxanom.train.checkpoint import Checkpointer
 from jaxanom.train.optim import OptimConfig, make_optimizer
 from jaxanom.train.runlog import RunLog
 from jaxanom.train.sharding import global_batch, initialize_distributed, make_mesh, replicated
-from jaxanom.train.running_sml import running_sml_classes
+from jaxanom.losses import IGNORE, CrossEntropy
+from jaxanom.objectives import Objective
 from jaxanom.train.state import TrainState
-from jaxanom.train.step import LossConfig, make_steps, model_extras, model_input
+from jaxanom.train.step import COMPUTE_DTYPES, check_outputs, make_steps, model_extras, model_input
 
 
 class NonFiniteLossError(FloatingPointError):
@@ -44,29 +50,41 @@ class NonFiniteLossError(FloatingPointError):
 
 @dataclasses.dataclass(frozen=True)
 class TrainConfig:
-    """A training run. ``loss`` and ``optim`` default to the papers' settings (SGD, lr 0.01,
-    momentum 0.9, weight decay 5e-4, poly 0.9; CuDAM tau 5e4, p 0.5, beta 0.5). The papers do not
-    state the number of steps; 40k is a common DeepLabV3+ Cityscapes schedule.
+    """A training run. ``objective``: what the steps minimise (``jaxanom.objectives``; default
+    cross-entropy); ``optim`` defaults to the segmentation papers' settings (SGD, lr 0.01, momentum
+    0.9, weight decay 5e-4, poly 0.9). The papers do not state the number of steps; 40k is a
+    common DeepLabV3+ Cityscapes schedule.
 
-    ``eval_every`` / ``save_every``: every that many steps and at the end. ``keep``: newest
-    checkpoints kept. ``distributed``: call ``jax.distributed.initialize`` (multi-host runs).
+    ``compute_dtype``: of the forward pass (``"float32"`` or ``"bfloat16"``; master weights and
+    losses stay float32). ``ignore``: the label of void pixels. ``eval_every`` / ``save_every`` /
+    ``log_every``: every that many steps and at the end (metrics are read from the device on
+    logging steps only). ``keep``: newest checkpoints kept. ``distributed``: call
+    ``jax.distributed.initialize`` (multi-host runs).
     """
 
     run_dir: str
     steps: int = 40_000
     seed: int = 0
-    loss: LossConfig = dataclasses.field(default_factory=LossConfig)
+    objective: Objective = dataclasses.field(default_factory=CrossEntropy)
     optim: OptimConfig = dataclasses.field(default_factory=OptimConfig)
+    compute_dtype: str = "float32"
+    ignore: int = IGNORE
     eval_every: int = 2000
     save_every: int = 1000
+    log_every: int = 50
     keep: int = 3
     progress: bool = True
     distributed: bool = False
 
     def __post_init__(self):
-        for name in ("steps", "eval_every", "save_every", "keep"):
+        for name in ("steps", "eval_every", "save_every", "log_every", "keep"):
             check_count(name, getattr(self, name))
         check_count("seed", self.seed, minimum=0, maximum=2**63 - 1)
+        check_count("ignore", self.ignore, minimum=0)
+        if not isinstance(self.objective, Objective):
+            raise ValueError(f"objective: expected a jaxanom.objectives.Objective, got {type(self.objective).__name__}")
+        if self.compute_dtype not in COMPUTE_DTYPES:
+            raise ValueError(f"compute_dtype: expected one of {tuple(COMPUTE_DTYPES)}, got {self.compute_dtype!r}")
 
 
 def pad_batch(batch: dict, multiple: int, ignore: int) -> dict:
@@ -121,10 +139,14 @@ def init_inputs(model, batch: dict) -> tuple[jax.Array, dict]:
     return model_input(np.asarray(batch["image"][:1]), model), {k: np.asarray(v[:1]) for k, v in model_extras(model, batch).items()}
 
 
-def output_classes(model, batch: dict) -> int:
+def model_outputs(model, batch: dict) -> dict:
+    """The shapes (``jax.ShapeDtypeStruct``) of ``model``'s outputs for one example of ``batch``; no compute."""
     images, extras = init_inputs(model, batch)
-    out = jax.eval_shape(lambda x, e: model.init_with_output(jax.random.key(0), x, train=False, **e)[0], images, extras)
-    return out["logits"].shape[-1]
+    return jax.eval_shape(lambda x, e: model.init_with_output(jax.random.key(0), x, train=False, **e)[0], images, extras)
+
+
+def output_classes(model, batch: dict) -> int:
+    return model_outputs(model, batch)["logits"].shape[-1]
 
 
 def _data_state(batches) -> Any:
@@ -148,17 +170,19 @@ def train(config: TrainConfig, model, train_data: Iterable[dict], val_data: Iter
     """
     if config.distributed:
         initialize_distributed()
-    compiled = _compiled(model, config.loss, config.optim, config.steps, tuple(jax.devices()))
+    compiled = _compiled(model, config.objective, config.optim, config.steps, config.compute_dtype, config.ignore,
+                         tuple(jax.devices()))
     with jax.set_mesh(compiled[0]):
         return _run(config, model, train_data, val_data, variables, *compiled)
 
 
 @functools.lru_cache(maxsize=4)
-def _compiled(model, loss: LossConfig, optim: OptimConfig, steps: int, devices: tuple):
+def _compiled(model, objective: Objective, optim: OptimConfig, steps: int, compute_dtype: str, ignore: int,
+              devices: tuple):
     """Mesh, optimizer, schedule and jitted steps; a later run with equal settings reuses them."""
     mesh = make_mesh(devices)
     tx, lr_at = make_optimizer(optim, steps)
-    return (mesh, tx, lr_at) + make_steps(model, tx, loss, mesh)
+    return (mesh, tx, lr_at) + make_steps(model, tx, objective, mesh, compute_dtype=compute_dtype, ignore=ignore)
 
 
 def _run(config: TrainConfig, model, train_data, val_data, variables, mesh, tx, lr_at, train_step, eval_step) -> TrainState:
@@ -166,17 +190,18 @@ def _run(config: TrainConfig, model, train_data, val_data, variables, mesh, tx, 
     source = iter(train_data)
     resumable = hasattr(source, "get_state") and hasattr(source, "set_state")
     first = next(source)
-    num_classes = output_classes(model, first)
-    check_batch(first, num_classes, config.loss.ignore)
+    outputs = model_outputs(model, first)
+    check_outputs(config.objective, outputs, model)
+    num_classes = outputs["logits"].shape[-1]
+    check_batch(first, num_classes, config.ignore)
 
     init_key, state_key = jax.random.split(jax.random.key(config.seed))
-    sml_classes = running_sml_classes(config.loss, num_classes)
 
     def new_state(variables):
         if variables is None:
             images, extras = init_inputs(model, first)
             variables = model.init(init_key, images, train=False, **extras)
-        return TrainState.create(variables, tx, state_key, sml_classes)
+        return TrainState.create(variables, tx, state_key, config.objective.init_state(num_classes))
 
     make_state = jax.jit(new_state, out_shardings=replicated(mesh))
     checkpointer = Checkpointer(os.path.join(config.run_dir, "checkpoints"), config.save_every, config.keep)
@@ -186,6 +211,10 @@ def _run(config: TrainConfig, model, train_data, val_data, variables, mesh, tx, 
     else:  # restored into the state's shapes and shardings alone: a resumed or finished run compiles no init
         state, data_state = checkpointer.restore(jax.eval_shape(make_state, variables))
         pending = []
+        if int(state.step) > config.steps:
+            checkpointer.close()
+            raise ValueError(f"steps: expected at least the {int(state.step)} steps the run in {config.run_dir} "
+                             f"has trained, got {config.steps}")
         if resumable and data_state is not None:
             _set_data_state(source, data_state)
         else:
@@ -199,31 +228,47 @@ def _run(config: TrainConfig, model, train_data, val_data, variables, mesh, tx, 
     from tqdm.auto import tqdm
 
     bar = tqdm(total=config.steps, initial=start, disable=not (config.progress and is_main), dynamic_ncols=True)
+    unread = []  # (step, images, metrics still on the device) since the last logging step
+    tick = time.perf_counter()
     try:
         for step in range(start + 1, config.steps + 1):
-            tick = time.perf_counter()
             batch = global_batch(step_inputs(next(batches), model), mesh)
-            images = batch["image"].shape[0]
             state, metrics = train_step(state, batch)
-            metrics = {name: float(value) for name, value in jax.device_get(metrics).items()}
-            if not (math.isfinite(metrics["loss"]) and math.isfinite(metrics["grad_norm"])):
-                checkpointer.wait()
-                raise NonFiniteLossError(
-                    f"loss {metrics['loss']}, gradient norm {metrics['grad_norm']} at step {step}: training "
-                    f"stopped; last good checkpoint: step {checkpointer.latest_step()} in {checkpointer.directory}")
-            metrics["lr"] = float(lr_at(step - 1))
-            metrics["images_per_s"] = images / (time.perf_counter() - tick)
+            unread.append((step, batch["image"].shape[0], metrics))
             bar.update(1)
-            bar.set_postfix(loss=f"{metrics['loss']:.4f}", lr=f"{metrics['lr']:.2e}",
-                            img_s=f"{metrics['images_per_s']:.1f}")
-            log.scalars(step, {f"train/{name}": value for name, value in metrics.items()})
-            if val_data is not None and (step % config.eval_every == 0 or step == config.steps):
-                log.scalars(step, evaluate(eval_step, state.variables, val_data, mesh, config.loss.ignore, model))
-            if step == config.steps or checkpointer.is_due(step):
+            evaluates = val_data is not None and (step % config.eval_every == 0 or step == config.steps)
+            saves = step == config.steps or checkpointer.is_due(step)
+            if not (evaluates or saves or step % config.log_every == 0):
+                continue
+            _log_metrics(unread, lr_at, time.perf_counter() - tick, log, bar, checkpointer)
+            unread = []
+            if evaluates:
+                log.scalars(step, evaluate(eval_step, state.variables, val_data, mesh, config.ignore, model))
+            if saves:
                 checkpointer.save(step, state, _data_state(source) if resumable else None)
+            tick = time.perf_counter()
         checkpointer.wait()
     finally:
         bar.close()
         log.close()
         checkpointer.close()
     return state
+
+
+def _log_metrics(unread: list, lr_at, seconds: float, log: RunLog, bar, checkpointer: Checkpointer) -> None:
+    """Read the metrics of the ``unread`` steps from the device in one go, stop at the first
+    non-finite loss or gradient (NonFiniteLossError, nothing saved), log one line per step.
+    ``images_per_s`` is the mean over these steps (the device runs ahead of the host)."""
+    steps = np.array([step for step, _, _ in unread])
+    values, lrs = jax.device_get(([metrics for _, _, metrics in unread], lr_at(steps - 1)))
+    images_per_s = sum(images for _, images, _ in unread) / seconds
+    for step, lr, metrics in zip(steps.tolist(), lrs.tolist(), values):
+        metrics = {name: float(value) for name, value in metrics.items()}
+        if not (math.isfinite(metrics["loss"]) and math.isfinite(metrics["grad_norm"])):
+            checkpointer.wait()
+            raise NonFiniteLossError(
+                f"loss {metrics['loss']}, gradient norm {metrics['grad_norm']} at step {step}: training "
+                f"stopped; last good checkpoint: step {checkpointer.latest_step()} in {checkpointer.directory}")
+        metrics.update(lr=lr, images_per_s=images_per_s)
+        log.scalars(step, {f"train/{name}": value for name, value in metrics.items()})
+    bar.set_postfix(loss=f"{metrics['loss']:.4f}", lr=f"{metrics['lr']:.2e}", img_s=f"{images_per_s:.1f}")

@@ -1,9 +1,10 @@
 """The optimizer: SGD (momentum 0.9, weight decay 5e-4) or AdamW, poly learning rate with warm-up.
 
-SGD follows the DeepLabV3+ / SML recipe: L2 weight decay added to the gradient before momentum
-(as PyTorch's ``SGD(weight_decay=...)``), applied only to weights with two or more dimensions
-(convolution and dense kernels), never to biases, normalisation scales/offsets or scalars
-such as CuDAM's alpha. AdamW (decoupled decay, same mask) is the MSAAM paper's choice.
+SGD follows the DeepLabV3+ Cityscapes recipe: L2 weight decay added to the gradient before
+momentum (as PyTorch's ``SGD(weight_decay=...)``), applied only to weights with two or more
+dimensions (convolution and dense kernels), never to biases, normalisation scales/offsets or
+scalars such as an attention module's gate. AdamW (decoupled decay, same mask) is the other
+optimizer the segmentation papers use.
 """
 from __future__ import annotations
 
@@ -58,6 +59,12 @@ def poly_schedule(config: OptimConfig, updates: int) -> optax.Schedule:
         return poly
     warmup = optax.linear_schedule(0.0, config.lr, config.warmup_steps)
     return optax.join_schedules([warmup, poly], [config.warmup_steps])
+
+
+def schedule_depends_on_steps(config: OptimConfig) -> bool:
+    """Whether the learning rate at a step depends on the run's total steps: the poly decay ends at
+    the last step unless it is flat (``poly_power`` 0 or ``end_lr`` equal to ``lr``)."""
+    return config.poly_power > 0 and config.end_lr != config.lr
 
 
 def decay_mask(params) -> object:

@@ -8,7 +8,6 @@ import jax
 from jaxanom.train.checkpoint import restore_checkpoint
 from jaxanom.train.loop import TrainConfig, init_inputs, output_classes
 from jaxanom.train.optim import make_optimizer
-from jaxanom.train.running_sml import running_sml_classes
 from jaxanom.train.state import TrainState
 
 
@@ -23,10 +22,10 @@ def trained_variables(config: TrainConfig, model, example: dict, step: int | Non
     """
     images, extras = init_inputs(model, example)
     tx, _ = make_optimizer(config.optim, config.steps)
-    sml_classes = running_sml_classes(config.loss, output_classes(model, example))
+    objective_state = config.objective.init_state(output_classes(model, example))
     template = jax.eval_shape(
         lambda x, e: TrainState.create(model.init(jax.random.key(0), x, train=False, **e), tx, jax.random.key(0),
-                                       sml_classes), images, extras)
+                                       objective_state), images, extras)
     state = restore_run(config.run_dir, template, config.steps if complete else None, step)
     return jax.device_get(state.variables)
 

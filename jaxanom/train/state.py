@@ -11,9 +11,10 @@ import optax
 
 @flax.struct.dataclass
 class TrainState:
-    """Parameters, BatchNorm statistics, optimizer state, step counter, PRNG key data and, for
-    CuDAM with ``LossConfig(attention_k="running_sml")``, running SML class statistics
-    (``sml.ClassStats``; None otherwise, which adds nothing to the pytree or the checkpoints).
+    """Parameters, BatchNorm statistics, optimizer state, step counter, PRNG key data and the
+    objective's state (``objective.init_state(num_classes)``, any pytree the trainer does not
+    look into; None for an objective that keeps none, which adds nothing to the pytree or the
+    checkpoints).
 
     ``rng`` holds raw key data (uint32, from ``jax.random.key_data``) so that checkpoints store a
     plain array; the key for step t is ``fold_in(key(rng), t)``, so a resumed run draws the same
@@ -25,15 +26,13 @@ class TrainState:
     opt_state: Any
     step: jax.Array
     rng: jax.Array
-    sml_stats: Any = None
+    objective_state: Any = None
 
     @classmethod
     def create(cls, variables: dict, tx: optax.GradientTransformation, key: jax.Array,
-               sml_classes: int | None = None) -> "TrainState":
-        """A step-0 state from ``model.init``'s variables and a typed PRNG key; ``sml_classes``:
-        hold empty running SML statistics for that many classes."""
-        from jaxanom.sml.stats import stats_init
-
+               objective_state: Any = None) -> "TrainState":
+        """A step-0 state from ``model.init``'s variables, a typed PRNG key and the objective's
+        initial state."""
         params = variables["params"]
         return cls(
             params=params,
@@ -42,7 +41,7 @@ class TrainState:
             step=jnp.zeros((), jnp.int32),
             rng=jax.random.key_data(key),
             # distinct buffers: the state is donated to the train step
-            sml_stats=None if sml_classes is None else jax.tree.map(jnp.array, stats_init(sml_classes)),
+            objective_state=jax.tree.map(jnp.array, objective_state),
         )
 
     @property

@@ -14,6 +14,7 @@ import numpy as np
 
 from jaxanom import sml
 from jaxanom._validate import check_count, check_number
+from jaxanom.cudam_objective import CuDAM
 from jaxanom.cudam_score import PAPER_TEST_POSITIONS, PAPER_TRAIN_POSITIONS, equivalent_weight
 from jaxanom.data.synthetic import ANOMALY_SPLITS
 from jaxanom.app.evaluate import anomaly_results, class_statistics, predictions, predictor, segmentation_results
@@ -22,7 +23,6 @@ from jaxanom.app.reports import results_table, write_pictures
 from jaxanom.io import write_json_atomic
 from jaxanom.train.loop import TrainConfig
 from jaxanom.train.optim import OptimConfig
-from jaxanom.train.step import LossConfig
 
 DEMO_METHODS = ("msp", "max_logit", "entropy", "energy", "sml", "sml_post", "cudam")
 _ATTENTION_POSITIONS = (128 // 4) * (256 // 4)  # CuDAM's map of a 128 x 256 demo frame (stride 4)
@@ -38,10 +38,9 @@ class DemoConfig:
     """
 
     experiment: Experiment = Experiment(
-        train_frames=256, height=128, width=256, crop=(128, 256), batch_size=8,
+        attention="cudam", train_frames=256, height=128, width=256, crop=(128, 256), batch_size=8,
         train=TrainConfig(run_dir="", steps=1500, eval_every=500, save_every=500, keep=2,
-                          loss=LossConfig(method="cudam", tau=equivalent_weight(
-                              5e4, _ATTENTION_POSITIONS, PAPER_TRAIN_POSITIONS)),
+                          objective=CuDAM(tau=equivalent_weight(5e4, _ATTENTION_POSITIONS, PAPER_TRAIN_POSITIONS)),
                           optim=OptimConfig(name="adamw", lr=2e-3, weight_decay=1e-4, warmup_steps=30)))
     stats_frames: int = 64
     val_frames: int = 32

@@ -1,14 +1,15 @@
-"""Running SML statistics for L_att's k: EMA against a weighted NumPy reference,
-decay 1 against ``sml.fit_stats``, the score against Eq. 5, and a training run."""
+"""Running SML statistics (CuDAM's L_att k): EMA against a weighted NumPy reference, decay 1 against
+``sml.fit_stats``, the score against Eq. 5, and a training run carrying them as the objective's state."""
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from jaxanom import sml
+from jaxanom.cudam_objective import CuDAM
+from jaxanom.sml.running import running_sml_score, running_stats_update
 from jaxanom.train import step as step_lib
 from jaxanom.train.optim import OptimConfig, make_optimizer
-from jaxanom.train.running_sml import running_sml_score, running_stats_update
 from jaxanom.train.sharding import global_batch, make_mesh, replicated
 from jaxanom.train.state import TrainState
 from tiny_models import TinySegNet, init_variables, make_batch
@@ -79,9 +80,9 @@ def test_training_with_decay_one_ends_with_the_batch_fit_of_its_own_predictions(
     model = TinySegNet(head="cudam")
     mesh = make_mesh(jax.devices()[:1])
     tx, _ = make_optimizer(OptimConfig(lr=0.05), 100)
-    cfg = step_lib.LossConfig(method="cudam", tau=2.0, attention_k="running_sml", sml_decay=1.0)
-    train, _ = step_lib.make_steps(model, tx, cfg, mesh)
-    state = jax.device_put(TrainState.create(init_variables("cudam"), tx, jax.random.key(1), sml_classes=3),
+    objective = CuDAM(tau=2.0, attention_k="running_sml", sml_decay=1.0)
+    train, _ = step_lib.make_steps(model, tx, objective, mesh)
+    state = jax.device_put(TrainState.create(init_variables("cudam"), tx, jax.random.key(1), objective.init_state(3)),
                            replicated(mesh))
     forward = jax.jit(lambda v, x: model.apply(v, x, train=True, mutable=["batch_stats"])[0]["logits"])
     seen = []
@@ -91,12 +92,5 @@ def test_training_with_decay_one_ends_with_the_batch_fit_of_its_own_predictions(
         state, metrics = train(state, global_batch(batch, mesh))
         assert np.isfinite(float(metrics["loss"]))
     fitted = sml.fit_stats(seen)
-    for got, want in zip(state.sml_stats, fitted):
+    for got, want in zip(state.objective_state, fitted):
         np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-5, atol=1e-5)
-
-
-def test_loss_config_checks_the_new_fields():
-    with pytest.raises(ValueError, match="attention_k"):
-        step_lib.LossConfig(attention_k="sml")
-    with pytest.raises(ValueError, match="sml_decay"):
-        step_lib.LossConfig(sml_decay=0.0)

@@ -1,9 +1,9 @@
-"""Running SML statistics for CuDAM's attention loss (Eq. 7's k) during training.
+"""Running SML statistics during training (CuDAM's attention loss uses them as Eq. 7's k).
 
 The paper weights L_att by ``exp(k)`` with k its anomaly score, SML; SML needs per-class
 statistics of the max logit (SML Eqs. 3-4) that do not exist before training ends. Here they
 are accumulated from the network's own training predictions P_a (pixels with a valid label)
-as training goes, as an exponential moving average in the train state:
+as training goes, as an exponential moving average carried in the train state:
 
     count_t = d count_{t-1} + n_t,  and mean / M2 likewise: the old statistics enter the merge
     (Chan et al.'s formula, as ``sml.stats_merge``) as if each old pixel weighed d.
@@ -41,7 +41,3 @@ def running_sml_score(stats: ClassStats, logits) -> jax.Array:
     z = (jnp.max(logits, axis=-1) - mean[prediction]) / jnp.where(std > 0, std, 1.0)[prediction]
     return jnp.where(pooled_var > 0, -z, 0.0)
 
-
-def running_sml_classes(loss, num_classes: int) -> int | None:
-    """How many classes the train state's running statistics hold under ``loss`` (a ``LossConfig``): None if unused."""
-    return num_classes if loss.method == "cudam" and loss.attention_k == "running_sml" else None
