@@ -35,6 +35,17 @@ def in_host_memory(x) -> bool:
     return not isinstance(x, jax.Array) or all(device.platform == "cpu" for device in x.devices())
 
 
+def check_image_batch(images, multiple: int, scaling: str) -> None:
+    """A network's input: ``(B, H, W, 3)`` float with H and W multiples of ``multiple`` (its total
+    stride); ``scaling`` says how its float values are expected to be scaled."""
+    if images.ndim != 4 or images.shape[-1] != 3:
+        raise ValueError(f"images: expected (B, H, W, 3), got shape {images.shape}")
+    if images.shape[1] % multiple or images.shape[2] % multiple:
+        raise ValueError(f"images: expected H and W multiples of {multiple}, got {images.shape[1]}x{images.shape[2]}")
+    if not jnp.issubdtype(images.dtype, jnp.floating):
+        raise ValueError(f"images: expected a float dtype ({scaling}), got {images.dtype}")
+
+
 def check_finite(name: str, x) -> None:
     """No NaN or Inf in ``x`` (skipped for tracers), with no copy to the host: an array in host
     memory (NumPy, a list, a JAX array on the CPU) is checked by NumPy, which compiles nothing;

@@ -30,6 +30,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from jaxanom._validate import check_image_batch
 from jaxanom.nn.batch_norm import BatchNorm
 from jaxanom.nn.layers import BN_MOMENTUM, Dtype
 
@@ -190,12 +191,7 @@ class ERFNet(nn.Module):
 
     @nn.compact
     def __call__(self, images: jax.Array, train: bool = False) -> dict[str, jax.Array]:
-        if images.ndim != 4 or images.shape[-1] != 3:
-            raise ValueError(f"images: expected (B, H, W, 3), got shape {images.shape}")
-        if images.shape[1] % 8 or images.shape[2] % 8:
-            raise ValueError(f"images: expected H and W multiples of 8, got {images.shape[1]}x{images.shape[2]}")
-        if not jnp.issubdtype(images.dtype, jnp.floating):
-            raise ValueError(f"images: expected a float dtype (scaled to [0, 1]), got {images.dtype}")
+        check_image_batch(images, 8, "scaled to [0, 1]")
         features = ERFNetEncoder(self.dtype, name="encoder")(images.astype(self.dtype), train)
         logits = ERFNetDecoder(self.num_classes, self.dtype, name="decoder")(features, train)
         return {"logits": logits.astype(jnp.float32)}

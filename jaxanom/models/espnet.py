@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxanom._validate import check_image_batch
 from jaxanom.nn.layers import BN_MOMENTUM, Dtype
 
 # The authors' Cityscapes preprocessing (their VisualizeResults.py), per channel in BGR order.
@@ -158,12 +159,7 @@ class ESPNet(nn.Module):
 
     @nn.compact
     def __call__(self, images: jax.Array, train: bool = False) -> dict[str, jax.Array]:
-        if images.ndim != 4 or images.shape[-1] != 3:
-            raise ValueError(f"images: expected (B, H, W, 3), got shape {images.shape}")
-        if images.shape[1] % 8 or images.shape[2] % 8:
-            raise ValueError(f"images: expected H and W multiples of 8, got {images.shape[1]}x{images.shape[2]}")
-        if not jnp.issubdtype(images.dtype, jnp.floating):
-            raise ValueError(f"images: expected a float dtype (normalised), got {images.dtype}")
+        check_image_batch(images, 8, "normalised")
         c, dt = self.num_classes, self.dtype
         s1, t2, c8 = ESPNetEncoder(c, self.p, self.q, dt, name="encoder")(images.astype(dt), train)
         u4 = Upsample2(c, dt, name="up_l3")(_bn(c8, train, dt, "br"))
