@@ -60,7 +60,7 @@ def test_predict_reads_each_map_once_after_the_next_frame_is_dispatched(network,
     assert Counter(reads) == expected, f"{len(METHODS)} methods: {sorted(Counter(reads).items())}"
 
 
-def test_evaluate_reads_the_device_only_to_accumulate_metrics(network, monkeypatch):
+def test_evaluate_reads_the_device_only_to_accumulate_metrics_after_the_next_batch_is_dispatched(network, monkeypatch):
     predict, stats = network
     rng = np.random.default_rng(1)
     batches = [{"image": image[None], "label": rng.choice(np.array([0, 1, 255], np.uint8), (1, *SIZE))}
@@ -77,6 +77,26 @@ def test_evaluate_reads_the_device_only_to_accumulate_metrics(network, monkeypat
                 phase[0] = "loop"
 
         monkeypatch.setattr(AnomalyMetricAccumulator, name, counted)
-    reads = count_host_reads(monkeypatch, lambda: phase[0])
-    anomaly_results(predictions(predict, batches), METHODS, stats=stats)
-    assert reads.count("loop") == 0 and reads.count("update") > 0, Counter(reads)
+    dispatched = [0]
+
+    def counted_predict(images):
+        dispatched[0] += 1
+        return predict(images)
+
+    reads = count_host_reads(monkeypatch, lambda: (phase[0], dispatched[0]))
+    anomaly_results(predictions(counted_predict, batches), METHODS, stats=stats)
+    assert {where for where, _ in reads} == {"update", "compute"}, Counter(reads)
+    # batch k's scores are read once batch k + 1 is on the device (the last batch's after it)
+    assert {at for where, at in reads if where == "update"} == set(range(2, FRAMES + 1)), Counter(reads)
+
+
+def test_predictions_keep_the_order_and_run_one_batch_ahead():
+    calls = []
+
+    def predict(images):
+        calls.append(int(images[0]))
+        return {"logits": images * 10}
+
+    seen = [(int(out["logits"][0]), out["name"], len(calls))
+            for out in predictions(predict, ({"image": np.array([k]), "name": f"f{k}"} for k in range(4)))]
+    assert seen == [(0, "f0", 2), (10, "f1", 3), (20, "f2", 4), (30, "f3", 4)]
