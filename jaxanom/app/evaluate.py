@@ -62,8 +62,8 @@ def predictor(model, variables) -> Callable[[np.ndarray], dict]:
 
 def predictions(predict: Callable, batches: Iterable[dict]) -> Iterator[dict]:
     """Each batch with the network's outputs added (``"logits"``, maybe ``"attention_up"``), in
-    order. A batch is yielded once the next one is dispatched, so the device computes it while
-    the caller reads the batch before back (two batches' outputs are held at a time)."""
+    order. A batch is yielded once the next one is dispatched, so the device computes the next
+    batch while the caller reads this one back (two batches' outputs are held at a time)."""
     pending = None
     for batch in batches:
         dispatched = {**batch, **predict(batch["image"])}
