@@ -61,9 +61,17 @@ def predictor(model, variables) -> Callable[[np.ndarray], dict]:
 
 
 def predictions(predict: Callable, batches: Iterable[dict]) -> Iterator[dict]:
-    """Each batch with the network's outputs added (``"logits"``, maybe ``"attention_up"``)."""
+    """Each batch with the network's outputs added (``"logits"``, maybe ``"attention_up"``), in
+    order. A batch is yielded once the next one is dispatched, so the device computes the next
+    batch while the caller reads this one back (two batches' outputs are held at a time)."""
+    pending = None
     for batch in batches:
-        yield {**batch, **predict(batch["image"])}
+        dispatched = {**batch, **predict(batch["image"])}
+        if pending is not None:
+            yield pending
+        pending = dispatched
+    if pending is not None:
+        yield pending
 
 
 def protocol_predictions(predict: Callable, source, protocol, skipped: list | None = None) -> Iterator[dict]:
