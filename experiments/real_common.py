@@ -24,6 +24,8 @@ import numpy as np
 from experiments.stats import bin_edges, binned_metrics, bootstrap, frame_histograms, interval
 from jaxanom.app.scoring import VOID_CHANNEL
 
+TRAIN_IDS = VOID_CHANNEL  # channels 0..18 of both networks' weights are the trainIds; channel 19 is their void class
+
 HERE = Path(__file__).parent
 REALDATA = Path(os.environ.get("JAXANOM_REALDATA", HERE.parent.parent / "shared" / "realdata"))
 CHECKPOINT = REALDATA / "espnet" / "espnet_p_2_q_8.pth"
