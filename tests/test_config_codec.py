@@ -275,6 +275,15 @@ def test_experiment_json_written_before_the_codec_is_read_and_written_alike(tmp_
     assert jsonable(expected) == json.loads((WRITTEN_BEFORE / file).read_text())
 
 
+@pytest.mark.parametrize("text, message", [("{}", "train.run_dir: missing, in a file that jaxanom writes whole"),
+                                           ('{"train": {"run_dir": ""}}', "train.optim: missing"),
+                                           ('{"train": []}', "train.run_dir: missing")])
+def test_a_run_folder_needs_an_experiment_json_written_whole(tmp_path, text, message):
+    (tmp_path / "experiment.json").write_text(text)
+    with pytest.raises(ConfigError, match=f"experiment.json: {message}"):
+        load_experiment(tmp_path)
+
+
 @pytest.mark.parametrize("file, cls, expected", [("mmf_results.json", MMFDemoConfig, MMFDemoConfig.quick()),
                                                  ("offroad_results.json", OffroadDemoConfig, OffroadDemoConfig.quick())])
 def test_demo_results_written_before_the_codec_are_config_files(file, cls, expected):

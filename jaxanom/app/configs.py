@@ -25,9 +25,12 @@ __all__ = ["ConfigError", "encode", "load_config", "override"]
 T = TypeVar("T")
 
 
-def load_config(path: str | os.PathLike, cls: type[T], variable: str = "config") -> T:
+def load_config(path: str | os.PathLike, cls: type[T], variable: str = "config", *,
+                written: tuple[str, ...] = ()) -> T:
     """The ``cls`` that the JSON or Python file ``path`` holds (see the module docstring); ConfigError
-    naming the file, and the field's dotted path, when it holds none."""
+    naming the file, and the field's dotted path, when it holds none. ``written``: dotted names a JSON
+    file must hold, where it must be one jaxanom wrote whole (a run's experiment.json), not a user's
+    partial config."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError("", "no such file", os.fspath(path))
@@ -39,6 +42,12 @@ def load_config(path: str | os.PathLike, cls: type[T], variable: str = "config")
         raise ConfigError("", f"not valid JSON ({error})", os.fspath(path)) from None
     if isinstance(values, dict) and isinstance(values.get("config"), dict) and "config" not in _field_names(cls):
         values = values["config"]  # a demo's results.json: its configuration
+    for name in written:
+        holder = values
+        for key in name.split("."):
+            if not isinstance(holder, dict) or key not in holder:
+                raise ConfigError(name, "missing, in a file that jaxanom writes whole", os.fspath(path))
+            holder = holder[key]
     try:
         return decode(cls, values)
     except ConfigError as error:

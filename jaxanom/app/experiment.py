@@ -301,7 +301,7 @@ def load_experiment(run_dir: str | os.PathLike) -> Experiment:
     config_file = Path(run_dir) / "experiment.json"
     if not config_file.is_file():
         raise ValueError(f"run_dir: expected a training run folder with experiment.json, got {os.fspath(run_dir)!r}")
-    return load_config(config_file, Experiment)
+    return load_config(config_file, Experiment, written=("train.run_dir", "train.optim"))
 
 
 def load_variables(run_dir: str | os.PathLike, step: int | None = None) -> tuple[Experiment, dict]:
