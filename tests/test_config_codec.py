@@ -230,6 +230,12 @@ def test_set_reads_each_value_as_its_fields_type(assignments, expected):
     assert json.dumps(encode(override(Experiment(), assignments))) == json.dumps(encode(want))
 
 
+def test_set_of_a_json_object_keeps_the_fields_it_does_not_name():
+    optim = DemoConfig().experiment.train.optim  # AdamW, not OptimConfig()'s SGD
+    config = override(DemoConfig(), ["experiment.train.optim.momentum=0.5", 'experiment.train.optim={"lr": 0.5}'])
+    assert config.experiment.train.optim == dataclasses.replace(optim, momentum=0.5, lr=0.5)
+
+
 def test_set_indexes_tuples_of_configs():
     config = override(OffroadDemoConfig.quick(), ["train.0.frames=3", "test.domain=E"])
     assert config.train[0] == Source("A", 0, 3, 0, 4) and config.test.domain == "E"
