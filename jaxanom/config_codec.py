@@ -275,8 +275,7 @@ def _parse(kind, text: str, path: str, current: Any) -> Any:
             given = json.loads(stripped)
         except ValueError as error:
             raise ConfigError(path, f"expected JSON, got {text!r} ({error})") from None
-        same_class = not isinstance(given, dict) or given.get("name", _MISSING) in (_MISSING, _name(current))
-        return _merged(current, given) if isinstance(current, dict) and same_class else given
+        return _merged(kind, current, given) if isinstance(current, dict) and isinstance(given, dict) else given
     options = typing.get_args(kind) if typing.get_origin(kind) in (typing.Union, types.UnionType) else (kind,)
     if stripped.lower() in _NONE_WORDS and type(None) in options:
         return None
@@ -288,16 +287,19 @@ def _parse(kind, text: str, path: str, current: Any) -> Any:
     raise ConfigError(path, f"expected {describe(kind)}, got {text!r}")
 
 
-def _name(values: Any) -> Any:
-    return values.get("name") if isinstance(values, dict) else None
-
-
-def _merged(current: dict, given: dict) -> dict:
-    """``current`` with the keys ``given`` sets, nested objects merged alike."""
+def _merged(kind, current: dict, given: dict) -> dict:
+    """The config object ``current`` of type ``kind`` with the fields ``given`` sets, nested configs
+    merged alike; ``given`` itself where it names another class of a registered family."""
+    cls = _without_none(kind, current, "")
+    if hasattr(cls, "class_named"):
+        if given.get("name", current.get("name")) != current.get("name"):
+            return given
+        cls = cls.class_named(current["name"])
+    hints = typing.get_type_hints(cls) if dataclasses.is_dataclass(cls) else {}
     merged = dict(current)
     for key, value in given.items():
-        merged[key] = _merged(current[key], value) if isinstance(current.get(key), dict) and isinstance(value, dict) \
-            and value.get("name", _MISSING) in (_MISSING, _name(current[key])) else value
+        both = isinstance(current.get(key), dict) and isinstance(value, dict) and key in hints
+        merged[key] = _merged(hints[key], current[key], value) if both else value
     return merged
 
 

@@ -234,6 +234,13 @@ def test_set_of_a_json_object_keeps_the_fields_it_does_not_name():
     optim = DemoConfig().experiment.train.optim  # AdamW, not OptimConfig()'s SGD
     config = override(DemoConfig(), ["experiment.train.optim.momentum=0.5", 'experiment.train.optim={"lr": 0.5}'])
     assert config.experiment.train.optim == dataclasses.replace(optim, momentum=0.5, lr=0.5)
+    # OptimConfig's "name" is a plain field (no registered family): merged like the others
+    config = override(DemoConfig(), ['experiment.train={"steps": 9, "optim": {"name": "sgd", "lr": 0.5}}'])
+    assert config.experiment.train == dataclasses.replace(DemoConfig().experiment.train, steps=9, optim=dataclasses.replace(
+        optim, name="sgd", lr=0.5))
+    # an objective of another registered class starts from that class's defaults
+    config = override(DemoConfig(), ['experiment.train.objective={"name": "msaam", "lam": 0.5}'])
+    assert config.experiment.train.objective == MSAAM(lam=0.5)
 
 
 def test_set_indexes_tuples_of_configs():
