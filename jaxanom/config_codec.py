@@ -66,10 +66,10 @@ def decode(kind: Any, values: Any, path: str = "", base: Any = _MISSING) -> Any:
     ``base``: the value the fields left out of a dataclass's object are taken from (default: the
     dataclass's field defaults)."""
     origin = typing.get_origin(kind)
-    if origin in (typing.Union, types.UnionType):
+    if len(_options(kind)) > 1:
         return _decode_union(kind, values, path, base)
     if origin is typing.Literal:
-        if values not in typing.get_args(kind) or isinstance(values, bool) != _any_bool(typing.get_args(kind)):
+        if not any(values == choice and type(values) is type(choice) for choice in typing.get_args(kind)):
             raise ConfigError(path, f"expected {describe(kind)}, got {values!r}")
         return values
     if origin is tuple or kind is tuple:
@@ -95,7 +95,7 @@ def decode(kind: Any, values: Any, path: str = "", base: Any = _MISSING) -> Any:
 def describe(kind: Any) -> str:
     """``kind`` in words, for error messages."""
     origin, args = typing.get_origin(kind), typing.get_args(kind)
-    if origin in (typing.Union, types.UnionType):
+    if len(_options(kind)) > 1:
         return " or ".join("none" if arg is type(None) else describe(arg) for arg in args)
     if origin is typing.Literal:
         return f"one of {args}"
@@ -116,12 +116,8 @@ def _plural(kind: Any) -> str:
     return {bool: "true / false values", int: "integers", float: "numbers", str: "strings"}.get(kind, describe(kind))
 
 
-def _any_bool(choices: tuple) -> bool:
-    return any(isinstance(choice, bool) for choice in choices)
-
-
 def _decode_union(kind, values, path, base):
-    options = typing.get_args(kind)
+    options = _options(kind)
     if values is None and type(None) in options:
         return None
     others = [option for option in options if option is not type(None)]
@@ -195,9 +191,9 @@ def _decode_dataclass(kind, values, path, base):
         where = _join(path, field.name)
         default = getattr(base, field.name) if base is not _MISSING else _field_default(field)
         if not field.init:  # e.g. a registered name: fixed by the class
-            if field.name in values and values[field.name] != encode(_field_default(field)):
-                raise ConfigError(where, f"expected {encode(_field_default(field))!r} in a {cls.__name__}, "
-                                  f"got {values[field.name]!r}")
+            fixed = encode(_field_default(field))
+            if field.name in values and values[field.name] != fixed:
+                raise ConfigError(where, f"expected {fixed!r} in a {cls.__name__}, got {values[field.name]!r}")
         elif field.name in values:
             arguments[field.name] = decode(hints[field.name], values[field.name], where, default)
         elif default is _MISSING:
@@ -206,8 +202,6 @@ def _decode_dataclass(kind, values, path, base):
             arguments[field.name] = default
     try:
         return cls(**arguments)
-    except ConfigError:
-        raise
     except ValueError as error:  # the dataclass's own checks, which name the field inside it
         raise ConfigError(path, str(error)) from None
 
@@ -244,7 +238,9 @@ def override(config: Any, assignments: Sequence[str]) -> Any:
 def _member(kind, holder, key, path):
     """``(type, JSON value, dotted name)`` of member ``key`` of ``holder``, the JSON value of type ``kind``."""
     where = _join(path, key)
-    kind = _without_none(kind, holder, path)
+    if holder is None:
+        raise ConfigError(path, f"is none; give it whole first ({path}=...)")
+    kind = _not_none(kind)
     if typing.get_origin(kind) is tuple and isinstance(holder, list):
         if not key.isdigit() or int(key) >= len(holder):
             raise ConfigError(where, f"expected an index below {len(holder)} of {path}")
@@ -259,11 +255,14 @@ def _member(kind, holder, key, path):
     raise ConfigError(where, f"{path or 'the config'} is {describe(kind)}, which has no member {key!r}")
 
 
-def _without_none(kind, holder, path):
-    options = typing.get_args(kind) if typing.get_origin(kind) in (typing.Union, types.UnionType) else (kind,)
-    others = [option for option in options if option is not type(None)]
-    if holder is None:
-        raise ConfigError(path, f"is none; give it whole first ({path}=...)")
+def _options(kind) -> tuple:
+    """The types a union ``kind`` allows (``(kind,)`` for any other type)."""
+    return typing.get_args(kind) if typing.get_origin(kind) in (typing.Union, types.UnionType) else (kind,)
+
+
+def _not_none(kind):
+    """``X`` for ``X | None``, else ``kind``."""
+    others = [option for option in _options(kind) if option is not type(None)]
     return others[0] if len(others) == 1 else kind
 
 
@@ -276,7 +275,7 @@ def _parse(kind, text: str, path: str, current: Any) -> Any:
         except ValueError as error:
             raise ConfigError(path, f"expected JSON, got {text!r} ({error})") from None
         return _merged(kind, current, given) if isinstance(current, dict) and isinstance(given, dict) else given
-    options = typing.get_args(kind) if typing.get_origin(kind) in (typing.Union, types.UnionType) else (kind,)
+    options = _options(kind)
     if stripped.lower() in _NONE_WORDS and type(None) in options:
         return None
     for option in options:
@@ -290,7 +289,7 @@ def _parse(kind, text: str, path: str, current: Any) -> Any:
 def _merged(kind, current: dict, given: dict) -> dict:
     """The config object ``current`` of type ``kind`` with the fields ``given`` sets, nested configs
     merged alike; ``given`` itself where it names another class of a registered family."""
-    cls = _without_none(kind, current, "")
+    cls = _not_none(kind)
     if hasattr(cls, "class_named"):
         if given.get("name", current.get("name")) != current.get("name"):
             return given
