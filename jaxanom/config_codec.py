@@ -275,15 +275,10 @@ def _parse(kind, text: str, path: str, current: Any) -> Any:
         except ValueError as error:
             raise ConfigError(path, f"expected JSON, got {text!r} ({error})") from None
         return _merged(kind, current, given) if isinstance(current, dict) and isinstance(given, dict) else given
-    options = _options(kind)
-    if stripped.lower() in _NONE_WORDS and type(None) in options:
-        return None
-    for option in options:
-        if option is not type(None):
-            parsed = _parse_plain(option, stripped, text)
-            if parsed is not _MISSING:
-                return parsed
-    raise ConfigError(path, f"expected {describe(kind)}, got {text!r}")
+    parsed = _parse_plain(kind, stripped, text)
+    if parsed is _MISSING:
+        raise ConfigError(path, f"expected {describe(kind)}, got {text!r}")
+    return parsed
 
 
 def _merged(kind, current: dict, given: dict) -> dict:
@@ -304,6 +299,11 @@ def _merged(kind, current: dict, given: dict) -> dict:
 
 def _parse_plain(kind, stripped: str, text: str) -> Any:
     """``text`` read as ``kind`` without JSON brackets, or ``_MISSING`` when it cannot be."""
+    if len(_options(kind)) > 1:
+        if stripped.lower() in _NONE_WORDS and type(None) in _options(kind):
+            return None
+        readings = (_parse_plain(option, stripped, text) for option in _options(kind) if option is not type(None))
+        return next((reading for reading in readings if reading is not _MISSING), _MISSING)
     origin = typing.get_origin(kind)
     if origin is tuple or kind is tuple:
         args = typing.get_args(kind)

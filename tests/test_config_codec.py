@@ -243,6 +243,15 @@ def test_set_of_a_json_object_keeps_the_fields_it_does_not_name():
     assert config.experiment.train.objective == MSAAM(lam=0.5)
 
 
+def test_set_reads_the_elements_of_a_tuple_by_their_declared_types():
+    assert override(Awkward("r"), ["pair=3,b", "flags=yes,off", "either=7"]) == Awkward("r", pair=(3, "b"), flags=(True, False),
+                                                                                       either=7)
+    assert override(Awkward("r"), ["either=seven", "mode=exact", "colour=blue"]) == Awkward(
+        "r", either="seven", mode="exact", colour=Colour.BLUE)
+    with pytest.raises(ConfigError, match="pair: expected a list of 2 values \\(an integer, a string\\), got 'b,3'"):
+        override(Awkward("r"), ["pair=b,3"])
+
+
 def test_set_indexes_tuples_of_configs():
     config = override(OffroadDemoConfig.quick(), ["train.0.frames=3", "test.domain=E"])
     assert config.train[0] == Source("A", 0, 3, 0, 4) and config.test.domain == "E"

@@ -62,7 +62,8 @@ def _run_python(path: Path, cls: type[T], variable: str) -> T:
     try:
         value = runpy.run_path(os.fspath(path)).get(variable)
     except SystemExit as stop:
-        raise ConfigError("", f"called sys.exit({stop.code!r}) instead of defining `{variable}`", os.fspath(path)) from None
+        raise ConfigError("", f"called sys.exit({stop.code!r}) instead of defining `{variable}`",
+                          os.fspath(path)) from None
     except Exception as error:  # the config is the user's Python: any failure is a bad config, in one line
         where = f" (line {error.lineno})" if isinstance(error, SyntaxError) else ""
         raise ConfigError("", f"{type(error).__name__}{where}: {error}", os.fspath(path)) from None
