@@ -5,7 +5,7 @@
 - a JSON file: ``config_codec.encode``'s object of a ``cls`` (any part of it: the fields left out
   keep their defaults), or an object whose ``"config"`` member is one (a demo's ``results.json``);
   a run's ``experiment.json`` is such a file, so ``train --config RUN/experiment.json`` repeats a run;
-- a Python file (config-as-code, e.g. ``experiments/*.py``): run, it defines ``variable`` (a ``cls``).
+- a Python file (config-as-code): run, it defines ``variable`` (a ``cls``).
 
 ``override(config, ["train.optim.lr=1e-3", ...])`` (``--set``) is ``config_codec.override``.
 """
