@@ -39,7 +39,8 @@ def run(args) -> None:
         experiment = config.experiment
         config = dataclasses.replace(config, experiment=dataclasses.replace(
             experiment, train=dataclasses.replace(experiment.train, steps=args.steps)))
-    run_demo(out_folder(args.out, args.overwrite), with_set(config, args), progress=not args.no_progress)
+    config = with_set(config, args)  # checked before the output folder is claimed
+    run_demo(out_folder(args.out, args.overwrite), config, progress=not args.no_progress)
 
 
 def _config(args, cls):
@@ -61,7 +62,8 @@ def run_mmf(args) -> None:
     if getattr(args, "synthesizer", None):
         pipeline = dataclasses.replace(config.pipeline, synthesizer=args.synthesizer)
         config = dataclasses.replace(config, pipeline=pipeline)
-    run_mmf_demo(out_folder(args.out, args.overwrite), with_set(config, args), progress=not args.no_progress)
+    config = with_set(config, args)  # checked before the output folder is claimed
+    run_mmf_demo(out_folder(args.out, args.overwrite), config, progress=not args.no_progress)
 
 
 def run_offroad(args) -> None:
@@ -73,4 +75,5 @@ def run_offroad(args) -> None:
         encoder = dataclasses.replace(config.pipeline.encoder, steps=args.steps)
         config = dataclasses.replace(config, pipeline=dataclasses.replace(config.pipeline, encoder=encoder))
     out = "jaxanom-demo-offroad" if args.out == "jaxanom-demo" else args.out
-    run_offroad_demo(out_folder(out, args.overwrite), with_set(config, args), progress=not args.no_progress)
+    config = with_set(config, args)  # checked before the output folder is claimed
+    run_offroad_demo(out_folder(out, args.overwrite), config, progress=not args.no_progress)
