@@ -11,6 +11,7 @@ from jaxanom.data.synthetic import SyntheticScenes
 from jaxanom.app.evaluate import anomaly_results
 from jaxanom.app.demos.mmf import ROWS, MMFDemoConfig
 from jaxanom.app.mmf_pipeline import scored_batches
+from jaxanom.app.configs import load_config
 from jaxanom.app.mmf_pipeline import MMFPipeline
 from jaxanom.config_codec import decode, encode
 
@@ -32,6 +33,7 @@ def test_quick_mmf_demo_writes_the_ablation_and_pictures(demo_dir):
     assert picture.shape[1] >= 4 * 256 and picture.shape[0] >= 2 * 128  # 2 rows of 4 panels, 32 x 64 frames x 4
     parts = sorted(p.name.split("-")[0] for p in (demo_dir / "runs").iterdir())
     assert parts == ["dissimilarity", "dissimilarity", "rgbd", "segmenter", "synthesizer"]
+    assert load_config(demo_dir / "results.json", MMFDemoConfig) == MMFDemoConfig.quick()  # a config file
 
 
 def _tree(folder):

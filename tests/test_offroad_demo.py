@@ -29,6 +29,7 @@ def test_quick_offroad_demo_writes_results_pictures_and_hard_frames(demo_dir):
         picture = read_rgb(demo_dir / name)
         assert picture.shape[1] >= 3 * 256 and picture.shape[0] >= 2 * 192, (name, picture.shape)
     assert read_rgb(demo_dir / "hard_frames.png").shape[1] >= 2 * 256  # the two chosen frames side by side
+    assert load_config(demo_dir / "results.json", OffroadDemoConfig) == OffroadDemoConfig.quick()  # a config file
 
 
 def test_a_config_file_round_trips_to_the_same_config(tmp_path):
