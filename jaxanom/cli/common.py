@@ -58,6 +58,36 @@ def size_hw(text: str | None, flag: str = "--size") -> tuple[int, int] | None:
     return int(parts[0]), int(parts[1])
 
 
+def add_config(parser, config_help: str | None = None) -> None:
+    """``--set NAME=VALUE`` (repeatable) and, with ``config_help``, ``--config FILE``."""
+    if config_help:
+        parser.add_argument("--config", help=config_help)
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="set one field of the configuration by its dotted name, after --config and the other "
+                        "flags, e.g. --set train.optim.lr=1e-3; VALUE is read as the field's type (none, true / "
+                        "false, comma-separated lists, JSON); repeatable")
+
+
+def read_config(path: str, cls, variable: str = "config"):
+    """``--config``'s file (JSON, or Python defining ``variable``) as a ``cls``; CommandError naming the flag."""
+    from jaxanom.app.configs import ConfigError, load_config
+
+    try:
+        return load_config(path, cls, variable)
+    except ConfigError as error:
+        raise CommandError(f"--config {error}") from None
+
+
+def with_set(config, args):
+    """``config`` with the ``--set`` assignments, checked whole; CommandError naming the flag."""
+    from jaxanom.app.configs import ConfigError, override
+
+    try:
+        return override(config, args.set)
+    except ConfigError as error:
+        raise CommandError(f"--set {error}") from None
+
+
 def add_common(parser, progress: bool, overwrite: bool = True) -> None:
     """``--overwrite`` and ``--no-progress`` where a command has them."""
     if overwrite:

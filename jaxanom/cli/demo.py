@@ -2,9 +2,8 @@
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
-from jaxanom.cli.common import CommandError, add_common, out_folder, positive_int
+from jaxanom.cli.common import CommandError, add_common, add_config, out_folder, positive_int, read_config, with_set
 
 
 def add_parser(commands) -> None:
@@ -20,10 +19,10 @@ def add_parser(commands) -> None:
     parser.add_argument("--quick", action="store_true",
                         help="a smoke run of the same path at tiny sizes (minutes on a CPU, mostly compiling)")
     parser.add_argument("--steps", type=positive_int, help="training steps (default: 1500; --quick: 3)")
-    parser.add_argument("--config", help="offroad: a JSON file of OffroadDemoConfig fields; mmf: a JSON file of "
-                        "MMFDemoConfig fields, e.g. the \"config\" of a results.json (every trainable part)")
     parser.add_argument("--synthesizer", choices=["class_mean", "spade"],
                         help="mmf: the resynthesis (default: class_mean)")
+    add_config(parser, "the demo's configuration (DemoConfig, MMFDemoConfig or OffroadDemoConfig): a JSON file of "
+               "any of its fields, e.g. a results.json of the same demo, or a Python file defining `config`")
     add_common(parser, progress=True)
     parser.set_defaults(handler=run)
 
@@ -35,24 +34,27 @@ def run(args) -> None:
         return run_mmf(args)
     from jaxanom.app.demos.sml_cudam import DemoConfig, run_demo
 
-    config = DemoConfig.quick() if args.quick else DemoConfig()
+    config = _config(args, DemoConfig)
     if args.steps is not None:
         experiment = config.experiment
         config = dataclasses.replace(config, experiment=dataclasses.replace(
             experiment, train=dataclasses.replace(experiment.train, steps=args.steps)))
+    config = with_set(config, args)  # checked before the output folder is claimed
     run_demo(out_folder(args.out, args.overwrite), config, progress=not args.no_progress)
+
+
+def _config(args, cls):
+    """``--config``'s ``cls``, else ``--quick``'s or the default one."""
+    if args.quick and args.config:
+        raise CommandError("--quick, --config: give one of them")
+    return read_config(args.config, cls) if args.config else cls.quick() if args.quick else cls()
 
 
 def run_mmf(args) -> None:
     """``jaxanom demo mmf [--quick | --config FILE] [--steps N] [--out DIR] [--overwrite]`` (N: segmenter steps)."""
-    from jaxanom.app.demos.mmf import MMFDemoConfig, load_config, run_mmf_demo
+    from jaxanom.app.demos.mmf import MMFDemoConfig, run_mmf_demo
 
-    if args.quick and args.config:
-        raise CommandError("--quick, --config: give one of them")
-    try:
-        config = load_config(args.config) if args.config else MMFDemoConfig.quick() if args.quick else MMFDemoConfig()
-    except ValueError as error:
-        raise CommandError(f"--config {error}") from None
+    config = _config(args, MMFDemoConfig)
     if args.steps is not None:
         seg = config.pipeline.segmenter
         seg = dataclasses.replace(seg, train=dataclasses.replace(seg.train, steps=args.steps))
@@ -60,6 +62,7 @@ def run_mmf(args) -> None:
     if getattr(args, "synthesizer", None):
         pipeline = dataclasses.replace(config.pipeline, synthesizer=args.synthesizer)
         config = dataclasses.replace(config, pipeline=pipeline)
+    config = with_set(config, args)  # checked before the output folder is claimed
     run_mmf_demo(out_folder(args.out, args.overwrite), config, progress=not args.no_progress)
 
 
@@ -67,14 +70,10 @@ def run_offroad(args) -> None:
     """``jaxanom demo offroad [--quick] [--steps N] [--config FILE] [--out DIR]``."""
     from jaxanom.app.demos.offroad import OffroadDemoConfig, run_offroad_demo
 
-    if args.config and args.quick:
-        raise CommandError("--config and --quick: give one of them")
-    if args.config and not Path(args.config).is_file():
-        raise CommandError(f"--config {args.config}: no such file")
-    config = OffroadDemoConfig.from_json(args.config) if args.config else (
-        OffroadDemoConfig.quick() if args.quick else OffroadDemoConfig())
+    config = _config(args, OffroadDemoConfig)
     if args.steps is not None:
         encoder = dataclasses.replace(config.pipeline.encoder, steps=args.steps)
         config = dataclasses.replace(config, pipeline=dataclasses.replace(config.pipeline, encoder=encoder))
     out = "jaxanom-demo-offroad" if args.out == "jaxanom-demo" else args.out
+    config = with_set(config, args)  # checked before the output folder is claimed
     run_offroad_demo(out_folder(out, args.overwrite), config, progress=not args.no_progress)

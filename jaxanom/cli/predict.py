@@ -1,8 +1,8 @@
 """``jaxanom predict``: anomaly maps of image files (npy, png, SegmentMeIfYouCan's hdf5 tree)."""
 from __future__ import annotations
 
-from jaxanom.cli.common import (DEFAULT_METHODS, CommandError, add_common, add_methods, load_plugins, load_stats,
-                                out_folder, positive_int, size_hw)
+from jaxanom.cli.common import (DEFAULT_METHODS, CommandError, add_common, add_config, add_methods, load_plugins,
+                                load_stats, out_folder, positive_int, size_hw, with_set)
 
 
 def add_parser(commands) -> None:
@@ -37,6 +37,7 @@ def add_parser(commands) -> None:
     parser.add_argument("--unit-interval", metavar="CENTER,SCALE",
                         help="write 1 / (1 + exp(-(score - CENTER) / SCALE)) in [0, 1] instead of each score (the "
                         "benchmark documents scores in [0, 1]); AP / AUROC / FPR keep their values, float16 ties do not")
+    add_config(parser)  # the PredictSettings, e.g. --set size=512,1024
     add_common(parser, progress=True)
     parser.set_defaults(handler=run)
 
@@ -58,6 +59,7 @@ def run(args) -> None:
                                formats=tuple(args.format.split(",")), size=size_hw(args.size),
                                batch_size=args.batch_size, dataset=args.dataset, slic_step=args.slic_step,
                                cudam_sigma=args.cudam_sigma, unit_interval=_pair(args.unit_interval))
+    settings = with_set(settings, args)
     if "smiyc" in settings.formats:
         try:
             import h5py  # noqa: F401

@@ -2,20 +2,19 @@
 from __future__ import annotations
 
 import dataclasses
-import runpy
 from pathlib import Path
 
-from jaxanom.cli.common import CLAIM, CommandError, add_common, claim, nonnegative_int, out_folder, positive_int
+from jaxanom.cli.common import (CLAIM, CommandError, add_common, add_config, claim, nonnegative_int, out_folder,
+                                positive_int, read_config, with_set)
 
 
 def add_parser(commands) -> None:
     parser = commands.add_parser("train", help="train a network (config file or flags); --resume continues",
                                  description="Train a DeepLabV3+ (optionally with CuDAM or MSAAM). A config file is "
-                                 "a Python file that defines `experiment`, a jaxanom.app.experiment.Experiment; flags "
-                                 "override its fields.")
+                                 "a Python file that defines `experiment`, a jaxanom.app.experiment.Experiment, or its "
+                                 "JSON (a run's experiment.json); flags, then --set, override its fields.")
     parser.add_argument("--out", required=True, help="run folder (checkpoints, logs, experiment.json); "
                         "must be new or empty unless --resume")
-    parser.add_argument("--config", help="Python file defining `experiment = Experiment(...)`")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     parser.add_argument("--model", help="model preset, e.g. deeplabv3plus_tiny, deeplabv3plus_r101")
     parser.add_argument("--attention", choices=["none", "cudam", "msaam"], help="attention module")
@@ -40,6 +39,8 @@ def add_parser(commands) -> None:
                         help="CuDAM reward weight (Eq. 4); default: the CuDAM objective's, the paper's 5e4 rescaled to "
                         "this network's attention-map size at the crop size (equivalent_weight), unless a config file "
                         "set another tau; the value used is printed")
+    add_config(parser, "Python file defining `experiment = Experiment(...)`, or an Experiment's JSON "
+               "(e.g. a run's experiment.json)")
     add_common(parser, progress=True, overwrite=False)
     parser.set_defaults(handler=run)
 
@@ -47,7 +48,7 @@ def add_parser(commands) -> None:
 def run(args) -> None:
     import jax
 
-    from jaxanom.app.experiment import attention_positions, check_objective, load_experiment, run_training
+    from jaxanom.app.experiment import Experiment, attention_positions, check_objective, load_experiment, run_training
 
     if args.distributed:  # before any JAX work: loading the data or the model may touch devices
         from jaxanom.train.sharding import initialize_distributed
@@ -62,10 +63,11 @@ def run(args) -> None:
         if lead:
             claim(out / CLAIM, f"--out {out}")
     else:
-        experiment = load_config(args.config) if args.config else _base_experiment(args.init_from)
+        experiment = read_config(args.config, Experiment, "experiment") if args.config else \
+            _base_experiment(args.init_from)
         if lead:
             out_folder(args.out, overwrite=False, hint="continue the run there with --resume")
-    experiment = _override(experiment, args)
+    experiment = with_set(_override(experiment, args), args)
     check_objective(experiment)
     if experiment.train.objective.name == "cudam":
         positions = attention_positions(experiment, *experiment.crop)
@@ -77,30 +79,10 @@ def run(args) -> None:
         run_training(experiment, out, progress=not args.no_progress)
     except NonFiniteLossError as error:
         raise CommandError(f"the run diverged: {error}. --resume repeats the same steps from there; start a new run "
-                           f"with a lower learning rate (optim.lr, now {experiment.train.optim.lr:g}) or "
-                           "gradient clipping "
-                           "(optim.clip_norm) in --config") from None
+                           f"with a lower learning rate (--set train.optim.lr=..., now {experiment.train.optim.lr:g}) "
+                           "or gradient clipping (--set train.optim.clip_norm=...)") from None
     print(f"trained {experiment.train.steps} steps on {jax.device_count()} devices ({jax.process_count()} "
           f"processes); checkpoints in {out / 'checkpoints'}")
-
-
-def load_config(path: str):
-    """The ``experiment`` that a config file defines."""
-    from jaxanom.app.experiment import Experiment
-
-    if not Path(path).is_file():
-        raise CommandError(f"--config {path}: no such file")
-    try:
-        experiment = runpy.run_path(path).get("experiment")
-    except SystemExit as stop:
-        raise CommandError(f"--config {path}: called sys.exit({stop.code!r}) instead of defining `experiment`") from None
-    except Exception as error:  # the config is the user's Python: any failure is a bad config, in one line
-        where = f" (line {error.lineno})" if isinstance(error, SyntaxError) else ""
-        raise CommandError(f"--config {path}: {type(error).__name__}{where}: {error}") from None
-    if not isinstance(experiment, Experiment):
-        raise CommandError(f"--config {path}: expected it to define `experiment = Experiment(...)`, "
-                           f"found {type(experiment).__name__}")
-    return experiment
 
 
 def _base_experiment(init_from: str | None):

@@ -9,7 +9,6 @@ dissimilarity a | superpixels | final score (Eq. 6).
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from pathlib import Path
 
@@ -18,7 +17,8 @@ import numpy as np
 from jaxanom._validate import check_count
 from jaxanom.data.synthetic import ANOMALY_SPLITS, SyntheticScenes
 from jaxanom.app.evaluate import anomaly_results, dataset_reader
-from jaxanom.app.experiment import Experiment
+from jaxanom.app.configs import load_config
+from jaxanom.config_codec import encode
 from jaxanom.io import write_bytes_atomic, write_json_atomic
 from jaxanom.app.mmf_pipeline import MMFConfig, MMFPipeline, scored_batches
 
@@ -45,23 +45,6 @@ class MMFDemoConfig:
     @classmethod
     def quick(cls) -> "MMFDemoConfig":
         return cls(pipeline=MMFConfig.quick(), anomaly_frames=2, pictures=1)
-
-    @classmethod
-    def from_dict(cls, values: dict) -> "MMFDemoConfig":
-        """The inverse of ``dataclasses.asdict`` (``results.json``'s ``"config"``); fields left out
-        keep their defaults, a ``pipeline.segmenter`` given is a whole ``Experiment``."""
-        if not isinstance(values, dict):
-            raise ValueError(f"config: expected a JSON object, got {type(values).__name__}")
-        values = dict(values)
-        pipeline = dict(values.pop("pipeline", {}))
-        try:
-            if "segmenter" in pipeline:
-                pipeline["segmenter"] = Experiment.from_dict(pipeline["segmenter"])
-            if isinstance(pipeline.get("dissim_variants"), list):  # JSON has no tuples
-                pipeline["dissim_variants"] = tuple(pipeline["dissim_variants"])
-            return cls(pipeline=MMFConfig(**pipeline), **values)
-        except (TypeError, KeyError) as error:  # an unknown or missing field
-            raise ValueError(f"config: {type(error).__name__}: {error}") from None
 
 
 def evaluation_frames(config: MMFDemoConfig) -> SyntheticScenes:
@@ -126,24 +109,12 @@ def run_mmf_demo(out_dir: str | Path, config: MMFDemoConfig = MMFDemoConfig(), *
     text = table(metrics)
     results = {"metrics": metrics, "frames": len(source), "split": config.anomaly_split,
                "seconds": {"training": trained, "total": time.perf_counter() - tick},
-               "config": dataclasses.asdict(config)}
+               "config": encode(config)}
     write_json_atomic(out_dir / "results.json", results)
     write_bytes_atomic(out_dir / "table.md", (text + "\n").encode())
     log(text)
     log(f"results in {out_dir}/ (results.json, table.md, frame_*.png); {results['seconds']['total']:.0f} s")
     return results
-
-
-def load_config(path: str | Path) -> MMFDemoConfig:
-    """An ``MMFDemoConfig`` from a JSON file: the ``"config"`` of a ``results.json``, or any part of it."""
-    try:
-        values = json.loads(Path(path).read_text())
-    except (OSError, ValueError) as error:
-        raise ValueError(f"config {path}: cannot be read as JSON ({error})") from None
-    try:
-        return MMFDemoConfig.from_dict(values.get("config", values) if isinstance(values, dict) else values)
-    except ValueError as error:
-        raise ValueError(f"{path}: {error}") from None
 
 
 def mmf_scored_batches(folder: str, dataset: str, path: str, *, frames: int | None = None, depth: str | None = None):
@@ -152,7 +123,7 @@ def mmf_scored_batches(folder: str, dataset: str, path: str, *, frames: int | No
     folder = Path(folder)
     if not (folder / "results.json").is_file():
         raise ValueError(f"--mmf {folder}: expected a folder written by `jaxanom demo mmf` (with results.json)")
-    config = load_config(folder / "results.json").pipeline
+    config = load_config(folder / "results.json", MMFDemoConfig).pipeline
     if dataset not in ("synthetic", "lost-and-found", "smiyc") or (dataset == "smiyc" and not depth):
         raise ValueError(f"--mmf: the {dataset} dataset has no disparity; use synthetic, lost-and-found or "
                          "smiyc with --depth")
