@@ -154,7 +154,7 @@ def test_confusion_scores_of_summed_frame_matrices_equal_the_pooled_scores():
     for r, w in enumerate(weights):
         index = np.repeat(np.arange(4), w)
         if w[1] == w.sum():  # only void pixels: every score undefined
-            assert all(np.isnan(v[r]) for v in batched.values())
+            assert all(np.isnan(batched[key][r]) for key in OFFROAD_SCORES.values())
             continue
         expected = segmentation_scores(predicted[index], truth[index], 3)
         for name, key in OFFROAD_SCORES.items():

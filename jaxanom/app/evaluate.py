@@ -16,7 +16,8 @@ import numpy as np
 from jaxanom.app.scoring import inputs_of, score_all
 from jaxanom.cudam_score import upsample_attention
 from jaxanom.metrics import anomaly_metrics, pr_curve, restrict_to_roi, roc_curve
-from jaxanom.metrics.evaluator import Components, PixelAnomaly, Segmentation, SmiycPixels, run_evaluators
+from jaxanom.metrics.evaluator import (Components, PixelAnomaly, Segmentation, SmiycPixels, run_evaluators,
+                                       update_keyed)
 from jaxanom.train.step import model_input
 
 CONVENTIONS = ("exact", "smiyc")  # jaxanom's exact curves; the official SegmentMeIfYouCan kit's bins
@@ -143,10 +144,10 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
                 np.save(Path(spill.name) / f"label_{first + index}.npy", label)
         scored = {"scores": batch_scores, "label": labels}
         for name, score in batch_scores.items():
-            _update(pixels, name, scored, lambda: PixelAnomaly(name, mode, fpr_convention, ap_convention,
-                                                               conventions=True))
+            update_keyed(pixels, name, lambda: PixelAnomaly(name, mode, fpr_convention, ap_convention,
+                                                            conventions=True), scored)
             if convention == "smiyc":
-                _update(binned, name, scored, lambda: SmiycPixels(name))
+                update_keyed(binned, name, lambda: SmiycPixels(name), scored)
             if keep_curves:
                 kept.setdefault(name, []).extend(zip(np.asarray(score), labels))
             if spill is not None:
@@ -177,12 +178,6 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
         precision, recall, _ = pr_curve(scores, labels)
         curves[name] = {"roc": (fpr, tpr), "pr": (recall, precision), "scores": maps, "labels": truths}
     return metrics, curves
-
-
-def _update(evaluators: dict, name: str, batch: dict, make) -> None:
-    """Feed ``batch`` to ``evaluators[name] = (evaluator, state)``, made by ``make()`` when first met."""
-    evaluator, state = evaluators.get(name) or (make(), None)
-    evaluators[name] = evaluator, evaluator.update(evaluator.init() if state is None else state, batch)
 
 
 def _frame_pixel_metrics(score, label, fpr_convention: str, ap_convention: str) -> dict | None:

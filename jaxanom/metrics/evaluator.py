@@ -17,7 +17,7 @@ segmentation evaluator reads ``batch["logits"]`` (B, H, W, C) (its argmax) again
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Iterable, Mapping, Protocol
+from typing import Any, Callable, Iterable, Mapping, Protocol
 
 import jax.numpy as jnp
 import numpy as np
@@ -46,6 +46,13 @@ def run_evaluators(evaluators: Mapping[str, Evaluator], batches: Iterable[dict])
     for batch in batches:
         states = {name: evaluator.update(states[name], batch) for name, evaluator in evaluators.items()}
     return {name: evaluator.finalize(states[name]) for name, evaluator in evaluators.items()}
+
+
+def update_keyed(evaluated: dict, key, make: Callable[[], Evaluator], batch: dict) -> None:
+    """Feed ``batch`` to ``evaluated[key] = (evaluator, state)``, the evaluator made by ``make()``
+    where ``key`` is new (e.g. one evaluator per scoring method, the methods met in the batches)."""
+    evaluator, state = evaluated[key] if key in evaluated else (make(), None)
+    evaluated[key] = evaluator, evaluator.update(evaluator.init() if state is None else state, batch)
 
 
 @dataclasses.dataclass(frozen=True)
