@@ -146,3 +146,14 @@ def test_results_file_ends_with_the_real_data_tables_one_level_down(tmp_path):
     real = text[text.index("# Real data"):]
     assert real.index("## A table") < real.index("## B table") < real.index("### B on a track")
     assert "| x |" in real and "not real data" not in text
+
+
+def test_exact_metrics_of_the_frames_against_sklearn(frames):
+    from experiments.real_common import exact_metrics
+
+    scores, labels = (list(x) for x in zip(*frames))
+    keep = np.concatenate(labels) != 255
+    pooled = np.concatenate(scores)[keep], np.concatenate(labels)[keep]
+    got = exact_metrics(scores, labels)
+    np.testing.assert_allclose([got["ap"], got["fpr_at_tpr"]], sklearn_metrics(*pooled), rtol=1e-12)
+    assert got["ap_envelope"] == pytest.approx(envelope_ap(*pooled), rel=1e-12)
