@@ -72,7 +72,9 @@ def confusion_counts(prediction, label, num_classes: int, ignore: int = 255) -> 
     return jnp.bincount(cell.ravel(), length=num_classes**2 + 1)[:-1].reshape(num_classes, num_classes)
 
 
-_frame_counts = jax.jit(jax.vmap(confusion_counts.__wrapped__, in_axes=(0, 0, None, None)), static_argnums=(2, 3))
+@partial(jax.jit, static_argnums=(2, 3))
+def _frame_counts(prediction, label, num_classes: int, ignore: int) -> jax.Array:
+    return jax.vmap(lambda p, l: confusion_counts(p, l, num_classes, ignore))(prediction, label)
 
 
 def confusion_scores(matrix, num_classes: int | None = None) -> dict:
