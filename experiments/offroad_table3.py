@@ -124,8 +124,9 @@ def percent_scores(classes: int) -> Callable:
     """PA, IoU, PRE, REC and FPR in percent of pooled confusion matrices (..., classes + 1, classes + 1)."""
     def metric(pooled: np.ndarray) -> dict:
         s = confusion_scores(pooled, classes)
-        return {name: 100 * s[key] for name, key in (("pa", "pixel_accuracy"), ("iou", "miou"), ("pre", "mean_precision"),
-                                                      ("rec", "class_accuracy"), ("fpr", "mean_fpr"))}
+        return {name: 100 * s[key] for name, key in (("pa", "pixel_accuracy"), ("iou", "miou"),
+                                                      ("pre", "mean_precision"), ("rec", "class_accuracy"),
+                                                      ("fpr", "mean_fpr"))}
     return metric
 
 

@@ -13,6 +13,6 @@ from jaxanom.metrics.smiyc import smiyc_component_metrics, smiyc_pixel_metrics, 
 __all__ = [
     "AnomalyMetricAccumulator", "anomaly_metrics", "class_accuracy", "component_metrics",
     "confusion_matrix", "confusion_scores", "false_positive_rate", "frame_confusion_matrices", "miou",
-    "per_class_iou", "pixel_accuracy", "pr_curve", "precision", "recall", "restrict_to_roi", "roc_curve", "smiyc_component_metrics",
-    "smiyc_pixel_metrics", "threshold_at_tpr", "to_unit_interval",
+    "per_class_iou", "pixel_accuracy", "pr_curve", "precision", "recall", "restrict_to_roi", "roc_curve",
+    "smiyc_component_metrics", "smiyc_pixel_metrics", "threshold_at_tpr", "to_unit_interval",
 ]
