@@ -162,3 +162,14 @@ def test_int8_spread_draws_stay_within_half_a_step_and_leave_float_tensors_alone
     assert moved["conv.weight"].dtype == np.float32
     np.testing.assert_array_equal(moved["bn.running_var"], grid["bn.running_var"])
     assert not np.array_equal(draw_weights(grid, steps, 4)["conv.weight"], moved["conv.weight"])
+
+
+def test_exact_metrics_of_the_frames_against_sklearn(frames):
+    from experiments.real_common import exact_metrics
+
+    scores, labels = (list(x) for x in zip(*frames))
+    keep = np.concatenate(labels) != 255
+    pooled = np.concatenate(scores)[keep], np.concatenate(labels)[keep]
+    got = exact_metrics(scores, labels)
+    np.testing.assert_allclose([got["ap"], got["fpr_at_tpr"]], sklearn_metrics(*pooled), rtol=1e-12)
+    assert got["ap_envelope"] == pytest.approx(envelope_ap(*pooled), rel=1e-12)
