@@ -90,7 +90,20 @@ def markdown(results: dict) -> str:
             lines.append(f"| {LABELS[name]} | {grid['ap']:.2f} / {grid['fpr95']:.2f} | {ap:.2f} / {fpr:.2f} | "
                          f"{grid['ap'] - ap:+.2f} / {grid['fpr95'] - fpr:+.2f} | {span['ap']} | {span['fpr95']} |")
         lines.append("")
+    inside = [f"{track} {LABELS[name]} {key}" for track, published in PUBLISHED.items() for name in METHODS
+              for key, index in (("ap", 0), ("fpr95", 1)) if within_shift(draws, track, name, key, published[name][index])]
+    lines += [f"Gaps (grid minus published) within the range of the draws' shifts: {len(inside)} of "
+              f"{4 * len(METHODS)}: " + (", ".join(inside) or "none") + ".", ""]
     return "\n".join(lines)
+
+
+def within_shift(draws: list[dict], track: str, name: str, key: str, published: float) -> bool:
+    """Whether the grid's gap (grid minus the published float number) lies within the range of the
+    draws' shifts (perturbed minus grid, 0 included): the grid is the float weights moved by one
+    rounding, so a gap that rounding-sized moves from the grid reproduce is one rounding explains."""
+    grid = draws[0][track][name][key]
+    shifts = [d[track][name][key] - grid for d in draws[1:]] + [0.0]
+    return len(shifts) > 1 and min(shifts) <= grid - published <= max(shifts)
 
 
 if __name__ == "__main__":

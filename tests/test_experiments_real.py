@@ -173,3 +173,13 @@ def test_exact_metrics_of_the_frames_against_sklearn(frames):
     got = exact_metrics(scores, labels)
     np.testing.assert_allclose([got["ap"], got["fpr_at_tpr"]], sklearn_metrics(*pooled), rtol=1e-12)
     assert got["ap_envelope"] == pytest.approx(envelope_ap(*pooled), rel=1e-12)
+
+
+def test_int8_spread_counts_a_gap_only_within_the_draws_shifts():
+    from experiments.real_erfnet_int8_spread import within_shift
+
+    draws = [{"T": {"msp": {"fpr95": 70.0}}}, {"T": {"msp": {"fpr95": 75.0}}}, {"T": {"msp": {"fpr95": 69.0}}}]
+    assert within_shift(draws, "T", "msp", "fpr95", 66.0)  # gap +4 within shifts [-1, +5]
+    assert not within_shift(draws, "T", "msp", "fpr95", 64.0)  # gap +6 beyond the largest shift
+    assert within_shift(draws, "T", "msp", "fpr95", 71.0) and not within_shift(draws, "T", "msp", "fpr95", 71.5)
+    assert not within_shift(draws[:1], "T", "msp", "fpr95", 70.0)  # no perturbed draw, no spread
