@@ -88,7 +88,7 @@ def run_loop(step: Callable[[Any, Any], tuple[Any, dict]], init: Callable[..., A
     source = iter(batches)
     resumable = hasattr(source, "get_state") and hasattr(source, "set_state")
     pending = [] if first is None else [first]
-    # at the last step only: on the grid of a step count no run of this length reaches before its end
+    # every=None: due on the grid of ``steps`` itself, which a run reaches at its last step only
     checkpointer = None if checkpoints is None else Checkpointer(checkpoints.directory, checkpoints.every or steps,
                                                                  checkpoints.keep)
     numbers = None
@@ -115,7 +115,8 @@ def run_loop(step: Callable[[Any, Any], tuple[Any, dict]], init: Callable[..., A
             state, metrics = step(state, batch)
             unread.append((number, metrics))
             seen += examples(batch) if examples is not None else 0
-            evaluates = evaluate is not None and (number == steps or (eval_every is not None and number % eval_every == 0))
+            evaluates = evaluate is not None and (number == steps or (eval_every is not None
+                                                                     and number % eval_every == 0))
             saves = checkpointer is not None and (number == steps or checkpointer.is_due(number))
             if not (evaluates or saves or number == steps or (log_every is not None and number % log_every == 0)):
                 continue
