@@ -176,7 +176,8 @@ def train_gan(config: GANConfig, generator, discriminator, batches: Iterable[dic
     def log_steps(logged: list, images_per_s: float) -> dict:
         for step, metrics in logged:
             metrics = {name: float(value) for name, value in metrics.items()}
-            log.scalars(step, {f"train/{name}": value for name, value in {**metrics, "images_per_s": images_per_s}.items()})
+            metrics["images_per_s"] = images_per_s
+            log.scalars(step, {f"train/{name}": value for name, value in metrics.items()})
         return {"g": f"{metrics['g_loss']:.3f}", "d": f"{metrics['d_loss']:.3f}", "l1": f"{metrics['l1']:.3f}"}
 
     try:  # every step is a logging step: the GAN's log has one line per step, each with its own throughput
