@@ -11,18 +11,16 @@ Each step (``make_gan_step``) first updates the generator on hinge + 10 feature 
 the fake of the generator before its update (as pix2pixHD; SPADE's trainer draws a new fake
 after the update). Adam with beta = (0, 0.999), G 1e-4, D 4e-4 (TTUR, [34]).
 
-The host loop mirrors ``jaxanom.train.loop`` (orbax checkpoints every ``save_every`` and at the
-end, resume from the newest, ``log.jsonl`` / TensorBoard, a progress bar, a stop on a non-finite
-loss) on one device: the generator's BatchNorm uses the statistics of the local batch.
+The host loop is ``jaxanom.train.run_loop``'s, as the segmenter's (orbax checkpoints every
+``save_every`` and at the end, resume from the newest, a stop on a non-finite loss or gradient
+norm), with ``log.jsonl`` / TensorBoard and a progress bar, on one device: the generator's
+BatchNorm uses the statistics of the local batch.
 """
 from __future__ import annotations
 
 import dataclasses
 import functools
-import itertools
-import math
 import os
-import time
 from typing import Any, Iterable
 
 import flax.struct
@@ -33,9 +31,9 @@ import optax
 
 from jaxanom.mmf.gan import FEATURE_WEIGHT, L1_WEIGHT, generator_loss, hinge_discriminator_loss
 from jaxanom.models.spade_generator import UNKNOWN
-from jaxanom.train.checkpoint import Checkpointer
-from jaxanom.train.loop import NonFiniteLossError, check_batch
+from jaxanom.train.loop import check_batch
 from jaxanom.train.restore import restore_run
+from jaxanom.train.run_loop import Checkpoints, progress_bar, run_loop
 from jaxanom.train.runlog import RunLog
 
 
@@ -173,44 +171,23 @@ def train_gan(config: GANConfig, generator, discriminator, batches: Iterable[dic
     # the step depends on the losses and optimisers only: runs that differ elsewhere share it
     step_fn = _jitted_step(dataclasses.replace(config, run_dir="", steps=1, seed=0, save_every=1, keep=1,
                                                progress=False), generator, discriminator)
-
-    checkpointer = Checkpointer(os.path.join(config.run_dir, "checkpoints"), config.save_every, config.keep)
-    pending = [first]
-    if checkpointer.latest_step() is None:
-        state = init_gan_state(config, generator, discriminator, first)
-    else:  # restored into the state's shapes alone: a resumed or finished run compiles no init
-        state, _ = checkpointer.restore(jax.eval_shape(lambda: init_gan_state(config, generator, discriminator, first)))
-        pending = []
-        for _ in range(int(state.step) - 1 if int(state.step) < config.steps else 0):  # a finished run reads none
-            next(source)
-    inputs = itertools.chain(pending, source)
     log = RunLog(config.run_dir)
-    from tqdm.auto import tqdm
 
-    bar = tqdm(total=config.steps, initial=int(state.step), disable=not config.progress, dynamic_ncols=True)
-    try:
-        for step in range(int(state.step) + 1, config.steps + 1):
-            tick = time.perf_counter()
-            image, semantic = _inputs(next(inputs))
-            state, metrics = step_fn(state, image, semantic)
-            metrics = {name: float(value) for name, value in jax.device_get(metrics).items()}
-            if not all(math.isfinite(value) for value in metrics.values()):
-                checkpointer.wait()
-                raise NonFiniteLossError(
-                    f"GAN losses / gradient norms {metrics} at step {step}: training stopped; last good "
-                    f"checkpoint: step {checkpointer.latest_step()} in {checkpointer.directory}")
-            metrics["images_per_s"] = len(image) / (time.perf_counter() - tick)
-            bar.update(1)
-            bar.set_postfix(g=f"{metrics['g_loss']:.3f}", d=f"{metrics['d_loss']:.3f}", l1=f"{metrics['l1']:.3f}")
+    def log_steps(logged: list, images_per_s: float) -> dict:
+        for step, metrics in logged:
+            metrics = {name: float(value) for name, value in metrics.items()}
+            metrics["images_per_s"] = images_per_s
             log.scalars(step, {f"train/{name}": value for name, value in metrics.items()})
-            if step == config.steps or checkpointer.is_due(step):
-                checkpointer.save(step, state)
-        checkpointer.wait()
+        return {"g": f"{metrics['g_loss']:.3f}", "d": f"{metrics['d_loss']:.3f}", "l1": f"{metrics['l1']:.3f}"}
+
+    try:  # every step is a logging step: the GAN's log has one line per step, each with its own throughput
+        return run_loop(lambda state, batch: step_fn(state, *_inputs(batch)),
+                        lambda: init_gan_state(config, generator, discriminator, first), source, config.steps,
+                        first=first, checkpoints=Checkpoints(config.run_dir, config.save_every, config.keep),
+                        log_every=1, on_log=log_steps, examples=lambda batch: len(batch["image"]),
+                        progress=progress_bar(config.progress))
     finally:
-        bar.close()
         log.close()
-        checkpointer.close()
-    return state
 
 
 def trained_generator(config: GANConfig, generator, discriminator, batch: dict) -> dict:

@@ -3,7 +3,8 @@
 ``AnnotatedFrames`` stacks frames with their patch annotations padded to ``A`` anchor slots.
 ``train_encoder`` runs Adam on Eq. 2: each step draws ``frames_per_step`` annotated frames,
 builds every anchor's query / positive / negatives within its frame (``contrastive_batch``,
-recomputed each step: no memory bank) and takes one optax update; the step is one jit compile.
+recomputed each step: no memory bank) and takes one optax update; the step is one jit compile
+and the steps run on ``train.run_loop``.
 ``embed`` maps patches at given centres to unit embeddings, in fixed-size chunks (one compile).
 """
 from __future__ import annotations
@@ -22,6 +23,7 @@ from jaxanom.models.alexnet import PatchAlexNet
 from jaxanom.offroad.contrastive import info_nce
 from jaxanom.offroad.pairs import contrastive_batch, gather_pairs
 from jaxanom.offroad.patches import patches_batch
+from jaxanom.train.run_loop import run_loop
 
 
 @dataclasses.dataclass(frozen=True)
@@ -147,12 +149,30 @@ def train_encoder(key, params, data: AnnotatedFrames, config: EncoderConfig, *, 
     params = jax.tree.map(jnp.array, params)  # a private copy: the step donates its buffers
     opt_state = _optimizer(config).init(params)
     device_data = AnnotatedFrames(*map(jnp.asarray, data))
+    return run_updates(lambda params, opt_state, key: _train_step(params, opt_state, key, device_data, config),
+                       params, opt_state, key, steps, progress)
+
+
+def run_updates(update: Callable, params, opt_state, key, steps: int, progress: Callable | None) -> tuple[object, np.ndarray]:
+    """``steps`` calls of ``update(params, opt_state, key) -> (params, opt_state, loss)`` with keys
+    ``fold_in(key, 0 .. steps - 1)`` on ``train.run_loop``: ``(params, losses (steps,) float32)``.
+
+    No checkpoints; the losses are read from the device once, at the end, and returned as they
+    are (a non-finite one does not stop the run: the caller judges the curve).
+    """
+    def step(state, step_key):
+        params, opt_state, loss = update(*state, step_key)
+        return (params, opt_state), {"loss": loss}
+
     losses = []
-    loop = range(steps) if progress is None else progress(range(steps))
-    for step in loop:
-        params, opt_state, loss = _train_step(params, opt_state, jax.random.fold_in(key, step), device_data, config)
-        losses.append(loss)
-    return params, np.asarray(jax.device_get(losses), np.float32)
+
+    def keep_losses(logged: list, _) -> None:
+        losses.extend(metrics["loss"] for _, metrics in logged)
+
+    keys = (jax.random.fold_in(key, index) for index in range(steps))
+    trained, _ = run_loop(step, lambda: (params, opt_state), keys, steps, on_log=keep_losses, finite=(),
+                          progress=progress)
+    return trained, np.asarray(losses, np.float32)
 
 
 @partial(jax.jit, static_argnames=("config",))

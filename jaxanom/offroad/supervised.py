@@ -19,7 +19,7 @@ import numpy as np
 import optax
 
 from jaxanom._validate import check_count, check_labels, check_range, check_rank
-from jaxanom.offroad.encoder import EncoderConfig, init_encoder
+from jaxanom.offroad.encoder import EncoderConfig, init_encoder, run_updates
 from jaxanom.offroad.patches import patches_batch
 
 VOID = 255
@@ -81,9 +81,6 @@ def train_classifier(key, images, labels, config: EncoderConfig, *, steps: int, 
     params = init_encoder(k_init, config)
     opt_state = optax.adam(config.lr).init(params)
     images, labels = jnp.asarray(images, jnp.float32), jnp.asarray(labels, jnp.int32)
-    losses = []
-    for step in range(steps) if progress is None else progress(range(steps)):
-        params, opt_state, loss = _train_step(params, opt_state, jax.random.fold_in(k_train, step), images, labels,
-                                              config, int(patches_per_frame))
-        losses.append(loss)
-    return params, np.asarray(jax.device_get(losses), np.float32)
+    return run_updates(lambda params, opt_state, key: _train_step(params, opt_state, key, images, labels, config,
+                                                                  int(patches_per_frame)),
+                       params, opt_state, k_train, steps, progress)

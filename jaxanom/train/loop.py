@@ -1,32 +1,25 @@
-"""The training driver: config, state set-up or resume, the step loop, logging, evaluation, checkpoints.
+"""The segmenter's trainer: config, state set-up, the train and eval steps on ``train.run_loop``.
 
 ``train(config, model, train_data, val_data)`` runs ``config.steps`` train steps. ``train_data``
 is any iterable of batches ``{"image": (B, H, W, 3) uint8 RGB or float32 normalised, "label":
-(B, H, W) int32}`` (this process's share of the global batch). When its iterator has
-``get_state`` / ``set_state`` (grain's ``DatasetIterator`` has them), the position is saved
-with each checkpoint as JSON and restored on resume; otherwise a resumed run skips as many
-batches as were already used, which is right for any deterministic input. On multi-host runs
-the saved position is process 0's, right when every process's pipeline advances alike (grain
-with one shard per process). A run folder that already holds checkpoints is resumed from the
-newest one; a damaged newest checkpoint stops the run with a ValueError (nothing is silently
-restarted).
+(B, H, W) int32}`` (this process's share of the global batch). Resume, checkpoints (every
+``save_every`` steps and at the end, in ``run_dir/checkpoints``), the input position saved with
+them and the metric reads on logging steps are ``jaxanom.train.run_loop``'s: a run folder that
+already holds checkpoints is resumed from the newest one; a damaged newest checkpoint stops the
+run with a ValueError (nothing is silently restarted).
 
 On CPU a run that is killed and resumed ends with parameters bitwise equal to an uninterrupted
 run (tests/test_train_loop.py); on GPUs this holds as far as their kernels are deterministic.
 
-The steps' metrics stay on the device until a logging step (every ``log_every`` steps, and every
-step that evaluates or saves, and the last): reading them back every step would make the host
-wait for each step before it dispatches the next. They are then read at once, checked for
-NaN/Inf (before anything is saved) and written, one line per step.
+The metrics are read from the device on logging steps only (every ``log_every`` steps, every step
+that evaluates or saves, and the last), checked for NaN/Inf (before anything is saved) and
+written, one line per step.
 """
 from __future__ import annotations
 
 import dataclasses
 import functools
-import itertools
-import math
 import os
-import time
 from typing import Any, Iterable
 
 import jax
@@ -34,18 +27,15 @@ import numpy as np
 
 from jaxanom._validate import check_count
 from jaxanom.metrics.segmentation import confusion_scores
-from jaxanom.train.checkpoint import Checkpointer
 from jaxanom.train.optim import OptimConfig, make_optimizer
+from jaxanom.train.run_loop import NonFiniteLossError  # noqa: F401  (part of this module's API: train raises it)
+from jaxanom.train.run_loop import Checkpoints, progress_bar, run_loop
 from jaxanom.train.runlog import RunLog
 from jaxanom.train.sharding import global_batch, initialize_distributed, make_mesh, replicated
 from jaxanom.losses import IGNORE, CrossEntropy
 from jaxanom.objectives import Objective
 from jaxanom.train.state import TrainState
 from jaxanom.train.step import COMPUTE_DTYPES, check_outputs, make_steps, model_extras, model_input
-
-
-class NonFiniteLossError(FloatingPointError):
-    """The loss or the gradient became NaN or infinite; the run stopped before saving it."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -149,15 +139,6 @@ def output_classes(model, batch: dict) -> int:
     return model_outputs(model, batch)["logits"].shape[-1]
 
 
-def _data_state(batches) -> Any:
-    state = batches.get_state()
-    return state.decode() if isinstance(state, bytes) else state
-
-
-def _set_data_state(batches, state: Any) -> None:
-    batches.set_state(state.encode() if isinstance(state, str) else state)
-
-
 def train(config: TrainConfig, model, train_data: Iterable[dict], val_data: Iterable[dict] | None = None,
           variables: dict | None = None) -> TrainState:
     """Train ``model`` (the jaxanom.models contract) and return the final state.
@@ -188,7 +169,6 @@ def _compiled(model, objective: Objective, optim: OptimConfig, steps: int, compu
 def _run(config: TrainConfig, model, train_data, val_data, variables, mesh, tx, lr_at, train_step, eval_step) -> TrainState:
     os.makedirs(config.run_dir, exist_ok=True)
     source = iter(train_data)
-    resumable = hasattr(source, "get_state") and hasattr(source, "set_state")
     first = next(source)
     outputs = model_outputs(model, first)
     check_outputs(config.objective, outputs, model)
@@ -203,72 +183,29 @@ def _run(config: TrainConfig, model, train_data, val_data, variables, mesh, tx, 
             variables = model.init(init_key, images, train=False, **extras)
         return TrainState.create(variables, tx, state_key, config.objective.init_state(num_classes))
 
-    make_state = jax.jit(new_state, out_shardings=replicated(mesh))
-    checkpointer = Checkpointer(os.path.join(config.run_dir, "checkpoints"), config.save_every, config.keep)
-    pending = [first]
-    if checkpointer.latest_step() is None:
-        state = make_state(variables)
-    else:  # restored into the state's shapes and shardings alone: a resumed or finished run compiles no init
-        state, data_state = checkpointer.restore(jax.eval_shape(make_state, variables))
-        pending = []
-        if int(state.step) > config.steps:
-            checkpointer.close()
-            raise ValueError(f"steps: expected at least the {int(state.step)} steps the run in {config.run_dir} "
-                             f"has trained, got {config.steps}")
-        if resumable and data_state is not None:
-            _set_data_state(source, data_state)
-        else:
-            for _ in range(int(state.step) - 1):
-                next(source)
-    batches = itertools.chain(pending, source)
-
     is_main = jax.process_index() == 0
     log = RunLog(config.run_dir, enabled=is_main)
-    start = int(state.step)
-    from tqdm.auto import tqdm
 
-    bar = tqdm(total=config.steps, initial=start, disable=not (config.progress and is_main), dynamic_ncols=True)
-    unread = []  # (step, images, metrics still on the device) since the last logging step
-    tick = time.perf_counter()
-    try:
-        for step in range(start + 1, config.steps + 1):
-            batch = global_batch(step_inputs(next(batches), model), mesh)
-            state, metrics = train_step(state, batch)
-            unread.append((step, batch["image"].shape[0], metrics))
-            bar.update(1)
-            evaluates = val_data is not None and (step % config.eval_every == 0 or step == config.steps)
-            saves = step == config.steps or checkpointer.is_due(step)
-            if not (evaluates or saves or step % config.log_every == 0):
-                continue
-            _log_metrics(unread, lr_at, time.perf_counter() - tick, log, bar, checkpointer)
-            unread = []
-            if evaluates:
-                log.scalars(step, evaluate(eval_step, state.variables, val_data, mesh, config.ignore, model))
-            if saves:
-                checkpointer.save(step, state, _data_state(source) if resumable else None)
-            tick = time.perf_counter()
-        checkpointer.wait()
+    def log_steps(logged: list, images_per_s: float) -> dict:
+        """One line per step; ``images_per_s`` is the mean over these steps (the device runs ahead of the host)."""
+        lrs = jax.device_get(lr_at(np.array([step for step, _ in logged]) - 1))
+        for (step, metrics), lr in zip(logged, lrs.tolist()):
+            metrics = {name: float(value) for name, value in metrics.items()}
+            metrics.update(lr=lr, images_per_s=images_per_s)
+            log.scalars(step, {f"train/{name}": value for name, value in metrics.items()})
+        return {"loss": f"{metrics['loss']:.4f}", "lr": f"{metrics['lr']:.2e}", "img_s": f"{images_per_s:.1f}"}
+
+    def validate(step: int, state: TrainState) -> None:
+        log.scalars(step, evaluate(eval_step, state.variables, val_data, mesh, config.ignore, model))
+
+    try:  # the state is made on the mesh: a resumed or finished run restores into its shardings, compiling no init
+        return run_loop(lambda state, batch: train_step(state, global_batch(step_inputs(batch, model), mesh)),
+                        jax.jit(new_state, out_shardings=replicated(mesh)), source, config.steps,
+                        init_args=(variables,), first=first,
+                        checkpoints=Checkpoints(config.run_dir, config.save_every, config.keep),
+                        log_every=config.log_every, on_log=log_steps, finite=("loss", "grad_norm"),
+                        examples=lambda batch: len(batch["label"]) * jax.process_count(),
+                        evaluate=None if val_data is None else validate, eval_every=config.eval_every,
+                        progress=progress_bar(config.progress and is_main))
     finally:
-        bar.close()
         log.close()
-        checkpointer.close()
-    return state
-
-
-def _log_metrics(unread: list, lr_at, seconds: float, log: RunLog, bar, checkpointer: Checkpointer) -> None:
-    """Read the metrics of the ``unread`` steps from the device in one go, stop at the first
-    non-finite loss or gradient (NonFiniteLossError, nothing saved), log one line per step.
-    ``images_per_s`` is the mean over these steps (the device runs ahead of the host)."""
-    steps = np.array([step for step, _, _ in unread])
-    values, lrs = jax.device_get(([metrics for _, _, metrics in unread], lr_at(steps - 1)))
-    images_per_s = sum(images for _, images, _ in unread) / seconds
-    for step, lr, metrics in zip(steps.tolist(), lrs.tolist(), values):
-        metrics = {name: float(value) for name, value in metrics.items()}
-        if not (math.isfinite(metrics["loss"]) and math.isfinite(metrics["grad_norm"])):
-            checkpointer.wait()
-            raise NonFiniteLossError(
-                f"loss {metrics['loss']}, gradient norm {metrics['grad_norm']} at step {step}: training "
-                f"stopped; last good checkpoint: step {checkpointer.latest_step()} in {checkpointer.directory}")
-        metrics.update(lr=lr, images_per_s=images_per_s)
-        log.scalars(step, {f"train/{name}": value for name, value in metrics.items()})
-    bar.set_postfix(loss=f"{metrics['loss']:.4f}", lr=f"{metrics['lr']:.2e}", img_s=f"{images_per_s:.1f}")

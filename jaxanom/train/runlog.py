@@ -2,7 +2,7 @@
 
 ``log.jsonl`` gets one object per call, ``{"step": t, "time": unix seconds, name: value, ...}``;
 a resumed run appends, so steps after the last checkpoint may appear twice (the later line is
-the resumed run's). tensorboardX is imported only when a RunLog is created.
+the resumed run's). tensorboardX is imported only when a RunLog first writes.
 """
 from __future__ import annotations
 
@@ -12,27 +12,29 @@ import time
 
 
 class RunLog:
-    """Scalars of one run; ``enabled=False`` (non-zero processes of a multi-host run) writes nothing."""
+    """Scalars of one run; ``enabled=False`` (non-zero processes of a multi-host run) writes nothing.
+    The files are opened by the first ``scalars``: a run refused before its first step leaves none."""
 
     def __init__(self, run_dir: str | os.PathLike, enabled: bool = True):
+        self.run_dir = run_dir
         self.enabled = enabled
-        if not enabled:
-            return
-        from tensorboardX import SummaryWriter
-
-        self._jsonl = open(os.path.join(run_dir, "log.jsonl"), "a", encoding="utf-8")
-        self._tensorboard = SummaryWriter(os.path.join(run_dir, "tensorboard"))
+        self._jsonl = self._tensorboard = None
 
     def scalars(self, step: int, values: dict[str, float]) -> None:
         """Record ``values`` (name -> float) at ``step``."""
         if not self.enabled:
             return
+        if self._jsonl is None:
+            from tensorboardX import SummaryWriter
+
+            self._jsonl = open(os.path.join(self.run_dir, "log.jsonl"), "a", encoding="utf-8")
+            self._tensorboard = SummaryWriter(os.path.join(self.run_dir, "tensorboard"))
         self._jsonl.write(json.dumps({"step": step, "time": time.time(), **values}) + "\n")
         self._jsonl.flush()
         for name, value in values.items():
             self._tensorboard.add_scalar(name, value, step)
 
     def close(self) -> None:
-        if self.enabled:
+        if self._jsonl is not None:
             self._jsonl.close()
             self._tensorboard.close()
