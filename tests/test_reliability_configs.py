@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from jaxanom.cli import main
-from jaxanom.app.demos.offroad import OffroadDemoConfig
+from jaxanom.app.offroad_experiment import OffroadDemoConfig
 
 
 class Custom:
