@@ -37,12 +37,13 @@ class InputError(ValueError):
 
 
 @contextlib.contextmanager
-def reading(argument: str, value) -> Iterator[None]:
+def reading(argument: str, value=None) -> Iterator[None]:
     """A plain ValueError inside the block (a reader refusing ``value``, given as ``argument``)
-    becomes an InputError ``argument value: <its message>``; an InputError passes unchanged."""
+    becomes an InputError ``argument value: <its message>`` (``argument: <its message>`` without
+    ``value``); an InputError passes unchanged."""
     try:
         yield
     except InputError:
         raise
     except ValueError as error:
-        raise InputError(argument, f"{value}: {error}") from None
+        raise InputError(argument, f"{'' if value is None else f' {value}'}: {error}") from None

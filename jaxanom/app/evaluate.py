@@ -20,6 +20,7 @@ from jaxanom.metrics import pixel_accuracy, pr_curve, restrict_to_roi, roc_curve
 from jaxanom.metrics.components import component_summary, frame_components
 from jaxanom.metrics.smiyc import binned_metrics, frame_bins, smiyc_frame_components
 from jaxanom.train.step import model_input
+from jaxanom.errors import InputError
 
 CONVENTIONS = ("exact", "smiyc")  # jaxanom's exact curves; the official SegmentMeIfYouCan kit's bins
 
@@ -245,7 +246,7 @@ def dataset_reader(dataset: str, path: str, *, base: str | None = None, frames: 
     if dataset == "lost-and-found":
         return data.LostAndFound(path)
     if not base:
-        raise ValueError(f"--base: the {dataset} dataset needs the root of its base images")
+        raise InputError("base", f": the {dataset} dataset needs the root of its base images")
     reader = data.FishyscapesLostAndFound if dataset == "fishyscapes-laf" else data.FishyscapesStatic
     return reader(path, base)
 

@@ -1,10 +1,7 @@
 """``jaxanom demo``: train, fit SML statistics and evaluate on synthetic scenes."""
 from __future__ import annotations
 
-import dataclasses
-from pathlib import Path
-
-from jaxanom.cli.common import CommandError, add_common, out_folder, positive_int
+from jaxanom.cli.common import add_common, positive_int
 
 
 def add_parser(commands) -> None:
@@ -29,52 +26,7 @@ def add_parser(commands) -> None:
 
 
 def run(args) -> None:
-    if args.paper == "offroad":
-        return run_offroad(args)
-    if args.paper == "mmf":
-        return run_mmf(args)
-    from jaxanom.app.demos.sml_cudam import DemoConfig, run_demo
+    from jaxanom.app.commands.demo import demo
 
-    config = DemoConfig.quick() if args.quick else DemoConfig()
-    if args.steps is not None:
-        experiment = config.experiment
-        config = dataclasses.replace(config, experiment=dataclasses.replace(
-            experiment, train=dataclasses.replace(experiment.train, steps=args.steps)))
-    run_demo(out_folder(args.out, args.overwrite), config, progress=not args.no_progress)
-
-
-def run_mmf(args) -> None:
-    """``jaxanom demo mmf [--quick | --config FILE] [--steps N] [--out DIR] [--overwrite]`` (N: segmenter steps)."""
-    from jaxanom.app.demos.mmf import MMFDemoConfig, load_config, run_mmf_demo
-
-    if args.quick and args.config:
-        raise CommandError("--quick, --config: give one of them")
-    try:
-        config = load_config(args.config) if args.config else MMFDemoConfig.quick() if args.quick else MMFDemoConfig()
-    except ValueError as error:
-        raise CommandError(f"--config {error}") from None
-    if args.steps is not None:
-        seg = config.pipeline.segmenter
-        seg = dataclasses.replace(seg, train=dataclasses.replace(seg.train, steps=args.steps))
-        config = dataclasses.replace(config, pipeline=dataclasses.replace(config.pipeline, segmenter=seg))
-    if getattr(args, "synthesizer", None):
-        pipeline = dataclasses.replace(config.pipeline, synthesizer=args.synthesizer)
-        config = dataclasses.replace(config, pipeline=pipeline)
-    run_mmf_demo(out_folder(args.out, args.overwrite), config, progress=not args.no_progress)
-
-
-def run_offroad(args) -> None:
-    """``jaxanom demo offroad [--quick] [--steps N] [--config FILE] [--out DIR]``."""
-    from jaxanom.app.demos.offroad import OffroadDemoConfig, run_offroad_demo
-
-    if args.config and args.quick:
-        raise CommandError("--config and --quick: give one of them")
-    if args.config and not Path(args.config).is_file():
-        raise CommandError(f"--config {args.config}: no such file")
-    config = OffroadDemoConfig.from_json(args.config) if args.config else (
-        OffroadDemoConfig.quick() if args.quick else OffroadDemoConfig())
-    if args.steps is not None:
-        encoder = dataclasses.replace(config.pipeline.encoder, steps=args.steps)
-        config = dataclasses.replace(config, pipeline=dataclasses.replace(config.pipeline, encoder=encoder))
-    out = "jaxanom-demo-offroad" if args.out == "jaxanom-demo" else args.out
-    run_offroad_demo(out_folder(out, args.overwrite), config, progress=not args.no_progress)
+    demo(args.paper, out=args.out, quick=args.quick, steps=args.steps, config=args.config,
+         synthesizer=args.synthesizer, overwrite=args.overwrite, progress=not args.no_progress)
