@@ -46,4 +46,7 @@ def reading(argument: str, value=None) -> Iterator[None]:
     except InputError:
         raise
     except ValueError as error:
-        raise InputError(argument, f"{'' if value is None else f' {value}'}: {error}") from None
+        text = str(error)
+        if value is None and text.startswith(f"{argument}:"):  # the reader named the argument already
+            text = text[len(argument) + 1:].lstrip()
+        raise InputError(argument, f"{'' if value is None else f' {value}'}: {text}") from None

@@ -9,7 +9,7 @@ import tempfile
 from pathlib import Path
 
 from jaxanom.app.outputs import out_folder
-from jaxanom.errors import InputError
+from jaxanom.errors import InputError, reading
 from jaxanom.weights import KINDS
 
 __all__ = ["DEEPLAB_CLASSES", "KINDS", "convert_weights"]
@@ -36,9 +36,10 @@ def convert_weights(*, kind: str, input: str, out: str, num_classes: int | None 
                          "choose an empty folder, or delete that run first", mentions=("overwrite",))
     if num_classes is not None and kind.startswith("torchvision-vgg"):
         raise InputError("num_classes", f": {kind} is a feature extractor without classes; got {num_classes}")
-    state = read_state_dict(input)
     classes = DEEPLAB_CLASSES if num_classes is None else num_classes
-    model, variables = from_torch(state, kind, classes, key=jax.random.key(seed), output_stride=output_stride)
+    with reading("input"):  # a checkpoint that is unreadable, or not of ``kind``
+        state = read_state_dict(input)
+        model, variables = from_torch(state, kind, classes, key=jax.random.key(seed), output_stride=output_stride)
     if num_classes is not None and model.num_classes != num_classes:  # the checkpoint fixed the count
         raise InputError("num_classes", f": {kind} takes its class count from the checkpoint "
                          f"({model.num_classes}); got {num_classes} (leave it out)")

@@ -67,7 +67,7 @@ def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = Fal
                     for name, value in scores.items():
                         accumulators[name].update(value, label)
             except ValueError as error:  # the library's checks of this image's values (finite logits, labels)
-                raise InputError("image", f" {index}: {error}") from None
+                raise InputError("image", f"{index}: {error}") from None
             for name, value in scores.items():
                 writers[name].write(value)
     print(f"score maps of {len(streamed)} images -> {out_dir / 'scores'}/<method>.npy")

@@ -31,7 +31,8 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
     if distributed:  # before any JAX work: loading the data or the model may touch devices
         from jaxanom.train.sharding import initialize_distributed
 
-        initialize_distributed()
+        with reading("distributed"):
+            initialize_distributed()
     lead = jax.process_index() == 0  # on many hosts the first process checks and claims --out for all
     out_dir = Path(out)
     if resume:
