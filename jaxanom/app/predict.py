@@ -219,12 +219,12 @@ def _difference(earlier: dict | None, record: dict) -> str | None:
         if before == now:
             continue
         if key == "network":
-            return f"made with another network (weights or experiment) than --run {record[READ_FROM]['run']} holds now"
+            return f"made with another network (weights or experiment) than {{run}} {record[READ_FROM]['run']} holds now"
         if key == "statistics" and before and now:
-            return f"made with other statistics than --stats {record[READ_FROM]['stats']} holds now"
+            return f"made with other statistics than {{stats}} {record[READ_FROM]['stats']} holds now"
         if key == "statistics":
             return "made with statistics, now without" if before else \
-                f"made without statistics, now with --stats {record[READ_FROM]['stats']}"
+                f"made without statistics, now with {{stats}} {record[READ_FROM]['stats']}"
         return f"made with {key}={before!r}, now {key}={now!r}"
     return None
 
@@ -239,7 +239,7 @@ def check_resumable(out: Path, record: dict) -> bool:
     difference = _difference(_earlier_record(out), record)
     if difference is not None and existing_maps(out):
         raise InputError("out", f"{out}: holds maps {difference}; choose another folder, "
-                         "or pass {overwrite} to recompute them", mentions=("overwrite",))
+                         "or pass {overwrite} to recompute them", mentions=("overwrite", "run", "stats"))
     return True
 
 
