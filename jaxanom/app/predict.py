@@ -117,9 +117,9 @@ def list_images(inputs: Sequence[str], out: Path | None = None) -> tuple[list[Pa
     (``predict``'s own outputs, matched by a recursive glob over a tree that holds them) are
     left out. Returns ``(images, how many were left out)``.
 
-    FileNotFoundError for an input that names nothing, or when every image lies under ``out``;
-    ValueError for a named file without an image extension, or two images with the same file
-    stem (their outputs would collide).
+    FileNotFoundError for an input that names nothing; InputError (a ValueError) when every image
+    lies under ``out``, for a named file without an image extension, or two images with the same
+    file stem (their outputs would collide).
     """
     found: list[Path] = []
     for text in inputs:
@@ -143,7 +143,8 @@ def list_images(inputs: Sequence[str], out: Path | None = None) -> tuple[list[Pa
         unique.setdefault(os.path.abspath(path), path)
     kept = [p for p in unique.values() if out is None or not _under(p, out)]
     if not kept:
-        raise FileNotFoundError(f"images: every image given lies inside the output folder {out}, where predict writes")
+        raise InputError("images", f": every image given lies inside {{out}} {out}, where predict writes",
+                         mentions=("out",))
     stems: dict[str, Path] = {}
     for path in kept:
         if path.stem in stems:
