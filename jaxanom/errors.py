@@ -49,4 +49,4 @@ def reading(argument: str, value=None) -> Iterator[None]:
         text = str(error)
         if value is None and text.startswith(f"{argument}:"):  # the reader named the argument already
             text = text[len(argument) + 1:].lstrip()
-        raise InputError(argument, f"{'' if value is None else f' {value}'}: {text}") from None
+        raise InputError(argument, f"{'' if value is None else value}: {text}") from None
