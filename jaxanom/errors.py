@@ -16,7 +16,7 @@ class InputError(ValueError):
 
     ``InputError("out", f"{folder}: exists and is not a folder")`` reads ``out /x: exists ...``
     to Python and ``--out /x: exists ...`` on the command line; a message starting with ``:``,
-    ``,`` or ``;`` is attached without a space (``InputError("track", ": needs ...")``), and one
+    ``,``, ``;`` or a space is attached without another (``InputError("track", ": needs ...")``), and one
     that writes ``{argument}`` itself places the name there instead of in front.
     """
 
@@ -32,7 +32,7 @@ class InputError(ValueError):
         placeholder = "{" + self.argument + "}"
         if placeholder in text:  # the message places the argument's name itself
             return text.replace(placeholder, spell(self.argument))
-        separator = "" if text[:1] in (":", ",", ";") else " "
+        separator = "" if text[:1] in (":", ",", ";", " ") else " "
         return f"{spell(self.argument)}{separator}{text}"
 
 

@@ -11,6 +11,8 @@ def test_the_argument_leads_unless_the_message_places_it():
     assert str(error) == "out /x: folder exists; pass overwrite"
     assert error.render(FLAG) == "--out /x: folder exists; pass --overwrite"
     assert InputError("min_count", ": must be >= 0").render(FLAG) == "--min-count: must be >= 0"
+    assert InputError("out", " and {overwrite}: give one", mentions=("overwrite",)).render(FLAG) == \
+        "--out and --overwrite: give one"
     placed = InputError("min_count", "the run diverged; lower {min_count}")
     assert (str(placed), placed.render(FLAG)) == ("the run diverged; lower min_count", "the run diverged; lower --min-count")
     assert isinstance(error, ValueError) and error.argument == "out"
