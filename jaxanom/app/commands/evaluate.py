@@ -37,6 +37,8 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
 
     if sum(x is not None for x in (run, mmf, maps)) != 1:
         raise InputError("run", ", {mmf}, {maps}: give exactly one", mentions=("mmf", "maps"))
+    if dataset not in TRACKS:
+        raise InputError("dataset", f": expected one of {', '.join(TRACKS)}, got {dataset!r}")
     track = track or TRACKS[dataset]
     if track is None:
         raise InputError("track", ": the smiyc dataset holds either track; pass {track} anomaly (RoadAnomaly21) or "
