@@ -58,7 +58,8 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
                               scoring.provided(classes=None, stats=mean_std is not None, mmf_maps=True), options)
         source, batches = mmf_scored_batches(mmf, dataset, path, frames=frames, depth=depth)
     elif maps:
-        source = dataset_reader(dataset, path, base=base, frames=frames, depth=depth)
+        with reading("path", path):  # a folder that does not hold the dataset
+            source = dataset_reader(dataset, path, base=base, frames=frames, depth=depth)
         try:
             names, batches = saved_map_batches(maps, source, methods.split(",") if methods else None)
         except FileNotFoundError as error:
@@ -68,7 +69,8 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
             experiment = load_experiment(run)
         names = scoring.check(method_names(methods, DEFAULT_METHODS),
                               scoring.run_inputs(experiment, stats=mean_std is not None), options)
-        source = dataset_reader(dataset, path, base=base, frames=frames, depth=depth)
+        with reading("path", path):  # a folder that does not hold the dataset
+            source = dataset_reader(dataset, path, base=base, frames=frames, depth=depth)
         with reading("run", run):
             experiment, variables = load_variables(run)
         predict = predictor(build_network(experiment), variables)

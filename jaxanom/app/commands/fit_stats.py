@@ -42,7 +42,8 @@ def fit_stats(*, run: str, out: str, frames: int = 200, cityscapes: str | None =
     with reading("run", run):
         experiment, variables = load_variables(run)
     if cityscapes:  # the statistics use the network's predictions only: no labels read
-        source = FirstFrames(Cityscapes(cityscapes, "train", with_labels=False), frames)
+        with reading("cityscapes", cityscapes):
+            source = FirstFrames(Cityscapes(cityscapes, "train", with_labels=False), frames)
     else:
         source = run_frames(experiment, "train", frames)
     if size is not None:
