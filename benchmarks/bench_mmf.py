@@ -170,12 +170,12 @@ def eq6_memory_rows(quick: bool) -> list[dict]:
         for name, labels, k, impls in cases:
             inputs = Path(folder) / f"{k}.npz"
             np.savez(inputs, anomaly=anomaly, road=road, labels=labels, k=k)
-            maps = {}
+            maps, base_ms = {}, None  # the first implementation (jaxanom blockwise) is the base
             for impl in impls:
                 out = str(Path(folder) / f"{k}-{impl.replace(' ', '_')}.npy")
                 peak, _ = _peak_of(_EQ6_CHILD, [str(inputs), impl, out])
                 ms = float(Path(out + ".ms").read_text())
-                base_ms = base_ms if maps else ms  # the first implementation is jaxanom blockwise
+                base_ms = ms if base_ms is None else base_ms
                 rows.append(dict(benchmark="eq6 memory", case=f"1x{height}x{width}, {name}, K={k}", impl=impl,
                                  median_ms=ms, ms_per_frame=ms, ratio=ms / base_ms, peak_mb=peak))
                 maps[impl] = np.load(out)

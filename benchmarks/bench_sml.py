@@ -13,6 +13,7 @@ that the two score maps agree before timing. Rows give ratio = this row's time /
 from __future__ import annotations
 
 import argparse
+import functools
 
 import numpy as np
 
@@ -144,7 +145,7 @@ def _rows(quick, height, width, batches, mean, std, peers, device) -> list[dict]
         logits_torch = torch.from_numpy(np.ascontiguousarray(logits.transpose(0, 3, 1, 2))).to(device)
         ours = lambda: sml.sml_score_batch(logits_jax, mean, std)  # noqa: E731
         reference = np.asarray(ours())
-        cpu_check = same_as_cpu(lambda: sml.sml_score_batch(logits, mean, std), reference)
+        cpu_check = same_as_cpu(functools.partial(sml.sml_score_batch, logits, mean, std), reference)
         del logits
         jax_ms = median_ms(ours, repeats=repeats(batch), warmup=1)
         case = f"{batch}x{height}x{width}x{NUM_CLASSES}"

@@ -49,7 +49,8 @@ from jaxanom.app.evaluate import class_statistics, predictions, predictor
 from jaxanom.app.scoring import inputs_of, score_all
 from jaxanom.app.experiment import Experiment, build_network, frames, jsonable, run_training
 from jaxanom.io import write_bytes_atomic, write_json_atomic
-from jaxanom.metrics import AnomalyMetricAccumulator, confusion_matrix, miou, pr_curve, roc_curve
+from jaxanom.metrics import confusion_scores, miou, pr_curve, roc_curve
+from jaxanom.metrics.evaluator import PixelAnomaly, Segmentation, update_keyed
 from jaxanom.train.loop import TrainConfig
 from jaxanom.train.optim import OptimConfig
 from jaxanom.cudam_objective import CuDAM
@@ -364,13 +365,12 @@ def _anomaly_metrics(histograms: np.ndarray) -> dict[str, np.ndarray]:
 
 def _miou(confusions: np.ndarray) -> dict[str, np.ndarray]:
     """Percent mIoU of each pooled confusion matrix (n, C, C)."""
-    return {"miou": np.array([100 * miou(m) for m in confusions])}
+    return {"miou": 100 * confusion_scores(confusions)["miou"]}
 
 
 def frame_confusions(outputs, num_classes: int) -> np.ndarray:
     """(V, C, C) int64 confusion matrices (rows: label) of every frame of batches ``{"logits", "label"}``."""
-    return np.stack([np.asarray(confusion_matrix(np.argmax(logits, -1), label, num_classes), np.int64)
-                     for out in outputs for logits, label in zip(np.asarray(out["logits"]), np.asarray(out["label"]))])
+    return np.concatenate([Segmentation(num_classes).frame_states(out) for out in outputs])
 
 
 def score_histograms(scores: list[np.ndarray], labels: list[np.ndarray]) -> tuple[np.ndarray, dict]:
@@ -403,14 +403,15 @@ def evaluate(net: Network, variables: dict, scale: Scale, log: Callable = print)
     mean_std = sml.stats_finalize(stats, missing="pooled", policy="none")
     val_frames = _batches(frames(e, "val", scale.val_frames), e.batch_size)
     confusions = frame_confusions(predictions(predict, val_frames), e.num_classes)
-    accumulators, kept, labels = {}, {}, []
+    pixels, kept, labels = {}, {}, []
     for out in predictions(predict, _batches(anomaly_source(scale, e), batch)):
         label = np.asarray(out["label"])
         labels.extend(label)
-        for name, score in _scores(out, mean_std).items():
-            accumulators.setdefault(name, AnomalyMetricAccumulator()).update(score, label)
+        scores = _scores(out, mean_std)
+        for name, score in scores.items():
+            update_keyed(pixels, name, lambda: PixelAnomaly(name), {"scores": scores, "label": label})
             kept.setdefault(name, []).extend(np.asarray(score, np.float32))
-    metrics = {name: acc.compute() for name, acc in accumulators.items()}
+    metrics = {name: evaluator.finalize(state) for name, (evaluator, state) in pixels.items()}
     curves, binned, arrays = {}, {}, {"confusion": confusions}
     for name, per_frame in kept.items():
         scores, pooled_labels = np.concatenate([x.ravel() for x in per_frame]), np.concatenate([x.ravel() for x in labels])

@@ -36,8 +36,9 @@ from jaxanom.data.offroad import GRANULARITIES
 from jaxanom.offroad.active import select_hard_frames
 from jaxanom.app.offroad_experiment import Source, annotated, as_float, source_frames
 from jaxanom.offroad.encoder import AnnotatedFrames, concat_frames
-from jaxanom.app.offroad_pipeline import (confusion_scores, crf_labels, fine_tune, fit_category_model, segment,
+from jaxanom.app.offroad_pipeline import (crf_labels, fine_tune, fit_category_model, segment,
                                           segment_supervised, segmentation_scores, sequence_risk_sweep, to_classes)
+from jaxanom.metrics import confusion_scores
 from jaxanom.offroad.supervised import classifier_config, train_classifier
 
 NAME = "offroad_table3"
@@ -123,8 +124,9 @@ def percent_scores(classes: int) -> Callable:
     """PA, IoU, PRE, REC and FPR in percent of pooled confusion matrices (..., classes + 1, classes + 1)."""
     def metric(pooled: np.ndarray) -> dict:
         s = confusion_scores(pooled, classes)
-        return {name: 100 * s[key] for name, key in (("pa", "pixel_accuracy"), ("iou", "miou"), ("pre", "precision"),
-                                                      ("rec", "recall"), ("fpr", "fpr"))}
+        return {name: 100 * s[key] for name, key in (("pa", "pixel_accuracy"), ("iou", "miou"),
+                                                      ("pre", "mean_precision"), ("rec", "class_accuracy"),
+                                                      ("fpr", "mean_fpr"))}
     return metric
 
 

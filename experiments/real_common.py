@@ -27,6 +27,7 @@ from jaxanom.app.scoring import VOID_CHANNEL
 HERE = Path(__file__).parent
 REALDATA = Path(os.environ.get("JAXANOM_REALDATA", HERE.parent.parent / "shared" / "realdata"))
 CHECKPOINT = REALDATA / "espnet" / "espnet_p_2_q_8.pth"
+TRAIN_IDS = VOID_CHANNEL  # channels 0..18 of both networks' weights; channel 19 is their extra void class
 
 
 def require_realdata(*parts: str) -> Path:
@@ -140,10 +141,12 @@ def same_frames(first: list[np.ndarray], second: list[np.ndarray], track: str) -
 
 
 def exact_metrics(scores: list[np.ndarray], labels: list[np.ndarray]) -> dict[str, float]:
-    """Pooled AP (step and envelope) and FPR at 95% TPR ("first") over the frames, exactly."""
-    from jaxanom.metrics import anomaly_metrics
+    """Pooled AP (step and envelope) and FPR at 95% TPR ("first") over the frames, exactly
+    (``jaxanom.metrics.evaluator.PixelAnomaly`` fed one frame at a time)."""
+    from jaxanom.metrics.evaluator import PixelAnomaly, run_evaluators
 
-    m = anomaly_metrics(np.concatenate(scores), np.concatenate(labels), conventions=True)
+    frames = ({"scores": {"score": s}, "label": l} for s, l in zip(scores, labels))
+    m = run_evaluators({"pixels": PixelAnomaly("score", conventions=True)}, frames)["pixels"]
     return {"ap": m["ap"], "ap_envelope": m["ap_conventions"]["envelope"], "fpr_at_tpr": m["fpr_at_tpr"]}
 
 

@@ -23,7 +23,7 @@ import numpy as np
 from experiments.real_common import HERE, TRAIN_IDS, espnet, logits_of, require_realdata
 from jaxanom.data.cityscapes import Cityscapes
 from jaxanom.io import write_bytes_atomic, write_json_atomic
-from jaxanom.metrics import confusion_matrix, per_class_iou, pixel_accuracy
+from jaxanom.metrics import confusion_matrix, confusion_scores
 from jaxanom.nn.layers import resize_bilinear
 
 NAME = "real_espnet_miou"
@@ -65,10 +65,11 @@ def segmentation_results(predict, resize_image: Callable, resize_label: Callable
                 matrices[f"{size}_{channels}"] += np.asarray(confusion_matrix(prediction, target, TRAIN_IDS + 1))
     results = {"frames": [frames[i]["name"] for i in range(len(frames))]}
     for key, matrix in matrices.items():
-        iou = per_class_iou(matrix)[:TRAIN_IDS]  # the 19 trainIds (void is never a label)
+        scores = confusion_scores(matrix, TRAIN_IDS)  # the 19 trainIds scored; void is never a label
+        iou = scores["iou"]
         labelled = matrix.sum(1)[:TRAIN_IDS] > 0  # rows are labels
-        results[key] = {"miou": float(np.nanmean(iou)), "miou_labelled": float(np.mean(iou[labelled])),
-                        "pixel_accuracy": pixel_accuracy(matrix),
+        results[key] = {"miou": scores["miou"], "miou_labelled": float(np.mean(iou[labelled])),
+                        "pixel_accuracy": scores["pixel_accuracy"],
                         "per_class_iou": [None if np.isnan(v) else float(v) for v in iou],
                         "void_predicted_pixels": int(matrix[:, TRAIN_IDS].sum())}
     return results

@@ -2,11 +2,19 @@
 
 Each check raises ``ValueError`` naming the argument, what was expected and what came (the
 count and number checks an ``InputError``, whose argument a caller can spell as its own).
-Checks of *values* (finiteness, signs) run only on concrete arrays: under ``jax.jit`` or
-``jax.vmap`` the inputs are tracers and the functions do math only, since a tracer has no value to check.
-Shape checks run in both cases, since shapes are known while tracing.
+Shapes, ranks and dtypes are checked always: they are known without the data, even while tracing.
+Values (finiteness, signs, ranges, class indices) are checked where the data already is on the
+host: a NumPy array, a list or a Python number is read by NumPy, which copies nothing. A
+``jax.Array`` is not read back (on an accelerator every read is a blocking device-to-host copy,
+so a batch loop would wait for each batch's computation before sending the next), unless the
+caller asks for it with ``validate_values()``; a tracer (inside ``jit`` / ``vmap`` / ``grad``)
+has no value to check. Inside a traced function, ``jax.experimental.checkify`` finds the NaN
+the math produces.
 """
 from __future__ import annotations
+
+import contextlib
+import contextvars
 
 import jax
 import jax.numpy as jnp
@@ -14,10 +22,31 @@ import numpy as np
 
 from jaxanom.errors import InputError
 
+_READ_DEVICE_ARRAYS = contextvars.ContextVar("jaxanom_validate_values", default=False)
+
+
+@contextlib.contextmanager
+def validate_values(enabled: bool = True):
+    """Inside this block, the value checks of jaxanom's functions read ``jax.Array`` inputs too
+    (a device-to-host read per check: for debugging, not for batch loops)."""
+    token = _READ_DEVICE_ARRAYS.set(bool(enabled))
+    try:
+        yield
+    finally:
+        _READ_DEVICE_ARRAYS.reset(token)
+
 
 def is_concrete(x) -> bool:
     """True when ``x`` holds values (not a tracer inside jit / vmap / grad)."""
     return not isinstance(x, jax.core.Tracer)
+
+
+def values_checked(x) -> bool:
+    """Whether value checks read ``x``: it is on the host (not a ``jax.Array``), or it is a
+    concrete ``jax.Array`` inside ``validate_values()``; never a tracer."""
+    if not isinstance(x, jax.Array):
+        return True
+    return is_concrete(x) and _READ_DEVICE_ARRAYS.get()
 
 
 def check_rank(name: str, x, rank: int, layout: str) -> None:
@@ -50,28 +79,25 @@ def check_image_batch(images, multiple: int, scaling: str) -> None:
 
 
 def check_finite(name: str, x) -> None:
-    """No NaN or Inf in ``x`` (skipped for tracers), with no copy to the host: an array in host
-    memory (NumPy, a list, a JAX array on the CPU) is checked by NumPy, which compiles nothing;
-    an array on an accelerator by one compiled reduction there (compiled once per shape).
-
-    A concrete array closed over by a caller's ``jax.jit`` / ``vmap`` / ``grad`` is checked
-    too: the reduction runs eagerly (``ensure_compile_time_eval``) instead of being traced.
-    """
-    if not is_concrete(x) or not jnp.issubdtype(dtype_of(x), jnp.inexact):
+    """No NaN or Inf in ``x`` when ``values_checked(x)``: NumPy checks a host array; a
+    ``jax.Array`` (inside ``validate_values()``) is checked by one compiled reduction where it
+    lies, and one bool is read back. A concrete array closed over by a caller's ``jax.jit`` /
+    ``vmap`` / ``grad`` is reduced eagerly (``ensure_compile_time_eval``) instead of traced."""
+    if not values_checked(x) or not jnp.issubdtype(dtype_of(x), jnp.inexact):
         return
-    if in_host_memory(x):
-        finite = bool(np.isfinite(np.asarray(x)).all())
-    else:
+    if isinstance(x, jax.Array):
         with jax.ensure_compile_time_eval():
             finite = bool(_all_finite(x))
+    else:
+        finite = bool(np.isfinite(np.asarray(x)).all())
     if not finite:
         bad = int(np.size(x) - np.count_nonzero(np.isfinite(np.asarray(x))))
         raise ValueError(f"{name} must be finite, got {bad} NaN/Inf value(s)")
 
 
 def check_positive(name: str, x) -> None:
-    """Every entry of ``x`` finite and > 0 (skipped for tracers)."""
-    if is_concrete(x):
+    """Every entry of ``x`` finite and > 0 (when ``values_checked(x)``)."""
+    if values_checked(x):
         values = np.asarray(x)
         bad = ~(np.isfinite(values) & (values > 0))
         if bad.any():
@@ -101,8 +127,8 @@ def check_real(name: str, x) -> None:
 
 
 def check_range(name: str, x, low: float, high: float, hint: str = "") -> None:
-    """Every entry of ``x`` in ``[low, high]`` and not NaN (skipped for tracers); ``hint`` ends the message."""
-    if not is_concrete(x):
+    """Every entry of ``x`` in ``[low, high]`` and not NaN (when ``values_checked(x)``); ``hint`` ends the message."""
+    if not values_checked(x):
         return
     values = np.asarray(x)
     bad = ~((values >= low) & (values <= high))
@@ -133,9 +159,9 @@ def check_number(name: str, value, low: float = -np.inf, high: float = np.inf, *
 
 
 def check_labels(name: str, x, count: int, void: int | None = None) -> None:
-    """Integer labels in ``[0, count)`` (or equal to ``void``); values checked only on concrete arrays."""
+    """Integer labels in ``[0, count)`` (or equal to ``void``); values checked when ``values_checked(x)``."""
     check_integer(name, x)
-    if not is_concrete(x) or np.size(x) == 0:
+    if not values_checked(x) or np.size(x) == 0:
         return
     values = np.asarray(x)
     bad = ((values < 0) | (values >= count)) & (values != void if void is not None else True)

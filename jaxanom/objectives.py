@@ -2,7 +2,7 @@
 
 An objective is a frozen dataclass (its config) with
 
-- ``name``: its registry name, a field (so ``dataclasses.asdict`` records it);
+- ``name``: its registry name, a field (so ``config_codec.encode`` records it and reads it back);
 - ``needs``: the model outputs it reads besides ``"logits"`` (e.g. ``("attention",)``); the
   trainer refuses a network that does not produce them before compiling anything;
 - ``init_state(num_classes) -> pytree``: state it carries from step to step in the train state
@@ -23,6 +23,8 @@ import dataclasses
 import importlib
 from typing import Any, ClassVar
 
+from jaxanom.config_codec import decode
+
 # the modules that register jaxanom's own objectives, imported on the first look-up
 _BUILTIN_MODULES = ("jaxanom.losses", "jaxanom.cudam_objective", "jaxanom.msaam_objective")
 _REGISTRY: dict[str, type["Objective"]] = {}
@@ -33,6 +35,15 @@ class Objective:
     """Base class of training objectives (see the module docstring for the contract)."""
 
     needs: ClassVar[tuple[str, ...]] = ()
+
+    @classmethod
+    def class_named(cls, name: str) -> type["Objective"]:
+        """The objective class registered as ``name`` (how ``config_codec`` reads an objective back);
+        ValueError listing the known names otherwise."""
+        _load_builtins()
+        if name not in _REGISTRY:
+            raise ValueError(f"expected one of {tuple(_REGISTRY)}, got {name!r}")
+        return _REGISTRY[name]
 
     def init_state(self, num_classes: int) -> Any:
         """The state carried in the train state for a network of ``num_classes`` outputs; None: none."""
@@ -69,20 +80,13 @@ def objective_names() -> tuple[str, ...]:
 
 def objective_class(name: str) -> type[Objective]:
     """The objective class registered as ``name``; ValueError listing the known names otherwise."""
-    _load_builtins()
-    if name not in _REGISTRY:
-        raise ValueError(f"objective: expected one of {tuple(_REGISTRY)}, got {name!r}")
-    return _REGISTRY[name]
+    try:
+        return Objective.class_named(name)
+    except ValueError as error:
+        raise ValueError(f"objective: {error}") from None
 
 
 def objective_from_dict(values: dict) -> Objective:
-    """The inverse of ``dataclasses.asdict(objective)``: ``{"name": ..., field: value}`` (JSON lists
-    become tuples). ValueError naming the objective on an unknown name or field."""
-    if not isinstance(values, dict) or not isinstance(values.get("name"), str):
-        raise ValueError(f"objective: expected an object with a 'name', got {values!r}")
-    fields = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items() if k != "name"}
-    cls = objective_class(values["name"])
-    try:
-        return cls(**fields)
-    except TypeError as error:  # an unknown field
-        raise ValueError(f"objective {values['name']!r}: {error}") from None
+    """The inverse of ``config_codec.encode(objective)``: ``{"name": ..., field: value}``; a
+    ``config_codec.ConfigError`` (a ValueError) naming the field on an unknown name or field."""
+    return decode(Objective, values, "objective")

@@ -1,10 +1,11 @@
 """Per-pixel anomaly scores from segmentation logits.
 
 Every score takes logits ``(H, W, C)`` (any float dtype; computed in float32) and returns a
-float32 map ``(H, W)`` in which *higher means more anomalous*. Called eagerly, the public
-functions check their input (rank, C, NaN/Inf) and raise ``ValueError``; inside ``jax.jit`` /
-``jax.vmap`` they do math only. The ``*_batch`` entry points take ``(B, H, W, C)``, validate,
-then call a ``jax.jit(jax.vmap(...))`` built once at import.
+float32 map ``(H, W)`` in which *higher means more anomalous*. The public functions check their
+input's rank, C and dtype, and NaN/Inf in a host (NumPy) input, and raise ``ValueError``; a
+``jax.Array`` is not read back for it (``jaxanom.validate_values`` asks for that). The
+``*_batch`` entry points take ``(B, H, W, C)``, validate, then call a ``jax.jit(jax.vmap(...))``
+built once at import.
 """
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_finite, check_rank, check_real, is_concrete
+from jaxanom._validate import check_finite, check_rank, check_real, values_checked
 
 
 def _checked(logits, *, batched: bool = False, min_classes: int = 1) -> jax.Array:
@@ -28,7 +29,7 @@ def _checked(logits, *, batched: bool = False, min_classes: int = 1) -> jax.Arra
 
 
 def _check_temperature(temperature) -> None:
-    if is_concrete(temperature) and not temperature > 0:
+    if values_checked(temperature) and not temperature > 0:
         raise ValueError(f"temperature must be > 0, got {temperature}")
 
 

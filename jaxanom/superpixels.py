@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxanom._batching import over_images
-from jaxanom._validate import check_count, check_finite, check_rank, dtype_of, is_concrete
+from jaxanom._validate import check_count, check_finite, check_rank, dtype_of, values_checked
 
 # sRGB (D65) -> XYZ and the D65 white point, as scikit-image's ``rgb2lab`` uses them.
 _XYZ_FROM_RGB = np.array([[0.412453, 0.357580, 0.180423],
@@ -66,7 +66,7 @@ def rgb_to_lab(image) -> jax.Array:
         return _rgb_to_lab_jit(jnp.asarray(image, jnp.float32) / 255.0)
     if not np.issubdtype(dtype, np.floating):
         raise ValueError(f"image must be uint8 or float in [0, 1], got dtype {dtype}")
-    if is_concrete(image):
+    if values_checked(image):
         values = np.asarray(image)
         nan, outside = np.isnan(values), (values < 0) | (values > 1)
         if nan.any() or outside.any():
@@ -263,9 +263,9 @@ def _check_slic(lab, step, compactness, iterations, tol, batched: bool):
         raise ValueError(f"step must be an integer in [1, min(H, W)] = [1, {min(height, width)}], got {step!r}")
     if not isinstance(iterations, (int, np.integer)) or iterations < 0:
         raise ValueError(f"iterations must be an integer >= 0, got {iterations!r}")
-    if is_concrete(compactness) and not (np.isfinite(compactness) and compactness > 0):
+    if values_checked(compactness) and not (np.isfinite(compactness) and compactness > 0):
         raise ValueError(f"compactness must be finite and > 0, got {compactness}")
-    if tol is not None and is_concrete(tol) and not (np.isfinite(tol) and tol >= 0):
+    if tol is not None and values_checked(tol) and not (np.isfinite(tol) and tol >= 0):
         raise ValueError(f"tol must be None or finite and >= 0, got {tol}")
     check_finite("lab", lab)
     dtype = _work_dtype(lab)

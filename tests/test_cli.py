@@ -29,6 +29,14 @@ def test_quick_demo_writes_its_results(demo_dir):
     picture = read_rgb(demo_dir / "frame_0.png")  # 2 rows of 3 panels, 64 x 96 frames x 3
     assert picture.shape[1] >= 3 * 288 and picture.shape[0] >= 2 * 192, picture.shape
     assert list((demo_dir / "run" / "checkpoints").iterdir())
+    # the outputs hold the configuration as config files: the demo's and its run's
+    from jaxanom.app.configs import load_config
+    from jaxanom.app.demos.sml_cudam import DemoConfig
+    from jaxanom.app.experiment import Experiment, load_experiment
+
+    assert load_config(demo_dir / "results.json", DemoConfig) == DemoConfig.quick()
+    assert load_experiment(demo_dir / "run") == load_config(demo_dir / "run" / "experiment.json", Experiment) == \
+        DemoConfig.quick().experiment
 
 
 def test_demo_refuses_a_non_empty_folder(demo_dir, capsys):

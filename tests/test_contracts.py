@@ -1,13 +1,15 @@
 """Every public pixel function composes under the caller's jax.jit / vmap / grad with arrays
-closed over or passed in, and gives the eager values; value checks see NaN at any size; dtypes
-that are not real numbers are refused."""
+closed over or passed in, and gives the eager values; value checks see NaN at any size in host
+arrays, and in jax Arrays on request only; dtypes that are not real numbers are refused."""
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from jaxanom import _validate, scores, sml
+import jaxanom
+from host_reads import count_host_reads
+from jaxanom import scores, sml
 from jaxanom import method_registry
 from jaxanom.cudam_score import cudam_score, upsample_attention
 
@@ -108,10 +110,8 @@ def test_grad_through_sml_score_in_logits_and_statistics():
 
 @pytest.mark.parametrize("size", [4097, 70_000])
 @pytest.mark.parametrize("where", ["one", "all", "inf"])
-@pytest.mark.parametrize("array", ["numpy", "jax", "accelerator"])  # NumPy reads the first two
-def test_nan_is_seen_at_any_size(size, where, array, monkeypatch):
-    if array == "accelerator":  # the compiled reduction that checks arrays on a GPU, taken here on the CPU
-        monkeypatch.setattr(_validate, "in_host_memory", lambda x: not isinstance(x, jax.Array))
+@pytest.mark.parametrize("array", ["numpy", "jax"])  # NumPy's check; the compiled reduction a jax.Array gets
+def test_nan_is_seen_at_any_size(size, where, array):
     logits = np.ones((1, size, 2), np.float32)
     if where == "one":
         logits[0, size - 7, 1] = np.nan
@@ -120,17 +120,32 @@ def test_nan_is_seen_at_any_size(size, where, array, monkeypatch):
     else:
         logits[0, size // 2, 0] = -np.inf
     logits = logits if array == "numpy" else jnp.asarray(logits)
-    for f in (scores.max_logit, scores.msp, lambda x: sml.sml_score(x, MEAN[:2], STD[:2], smooth=False)):
+    with jaxanom.validate_values(array == "jax"):  # a jax.Array is checked on request only
+        for f in (scores.max_logit, scores.msp, lambda x: sml.sml_score(x, MEAN[:2], STD[:2], smooth=False)):
+            with pytest.raises(ValueError, match="finite"):
+                f(logits)
         with pytest.raises(ValueError, match="finite"):
-            f(logits)
-    with pytest.raises(ValueError, match="finite"):
-        sml.fit_stats([logits])
+            sml.fit_stats([logits])
 
 
-def test_closed_over_nan_is_still_refused_inside_user_jit():
+def test_closed_over_nan_is_refused_inside_user_jit_on_request():
     bad_mean = MEAN.at[1].set(jnp.nan)
-    with pytest.raises(ValueError, match="mean must be finite"):
+    with jaxanom.validate_values(), pytest.raises(ValueError, match="mean must be finite"):
         jax.jit(jax.vmap(lambda x: sml.sml_score(x, bad_mean, STD)))(LOGITS)
+
+
+@pytest.mark.parametrize("name", sorted(PER_BATCH))
+def test_batch_function_reads_no_device_array_to_check_it(name, monkeypatch):
+    """NaN in a jax.Array goes through unread (the batch loops that call these functions never wait
+    for the device); inside ``validate_values()`` the same call reads it and refuses it."""
+    f, (first, *others) = PER_BATCH[name]
+    inputs = (jnp.full_like(first, jnp.nan), *others)
+    reads = count_host_reads(monkeypatch)
+    jax.block_until_ready(f(*inputs))
+    assert reads == []
+    with jaxanom.validate_values(), pytest.raises(ValueError, match="must be finite"):
+        f(*inputs)
+    assert reads
 
 
 @pytest.mark.parametrize("dtype", [bool, np.complex64])

@@ -146,3 +146,30 @@ def test_results_file_ends_with_the_real_data_tables_one_level_down(tmp_path):
     real = text[text.index("# Real data"):]
     assert real.index("## A table") < real.index("## B table") < real.index("### B on a track")
     assert "| x |" in real and "not real data" not in text
+
+
+def test_int8_spread_draws_stay_within_half_a_step_and_leave_float_tensors_alone():
+    from experiments.real_erfnet_int8_spread import draw_weights
+
+    rng = np.random.default_rng(0)
+    grid = {"conv.weight": rng.normal(size=(4, 3, 3, 3)).astype(np.float32),
+            "bn.running_var": rng.uniform(1, 2, size=4).astype(np.float32)}
+    steps = {"conv.weight": 0.02}
+    assert draw_weights(grid, steps, 0) is grid
+    moved = draw_weights(grid, steps, 3)
+    shift = moved["conv.weight"] - grid["conv.weight"]
+    assert np.all(np.abs(shift) <= 0.01 + 1e-7) and np.std(shift) > 0.02 / np.sqrt(12) * 0.8
+    assert moved["conv.weight"].dtype == np.float32
+    np.testing.assert_array_equal(moved["bn.running_var"], grid["bn.running_var"])
+    assert not np.array_equal(draw_weights(grid, steps, 4)["conv.weight"], moved["conv.weight"])
+
+
+def test_exact_metrics_of_the_frames_against_sklearn(frames):
+    from experiments.real_common import exact_metrics
+
+    scores, labels = (list(x) for x in zip(*frames))
+    keep = np.concatenate(labels) != 255
+    pooled = np.concatenate(scores)[keep], np.concatenate(labels)[keep]
+    got = exact_metrics(scores, labels)
+    np.testing.assert_allclose([got["ap"], got["fpr_at_tpr"]], sklearn_metrics(*pooled), rtol=1e-12)
+    assert got["ap_envelope"] == pytest.approx(envelope_ap(*pooled), rel=1e-12)

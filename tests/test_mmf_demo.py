@@ -1,6 +1,5 @@
 """``jaxanom demo mmf --quick``: the whole MMF path (every part trained, cached, scored) in miniature;
 ``--config`` and ``jaxanom evaluate --mmf`` on the parts it trained."""
-import dataclasses
 import json
 
 import numpy as np
@@ -12,7 +11,9 @@ from jaxanom.data.synthetic import SyntheticScenes
 from jaxanom.app.evaluate import anomaly_results
 from jaxanom.app.demos.mmf import ROWS, MMFDemoConfig
 from jaxanom.app.mmf_pipeline import scored_batches
+from jaxanom.app.configs import load_config
 from jaxanom.app.mmf_pipeline import MMFPipeline
+from jaxanom.config_codec import decode, encode
 
 
 @pytest.fixture(scope="module")
@@ -32,6 +33,7 @@ def test_quick_mmf_demo_writes_the_ablation_and_pictures(demo_dir):
     assert picture.shape[1] >= 4 * 256 and picture.shape[0] >= 2 * 128  # 2 rows of 4 panels, 32 x 64 frames x 4
     parts = sorted(p.name.split("-")[0] for p in (demo_dir / "runs").iterdir())
     assert parts == ["dissimilarity", "dissimilarity", "rgbd", "segmenter", "synthesizer"]
+    assert load_config(demo_dir / "results.json", MMFDemoConfig) == MMFDemoConfig.quick()  # a config file
 
 
 def _tree(folder):
@@ -91,9 +93,9 @@ def test_pipeline_load_names_a_missing_part(demo_dir, tmp_path):
 
 def test_config_round_trips_and_rejects_unknown_fields():
     config = MMFDemoConfig.quick()
-    assert MMFDemoConfig.from_dict(json.loads(json.dumps(dataclasses.asdict(config)))) == config
-    assert MMFDemoConfig.from_dict({"anomaly_frames": 5}) == MMFDemoConfig(anomaly_frames=5)
-    with pytest.raises(ValueError, match="config"):
-        MMFDemoConfig.from_dict({"pipeline": {"dissim_stepz": 3}})
-    with pytest.raises(ValueError, match="config"):
-        MMFDemoConfig.from_dict([1, 2])
+    assert decode(MMFDemoConfig, json.loads(json.dumps(encode(config)))) == config
+    assert decode(MMFDemoConfig, {"anomaly_frames": 5}) == MMFDemoConfig(anomaly_frames=5)
+    with pytest.raises(ValueError, match="pipeline.dissim_stepz: unknown field of MMFConfig"):
+        decode(MMFDemoConfig, {"pipeline": {"dissim_stepz": 3}})
+    with pytest.raises(ValueError, match="expected an object of MMFDemoConfig fields, got"):
+        decode(MMFDemoConfig, [1, 2])

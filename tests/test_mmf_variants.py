@@ -84,6 +84,7 @@ def test_a_config_with_variants_round_trips_through_json():
     import json
 
     from jaxanom.app.mmf_experiment import MMFDemoConfig
+    from jaxanom.config_codec import decode, encode
 
     config = MMFDemoConfig(pipeline=dataclasses.replace(QUICK, dissim_variants=("no_depth", "truth_resynthesis")))
-    assert MMFDemoConfig.from_dict(json.loads(json.dumps(dataclasses.asdict(config)))) == config
+    assert decode(MMFDemoConfig, json.loads(json.dumps(encode(config)))) == config

@@ -140,7 +140,8 @@ def test_segmentation_scores_precision_recall_fpr_against_sklearn():
 
 
 def test_confusion_scores_of_summed_frame_matrices_equal_the_pooled_scores():
-    from jaxanom.app.offroad_pipeline import confusion_scores
+    from jaxanom.app.offroad_pipeline import OFFROAD_SCORES
+    from jaxanom.metrics import confusion_scores
 
     rng = np.random.default_rng(5)
     truth = rng.integers(0, 3, (4, 6, 9))
@@ -153,10 +154,10 @@ def test_confusion_scores_of_summed_frame_matrices_equal_the_pooled_scores():
     for r, w in enumerate(weights):
         index = np.repeat(np.arange(4), w)
         if w[1] == w.sum():  # only void pixels: every score undefined
-            assert all(np.isnan(v[r]) for v in batched.values())
+            assert all(np.isnan(batched[key][r]) for key in OFFROAD_SCORES.values())
             continue
         expected = segmentation_scores(predicted[index], truth[index], 3)
-        for name in ("pixel_accuracy", "miou", "precision", "recall", "fpr"):
-            assert batched[name][r] == pytest.approx(expected[name]), name
-    with pytest.raises(ValueError, match="matrix: expected"):
-        confusion_scores(per_frame, 4)
+        for name, key in OFFROAD_SCORES.items():
+            assert batched[key][r] == pytest.approx(expected[name]), name
+    with pytest.raises(ValueError, match="num_classes: expected 1 to 4"):
+        confusion_scores(per_frame, 5)

@@ -201,6 +201,6 @@ def test_a_diverging_run_is_one_line_naming_the_last_good_step_and_what_to_chang
     monkeypatch.setattr(jaxanom.app.experiment, "run_training", diverging)
     run = tmp_path / "run"
     _one_line(capsys, main(["train", "--out", str(run), "--attention", "none", "--no-progress"]),
-              "the run diverged", "last good checkpoint: step 1", "lower learning rate (optim.lr, now 0.01)")
+              "the run diverged", "last good checkpoint: step 1", "lower learning rate (--set train.optim.lr=..., now 0.01)")
     _one_line(capsys, main(["train", "--resume", "--out", str(run), "--no-progress"]),
               "the run diverged", "--resume repeats the same steps")

@@ -11,6 +11,7 @@ import pytest
 from jaxanom.app.experiment import (Experiment, check_objective, check_same_run, jsonable, load_experiment,
                                     run_training)
 from jaxanom.cli import main
+from jaxanom.config_codec import decode
 from jaxanom.cudam_objective import CuDAM
 from jaxanom.losses import CrossEntropy
 from jaxanom.msaam_objective import MSAAM
@@ -118,7 +119,7 @@ def test_experiment_json_of_the_earlier_version_loads_as_the_same_training(tmp_p
         values = copy.deepcopy(LEGACY)
         values["attention"] = attention
         values["train"]["loss"].update(loss)
-        return Experiment.from_dict(values).train
+        return decode(Experiment, values).train
 
     cudam = legacy("cudam", method="cudam", tau=7.0, beta=0.3, attention_literal=True, class_weights=[1, 2],
                    compute_dtype="bfloat16", ignore=250)

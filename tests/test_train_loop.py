@@ -19,6 +19,7 @@ from jaxanom.train.loop import NonFiniteLossError, TrainConfig, train
 from jaxanom.train.optim import OptimConfig
 from jaxanom.train.restore import trained_variables
 from compiles import compiled_during
+from host_reads import count_host_reads
 from tiny_models import TinySegNet, init_variables, make_batch
 
 TESTS = Path(__file__).parent
@@ -183,30 +184,10 @@ def test_bad_first_batch_is_a_clear_error(tmp_path, change, message):
 
 @pytest.fixture
 def host_reads(monkeypatch):
-    """Counts device-to-host reads of jax Arrays, each tagged with how many train steps had been
-    dispatched when it happened. The CPU backend ignores ``jax.transfer_guard`` for ``float`` /
-    ``bool`` / ``device_get``, so the reads are counted where every one of them passes: an Array's
-    host value (``_value``), and NumPy's ``asarray`` / ``array`` of an Array (on the CPU those use the
-    buffer protocol instead)."""
-    from jax._src.array import ArrayImpl
-
-    dispatched, reads = [0], []
-    host_value = ArrayImpl._value
-
-    def read(self):
-        reads.append(dispatched[0])
-        return host_value.fget(self)
-
-    monkeypatch.setattr(ArrayImpl, "_value", property(read))
-    for name in ("asarray", "array"):
-        numpy_fn = getattr(np, name)
-
-        def counted(value, *args, _numpy_fn=numpy_fn, **kwargs):
-            if isinstance(value, jax.Array):
-                reads.append(dispatched[0])
-            return _numpy_fn(value, *args, **kwargs)
-
-        monkeypatch.setattr(np, name, counted)
+    """Counts device-to-host reads of jax Arrays (``host_reads.count_host_reads``), each tagged
+    with how many train steps had been dispatched when it happened."""
+    dispatched = [0]
+    reads = count_host_reads(monkeypatch, lambda: dispatched[0])
     make_steps = loop_lib.make_steps
 
     def counting_make_steps(*args, **kwargs):

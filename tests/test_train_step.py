@@ -92,12 +92,12 @@ def test_every_objective_round_trips_through_its_dict_and_refuses_an_unknown_fie
     values = dataclasses.asdict(objective)
     assert values["name"] == name
     assert objective_from_dict({k: list(v) if isinstance(v, tuple) else v for k, v in values.items()}) == objective
-    with pytest.raises(ValueError, match=f"objective '{name}'.*bogus"):
+    with pytest.raises(ValueError, match=f"objective.bogus: unknown field of {cls.__name__}"):
         objective_from_dict({**values, "bogus": 1})
 
 
 def test_unknown_objective_names_the_known_ones():
-    with pytest.raises(ValueError, match=r"objective: expected one of \('cross_entropy', 'cudam', 'msaam'.*'pebal'"):
+    with pytest.raises(ValueError, match=r"objective.name: expected one of \('cross_entropy', 'cudam', 'msaam'.*'pebal'"):
         objective_from_dict({"name": "pebal"})
 
 

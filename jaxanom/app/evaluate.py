@@ -15,10 +15,9 @@ import numpy as np
 
 from jaxanom.app.scoring import inputs_of, score_all
 from jaxanom.cudam_score import upsample_attention
-from jaxanom.metrics import AnomalyMetricAccumulator, anomaly_metrics, confusion_matrix, miou, per_class_iou
-from jaxanom.metrics import pixel_accuracy, pr_curve, restrict_to_roi, roc_curve
-from jaxanom.metrics.components import component_summary, frame_components
-from jaxanom.metrics.smiyc import binned_metrics, frame_bins, smiyc_frame_components
+from jaxanom.metrics import anomaly_metrics, pr_curve, restrict_to_roi, roc_curve
+from jaxanom.metrics.evaluator import (Components, PixelAnomaly, Segmentation, SmiycPixels, run_evaluators,
+                                       update_keyed)
 from jaxanom.train.step import model_input
 from jaxanom.errors import InputError
 
@@ -62,9 +61,17 @@ def predictor(model, variables) -> Callable[[np.ndarray], dict]:
 
 
 def predictions(predict: Callable, batches: Iterable[dict]) -> Iterator[dict]:
-    """Each batch with the network's outputs added (``"logits"``, maybe ``"attention_up"``)."""
+    """Each batch with the network's outputs added (``"logits"``, maybe ``"attention_up"``), in
+    order. A batch is yielded once the next one is dispatched, so the device computes the next
+    batch while the caller reads this one back (two batches' outputs are held at a time)."""
+    pending = None
     for batch in batches:
-        yield {**batch, **predict(batch["image"])}
+        dispatched = {**batch, **predict(batch["image"])}
+        if pending is not None:
+            yield pending
+        pending = dispatched
+    if pending is not None:
+        yield pending
 
 
 def protocol_predictions(predict: Callable, source, protocol, skipped: list | None = None) -> Iterator[dict]:
@@ -121,7 +128,7 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
 
     if convention not in CONVENTIONS:
         raise ValueError(f"convention: expected one of {CONVENTIONS}, got {convention!r}")
-    accumulators, kept, used, frames, binned = {}, {}, {}, [], {}
+    pixels, kept, used, frames, binned = {}, {}, {}, [], {}  # method -> (evaluator, state)
     spill = (tempfile.TemporaryDirectory(prefix=".jaxanom-maps-", suffix=".tmp", dir=spill_dir)
              if track is not None else None)
     for batch in outputs:
@@ -144,10 +151,12 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
                 name = names_in_batch[index]
                 frames.append({"name": str(name) if name is not None else str(first + index), "pixels": {}})
                 np.save(Path(spill.name) / f"label_{first + index}.npy", label)
+        scored = {"scores": batch_scores, "label": labels}
         for name, score in batch_scores.items():
-            accumulators.setdefault(name, AnomalyMetricAccumulator(mode)).update(score, labels)
+            update_keyed(pixels, name, lambda: PixelAnomaly(name, mode, fpr_convention, ap_convention,
+                                                            conventions=True), scored)
             if convention == "smiyc":
-                binned.setdefault(name, []).extend(map(frame_bins, np.asarray(score), labels))
+                update_keyed(binned, name, lambda: SmiycPixels(name), scored)
             if keep_curves:
                 kept.setdefault(name, []).extend(zip(np.asarray(score), labels))
             if spill is not None:
@@ -155,23 +164,21 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
                     np.save(Path(spill.name) / f"{name}_{first + index}.npy", one)
                     frames[first + index]["pixels"][name] = _frame_pixel_metrics(one, label, fpr_convention,
                                                                                   ap_convention)
-    if not accumulators:
+    if not pixels:
         raise ValueError("outputs: expected at least one batch, got none")
-    metrics = {name: acc.compute(fpr_convention=fpr_convention, ap_convention=ap_convention, conventions=True)
-               for name, acc in accumulators.items()}
+    metrics = {name: evaluator.finalize(state) for name, (evaluator, state) in pixels.items()}
     for name, values in used.items():
         if values:
             metrics[name]["options"] = values
-    for name, per_frame in binned.items():
+    for name, (evaluator, state) in binned.items():
         values = metrics[name]
         values["exact"] = {key: values[key] for key in ("ap", "auroc", "fpr_at_tpr", "best_f1", "best_f1_threshold")}
-        values.update(binned_metrics(per_frame))
+        values.update(evaluator.finalize(state))
     if spill is not None:
-        rule = smiyc_frame_components if convention == "smiyc" else frame_components
         with spill:
             for name, values in metrics.items():
-                values["components"], values["frames"] = _component_pass(Path(spill.name), name, frames, track,
-                                                                         values["best_f1_threshold"], rule)
+                components = Components(name, values["best_f1_threshold"], track, convention)
+                values["components"], values["frames"] = _component_pass(Path(spill.name), components, frames)
     curves = {}
     for name, per_frame in kept.items():
         maps, truths = (list(x) for x in zip(*per_frame))
@@ -190,19 +197,18 @@ def _frame_pixel_metrics(score, label, fpr_convention: str, ap_convention: str) 
     return anomaly_metrics(score, label, fpr_convention=fpr_convention, ap_convention=ap_convention)
 
 
-def _component_pass(folder: Path, name: str, frames: list[dict], track: str, threshold: float, rule=frame_components):
-    """``(pooled, per_frame)``: component metrics of method ``name``'s spilled maps at ``threshold``
-    (``rule``: ``frame_components``, score >= threshold, or the kit's ``smiyc_frame_components``)."""
-    per_frame, sious, ppvs = [], [], []
+def _component_pass(folder: Path, components: Components, frames: list[dict]):
+    """``(pooled, per_frame)``: the ``components`` evaluator of the method's spilled maps, one frame at a time."""
+    name, pooled, per_frame = components.method, components.init(), []
     for index, frame in enumerate(frames):
-        label = np.load(folder / f"label_{index}.npy")
-        siou, ppv = rule(np.load(folder / f"{name}_{index}.npy"), label, threshold, track=track)
-        sious.append(siou)
-        ppvs.append(ppv)
+        one = {"scores": {name: np.load(folder / f"{name}_{index}.npy")[None]},
+               "label": np.load(folder / f"label_{index}.npy")[None]}
+        state = components.update(components.init(), one)
+        pooled = components.merge(pooled, state)
         per_frame.append({"name": frame["name"], **(frame["pixels"][name] or {"ap": None}),
-                          "components": _jsonable_components(component_summary(siou, ppv))})
-    pooled = component_summary(np.concatenate(sious), np.concatenate(ppvs))
-    return {"threshold": threshold, "track": track, **_jsonable_components(pooled)}, per_frame
+                          "components": _jsonable_components(components.finalize(state))})
+    return ({"threshold": components.threshold, "track": components.track,
+             **_jsonable_components(components.finalize(pooled))}, per_frame)
 
 
 def _jsonable_components(summary: dict) -> dict:
@@ -221,12 +227,8 @@ def _jsonable_components(summary: dict) -> dict:
 
 def segmentation_results(outputs: Iterable[dict], num_classes: int, ignore: int = 255) -> dict:
     """mIoU, pixel accuracy and per-class IoU over batches ``{"logits", "label"}`` (trainIds)."""
-    total = np.zeros((num_classes, num_classes), np.int64)
-    for batch in outputs:
-        prediction = jnp.argmax(batch["logits"], axis=-1)
-        total += np.asarray(confusion_matrix(prediction, batch["label"], num_classes, ignore), np.int64)
-    return {"miou": miou(total), "pixel_accuracy": pixel_accuracy(total),
-            "per_class_iou": per_class_iou(total).tolist()}
+    scores = run_evaluators({"segmentation": Segmentation(num_classes, ignore)}, outputs)["segmentation"]
+    return {"miou": scores["miou"], "pixel_accuracy": scores["pixel_accuracy"], "per_class_iou": scores["iou"].tolist()}
 
 
 def dataset_reader(dataset: str, path: str, *, base: str | None = None, frames: int | None = None,

@@ -7,7 +7,6 @@ events, so ``load_variables(run_dir)`` can rebuild the network without the origi
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 from pathlib import Path
 from typing import Any, Sequence
@@ -17,13 +16,15 @@ import numpy as np
 
 from jaxanom.errors import InputError
 from jaxanom._validate import check_count, check_fits_memory, check_number
+from jaxanom.config_codec import encode
 from jaxanom.cudam_objective import CuDAM
+from jaxanom.app.configs import load_config
 from jaxanom.io import write_json_atomic
 from jaxanom.losses import CrossEntropy
 from jaxanom.msaam_objective import MSAAM
-from jaxanom.objectives import Objective, objective_from_dict
+from jaxanom.objectives import Objective
 from jaxanom.train.loop import TrainConfig
-from jaxanom.train.optim import OptimConfig, schedule_depends_on_steps
+from jaxanom.train.optim import schedule_depends_on_steps
 
 DATASETS = ("synthetic", "cityscapes")
 # Each attention module's paper objective. A network and an objective agree when the objective reads
@@ -96,21 +97,16 @@ the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``:
             raise ValueError(f"batch_size, train_frames: expected 1 <= batch_size <= train_frames, "
                              f"got {self.batch_size}, {self.train_frames}")
 
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> "Experiment":
-        """The inverse of ``to_dict`` (lists become tuples, nested configs are rebuilt); also reads
-        the ``train.loss`` of earlier versions (``legacy_objective``)."""
-        values = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
-        train = dict(values.pop("train"))
-        if "loss" in train:
-            train.update(legacy_objective(train.pop("loss"), values.get("attention")))
-        else:
-            train["objective"] = objective_from_dict(train["objective"])
-        train["optim"] = OptimConfig(**train["optim"])
-        return cls(**values, train=TrainConfig(**train))
+    @staticmethod
+    def upgrade_json(values: dict[str, Any]) -> dict[str, Any]:
+        """``values`` of an experiment.json in today's layout: the ``train.loss`` of earlier versions
+        becomes an objective (``legacy_objective``); ``config_codec.decode`` calls it."""
+        train = values.get("train")
+        if not isinstance(train, dict) or "loss" not in train:
+            return values
+        train = dict(train)
+        legacy = legacy_objective(train.pop("loss"), values.get("attention"))
+        return {**values, "train": {**train, **legacy, "objective": encode(legacy["objective"])}}
 
 
 def legacy_objective(loss: dict[str, Any], attention: str | None) -> dict[str, Any]:
@@ -294,10 +290,11 @@ def initial_variables(experiment: Experiment) -> dict:
 
 
 def jsonable(experiment: Experiment) -> dict:
-    """``experiment`` as plain JSON values, without the run folder (which names where, not what)."""
-    values = experiment.to_dict()
+    """``experiment`` as plain JSON values (``config_codec.encode``), without the run folder (which
+    names where, not what): what a run's experiment.json holds."""
+    values = encode(experiment)
     values["train"]["run_dir"] = ""
-    return json.loads(json.dumps(values))
+    return values
 
 
 def load_experiment(run_dir: str | os.PathLike) -> Experiment:
@@ -305,18 +302,7 @@ def load_experiment(run_dir: str | os.PathLike) -> Experiment:
     config_file = Path(run_dir) / "experiment.json"
     if not config_file.is_file():
         raise ValueError(f"run_dir: expected a training run folder with experiment.json, got {os.fspath(run_dir)!r}")
-    values = _read_json(config_file)
-    try:
-        return Experiment.from_dict(values)
-    except (KeyError, TypeError, AttributeError) as error:
-        raise ValueError(f"{config_file}: not an experiment written by jaxanom ({type(error).__name__}: {error})") from None
-
-
-def _read_json(path: Path):
-    try:
-        return json.loads(path.read_text())
-    except (ValueError, UnicodeDecodeError) as error:
-        raise ValueError(f"{path}: not valid JSON ({error})") from None
+    return load_config(config_file, Experiment, written=("train.run_dir", "train.optim"))
 
 
 def load_variables(run_dir: str | os.PathLike, step: int | None = None) -> tuple[Experiment, dict]:

@@ -38,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxanom._validate import check_count, check_fits_memory, check_number
+from jaxanom.config_codec import encode
 from jaxanom.data.synthetic import SyntheticScenes
 from jaxanom.data.transforms import normalize
 from jaxanom.app.experiment import Experiment, build_network, jsonable, load_variables, run_training
@@ -148,8 +149,7 @@ class MMFConfig:
 
     def to_dict(self) -> dict:
         """Every setting as plain JSON values (the segmenter's as its experiment JSON)."""
-        return {f.name: jsonable(self.segmenter) if f.name == "segmenter" else getattr(self, f.name)
-                for f in dataclasses.fields(self)}
+        return {**encode(self), "segmenter": jsonable(self.segmenter)}
 
     def key(self, *fields: str) -> str:
         """A 12-hex hash of the named settings (the segmenter's as its JSON)."""

@@ -3,8 +3,6 @@ three stages (``OffroadDemoConfig``), their frames and simulated patch annotatio
 from __future__ import annotations
 
 import dataclasses
-import json
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -92,40 +90,6 @@ class OffroadDemoConfig:
                                  gap=1, crf_iters=1)
         return cls(pipeline=pipeline, train=(Source("A", 0, 2, 0, 4),), active=Source("B", 0, 4), test=Source("C", 0, 3),
                    segmented=1, pictures=1, anchors=6, height=48, width=64)
-
-    @classmethod
-    def from_json(cls, path: str | Path) -> "OffroadDemoConfig":
-        """A config file: JSON with any of the fields; ``pipeline`` and ``encoder`` as nested objects,
-        sources as ``{"domain", "sequence", "frames", "start", "step"}``."""
-        try:
-            raw = json.loads(Path(path).read_text())
-        except (OSError, ValueError) as error:
-            raise ValueError(f"config: {path} cannot be read as JSON ({error})") from None
-        if isinstance(raw, dict) and isinstance(raw.get("config"), dict) and "test_after" in raw:
-            raw = raw["config"]  # a results.json of this demo: its configuration
-        if not isinstance(raw, dict):
-            raise ValueError(f"config: expected a JSON object in {path}")
-        fields = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(raw) - fields
-        if unknown:
-            raise ValueError(f"config: unknown field(s) {sorted(unknown)} in {path}; expected some of {sorted(fields)}")
-        base = cls()
-        try:
-            pipeline = dict(raw.pop("pipeline", {}))
-            encoder = dict(pipeline.pop("encoder", {}))
-            for fields_, key in ((encoder, "widths"), (pipeline, "components")):
-                if key in fields_:
-                    fields_[key] = tuple(fields_[key])
-            encoder = dataclasses.replace(base.pipeline.encoder, **encoder)
-            changes = {"pipeline": dataclasses.replace(base.pipeline, encoder=encoder, **pipeline)}
-            if "train" in raw:
-                changes["train"] = tuple(Source(**s) for s in raw.pop("train"))
-            for key in ("active", "test"):
-                if key in raw:
-                    changes[key] = Source(**raw.pop(key))
-            return dataclasses.replace(base, **changes, **raw)
-        except (TypeError, ValueError) as error:  # an unknown, missing or out-of-range field
-            raise ValueError(f"config: {error} in {path}") from None
 
 
 def source_frames(source: Source, config: OffroadDemoConfig) -> list[dict]:

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxanom._validate import check_count, check_labels, check_number
-from jaxanom.metrics.segmentation import confusion_counts
+from jaxanom.metrics.segmentation import confusion_counts, confusion_scores
 from jaxanom.mixture import GaussianMixture, fit_gmm, select_components
 from jaxanom.offroad.active import SELECTIONS, select_hard_frames
 from jaxanom.offroad.crf import dense_crf_batch
@@ -251,34 +251,19 @@ def segmentation_scores(predicted: np.ndarray, truth: np.ndarray, num_classes: i
     """Pixel accuracy, mIoU and the means of per-class precision, recall and FPR over the classes
     where each is defined (docs/papers/offroad.md#evaluation): ``predicted`` in [0, num_classes] (num_classes = unknown,
     counted wrong), ``truth`` in [0, num_classes) or 255 (ignored). ``confusion``: the
-    (num_classes + 1)^2 counts (rows: truth), which ``confusion_scores`` reads."""
+    (num_classes + 1)^2 counts (rows: truth), which ``metrics.confusion_scores(matrix, num_classes)``
+    scores (keys ``OFFROAD_SCORES``)."""
     check_labels("predicted", predicted, num_classes + 1, void=255)
     check_labels("truth", truth, num_classes, void=255)
     matrix = np.asarray(confusion_counts(jnp.asarray(np.where(predicted == 255, num_classes, predicted)),
                                          jnp.asarray(truth), num_classes + 1), np.int64)
-    return {**{k: float(v) for k, v in confusion_scores(matrix, num_classes).items()}, "confusion": matrix.tolist()}
+    scores = confusion_scores(matrix, num_classes)
+    return {**{name: float(scores[key]) for name, key in OFFROAD_SCORES.items()}, "confusion": matrix.tolist()}
 
 
-def confusion_scores(matrix, num_classes: int) -> dict[str, np.ndarray]:
-    """``segmentation_scores``' ``pixel_accuracy``, ``miou``, ``precision``, ``recall`` and ``fpr`` of
-    confusion matrices (..., num_classes + 1, num_classes + 1) (rows: truth; the last column: unknown),
-    each (...,); NaN where no class defines the metric. Sums of per-frame matrices give pooled scores."""
-    matrix = np.asarray(matrix, np.float64)
-    if matrix.shape[-2:] != (num_classes + 1, num_classes + 1):
-        raise ValueError(f"matrix: expected (..., {num_classes + 1}, {num_classes + 1}) counts, got {matrix.shape}")
-    tp = np.diagonal(matrix, axis1=-2, axis2=-1)
-    actual, predicted, total = matrix.sum(-1), matrix.sum(-2), matrix.sum((-2, -1))
-    classes = slice(0, num_classes)
-    per_class = {"miou": (tp, actual + predicted - tp), "precision": (tp, predicted), "recall": (tp, actual),
-                 "fpr": (predicted - tp, total[..., None] - actual)}
-    with np.errstate(invalid="ignore", divide="ignore"):
-        out = {"pixel_accuracy": np.where(total > 0, tp.sum(-1) / np.maximum(total, 1), np.nan)}
-        for name, (numerator, denominator) in per_class.items():
-            defined = denominator[..., classes] > 0
-            ratio = np.where(defined, numerator[..., classes] / np.where(defined, denominator[..., classes], 1), 0.0)
-            count = defined.sum(-1)
-            out[name] = np.where(count > 0, ratio.sum(-1) / np.maximum(count, 1), np.nan)
-    return out
+# The off-road paper's names -> the keys of ``metrics.confusion_scores``.
+OFFROAD_SCORES = {"pixel_accuracy": "pixel_accuracy", "miou": "miou", "precision": "mean_precision",
+                  "recall": "class_accuracy", "fpr": "mean_fpr"}
 
 
 def active_round(key, model: OffroadModel, base: AnnotatedFrames, images: np.ndarray,

@@ -38,6 +38,7 @@ from typing import Callable, Iterable, Iterator, Sequence
 import numpy as np
 
 from jaxanom.app.outputs import inside
+from jaxanom.config_codec import encode
 from jaxanom.errors import InputError
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".webp")
@@ -190,7 +191,7 @@ def settings_record(settings: PredictSettings, *, network: str, statistics: str 
     """What decides the maps: ``settings`` (but the batch size, which does not change them), the
     ``fingerprint`` of the network (its experiment and the variables restored) and of the
     statistics (mean and std; None without), and, for the reader only, where they were read."""
-    record = {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(settings).items()}
+    record = encode(settings)
     del record["batch_size"]
     return {**record, "network": network, "statistics": statistics, READ_FROM: read_from}
 

@@ -42,6 +42,17 @@ def size_hw(text: str | None) -> tuple[int, int] | None:
     return int(parts[0]), int(parts[1])
 
 
+def add_config(parser, config_help: str | None = None) -> None:
+    """``--set NAME=VALUE`` (repeatable; the app function's ``overrides``) and, with ``config_help``,
+    ``--config FILE``."""
+    if config_help:
+        parser.add_argument("--config", help=config_help)
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="set one field of the configuration by its dotted name, after --config and the other "
+                        "flags, e.g. --set train.optim.lr=1e-3; VALUE is read as the field's type (none, true / "
+                        "false, comma-separated lists, JSON); repeatable")
+
+
 def add_common(parser, progress: bool, overwrite: bool = True) -> None:
     """``--overwrite`` and ``--no-progress`` where a command has them."""
     if overwrite:

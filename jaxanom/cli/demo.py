@@ -1,7 +1,7 @@
 """``jaxanom demo``: train, fit SML statistics and evaluate on synthetic scenes."""
 from __future__ import annotations
 
-from jaxanom.cli.common import add_common, positive_int
+from jaxanom.cli.common import add_common, add_config, positive_int
 
 
 def add_parser(commands) -> None:
@@ -17,16 +17,16 @@ def add_parser(commands) -> None:
     parser.add_argument("--quick", action="store_true",
                         help="a smoke run of the same path at tiny sizes (minutes on a CPU, mostly compiling)")
     parser.add_argument("--steps", type=positive_int, help="training steps (default: 1500; --quick: 3)")
-    parser.add_argument("--config", help="offroad: a JSON file of OffroadDemoConfig fields; mmf: a JSON file of "
-                        "MMFDemoConfig fields, e.g. the \"config\" of a results.json (every trainable part)")
     parser.add_argument("--synthesizer", choices=["class_mean", "spade"],
                         help="mmf: the resynthesis (default: class_mean)")
+    add_config(parser, "the demo's configuration (DemoConfig, MMFDemoConfig or OffroadDemoConfig): a JSON file of "
+               "any of its fields, e.g. a results.json of the same demo, or a Python file defining `config`")
     add_common(parser, progress=True)
-    parser.set_defaults(handler=run)
+    parser.set_defaults(handler=run, aliases={"overrides": "set"})
 
 
 def run(args) -> None:
     from jaxanom.app.commands.demo import demo
 
     demo(args.paper, out=args.out, quick=args.quick, steps=args.steps, config=args.config,
-         synthesizer=args.synthesizer, overwrite=args.overwrite, progress=not args.no_progress)
+         synthesizer=args.synthesizer, overrides=args.set, overwrite=args.overwrite, progress=not args.no_progress)

@@ -1,7 +1,7 @@
 """``jaxanom predict``: anomaly maps of image files (npy, png, SegmentMeIfYouCan's hdf5 tree)."""
 from __future__ import annotations
 
-from jaxanom.cli.common import add_common, add_methods, positive_int, size_hw
+from jaxanom.cli.common import add_common, add_config, add_methods, positive_int, size_hw
 from jaxanom.errors import InputError
 
 
@@ -37,8 +37,9 @@ def add_parser(commands) -> None:
     parser.add_argument("--unit-interval", metavar="CENTER,SCALE",
                         help="write 1 / (1 + exp(-(score - CENTER) / SCALE)) in [0, 1] instead of each score (the "
                         "benchmark documents scores in [0, 1]); AP / AUROC / FPR keep their values, float16 ties do not")
+    add_config(parser)  # the PredictSettings, e.g. --set size=512,1024
     add_common(parser, progress=True)
-    parser.set_defaults(handler=run, aliases={"formats": "format", "plugins": "plugin"})
+    parser.set_defaults(handler=run, aliases={"formats": "format", "plugins": "plugin", "overrides": "set"})
 
 
 def run(args) -> None:
@@ -47,7 +48,7 @@ def run(args) -> None:
     predict(args.images, run=args.run, out=args.out, methods=args.methods, plugins=args.plugin, stats=args.stats,
             formats=args.format, size=size_hw(args.size), batch_size=args.batch_size, dataset=args.dataset,
             slic_step=args.slic_step, cudam_sigma=args.cudam_sigma, unit_interval=_pair(args.unit_interval),
-            overwrite=args.overwrite, progress=not args.no_progress)
+            overrides=args.set, overwrite=args.overwrite, progress=not args.no_progress)
 
 
 def _pair(text: str | None) -> tuple[float, float] | None:

@@ -1,17 +1,16 @@
 """``jaxanom train``: train a network from a config file or flags; ``--resume`` continues."""
 from __future__ import annotations
 
-from jaxanom.cli.common import add_common, nonnegative_int, positive_int
+from jaxanom.cli.common import add_common, add_config, nonnegative_int, positive_int
 
 
 def add_parser(commands) -> None:
     parser = commands.add_parser("train", help="train a network (config file or flags); --resume continues",
                                  description="Train a DeepLabV3+ (optionally with CuDAM or MSAAM). A config file is "
-                                 "a Python file that defines `experiment`, a jaxanom.app.experiment.Experiment; flags "
-                                 "override its fields.")
+                                 "a Python file that defines `experiment`, a jaxanom.app.experiment.Experiment, or its "
+                                 "JSON (a run's experiment.json); flags, then --set, override its fields.")
     parser.add_argument("--out", required=True, help="run folder (checkpoints, logs, experiment.json); "
                         "must be new or empty unless --resume")
-    parser.add_argument("--config", help="Python file defining `experiment = Experiment(...)`")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     parser.add_argument("--model", help="model preset, e.g. deeplabv3plus_tiny, deeplabv3plus_r101")
     parser.add_argument("--attention", choices=["none", "cudam", "msaam"], help="attention module")
@@ -36,8 +35,10 @@ def add_parser(commands) -> None:
                         help="CuDAM reward weight (Eq. 4); default: the CuDAM objective's, the paper's 5e4 rescaled to "
                         "this network's attention-map size at the crop size (equivalent_weight), unless a config file "
                         "set another tau; the value used is printed")
+    add_config(parser, "Python file defining `experiment = Experiment(...)`, or an Experiment's JSON "
+               "(e.g. a run's experiment.json)")
     add_common(parser, progress=True, overwrite=False)
-    parser.set_defaults(handler=run)
+    parser.set_defaults(handler=run, aliases={"overrides": "set"})
 
 
 def run(args) -> None:
@@ -47,4 +48,4 @@ def run(args) -> None:
           data=args.data, data_root=args.data_root, steps=args.steps, batch_size=args.batch_size, seed=args.seed,
           distributed=args.distributed, init_from=args.init_from, init_modules=args.init_modules,
           cudam_position=args.cudam_position, cudam_gate=args.cudam_gate, cudam_tau=args.cudam_tau,
-          progress=not args.no_progress)
+          overrides=args.set, progress=not args.no_progress)

@@ -14,6 +14,7 @@ can be from the exact ones, from the histograms alone (see ``binned_error_bounds
 """
 from __future__ import annotations
 
+import copy
 from functools import partial
 
 import jax
@@ -60,6 +61,22 @@ class AnomalyMetricAccumulator:
                 self._add_binned(scores, labels)
         for name, value in counts.items():
             self.counts[name] += value
+
+    def merge(self, other: "AnomalyMetricAccumulator") -> "AnomalyMetricAccumulator":
+        """A new accumulator of the images of both (``self``'s first); neither is changed. Its
+        ``compute`` equals that of one accumulator fed all the images."""
+        if (other.mode, other.score_range, other.num_bins) != (self.mode, self.score_range, self.num_bins):
+            raise ValueError(f"other: expected an accumulator of mode {self.mode!r}, score_range {self.score_range}, "
+                             f"num_bins {self.num_bins}; got {other.mode!r}, {other.score_range}, {other.num_bins}")
+        if None not in (self.float64_keys, other.float64_keys) and self.float64_keys != other.float64_keys:
+            raise ValueError("other: expected scores of the same precision (float64 or not) as this accumulator's")
+        merged = copy.copy(self)
+        merged.images = self.images + other.images
+        merged.counts = {name: value + other.counts[name] for name, value in self.counts.items()}
+        merged.float64_keys = self.float64_keys if self.float64_keys is not None else other.float64_keys
+        if self.mode == "binned":
+            merged.histogram = self.histogram + other.histogram
+        return merged
 
     def _add_exact(self, scores, labels) -> None:
         float64 = scores.dtype == jnp.float64

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxanom._batching import over_images
-from jaxanom._validate import check_finite, check_integer, check_rank, is_concrete
+from jaxanom._validate import check_finite, check_integer, check_rank, values_checked
 
 
 def _segment_means(values: jax.Array, labels: jax.Array, counts: jax.Array, k: int) -> jax.Array:
@@ -173,7 +173,7 @@ def _check(anomaly, road_probability, labels, num_segments, block_rows, batched:
         raise ValueError(f"block_rows must be None or an integer >= 1, got {block_rows!r}")
     check_finite("anomaly", anomaly)
     check_finite("road_probability", road_probability)
-    if is_concrete(labels) and np.size(labels):
+    if values_checked(labels) and np.size(labels):
         low, high = int(np.min(labels)), int(np.max(labels))
         if low < 0 or high >= num_segments:
             raise ValueError(f"labels must lie in [0, num_segments) = [0, {num_segments}), got values in [{low}, {high}]")

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_integer, check_rank, is_concrete
+from jaxanom._validate import check_integer, check_rank, values_checked
 from jaxanom.models.spade_generator import SPADEGenerator
 
 UNKNOWN = 255
@@ -76,7 +76,7 @@ class ClassMeanSynthesizer:
     def _checked(self, semantic, rank: int, layout: str) -> jax.Array:
         check_rank("semantic", semantic, rank, layout)
         check_integer("semantic", semantic)
-        if is_concrete(semantic):
+        if values_checked(semantic):
             values = np.asarray(semantic)
             bad = ~(((values >= 0) & (values < len(self.means) - 1)) | (values == UNKNOWN))
             if bad.any():

@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_integer, check_rank, is_concrete
+from jaxanom._validate import check_integer, check_rank, values_checked
 from jaxanom.nn.layers import Dtype
 from jaxanom.nn.spade import SPADE, one_hot_semantic, resize_nearest
 
@@ -31,12 +31,12 @@ UNKNOWN = 255
 
 def check_semantic(semantic, num_classes: int, multiple: int) -> None:
     """ValueError unless ``semantic`` is (B, H, W) int with H, W divisible by ``multiple`` and
-    (when concrete) values in [0, num_classes) or 255."""
+    (when on the host, ``_validate.values_checked``) values in [0, num_classes) or 255."""
     check_rank("semantic", semantic, 3, "(B, H, W)")
     check_integer("semantic", semantic)
     if semantic.shape[1] % multiple or semantic.shape[2] % multiple:
         raise ValueError(f"semantic: expected H and W divisible by {multiple}, got shape {semantic.shape}")
-    if is_concrete(semantic):
+    if values_checked(semantic):
         values = np.asarray(semantic)
         bad = ~(((values >= 0) & (values < num_classes)) | (values == UNKNOWN))
         if bad.any():

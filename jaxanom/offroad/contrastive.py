@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_finite, check_rank, is_concrete
+from jaxanom._validate import check_finite, check_rank, values_checked
 
 
 def info_nce_per_query(z: jax.Array, z_pos: jax.Array, z_neg: jax.Array, temperature) -> jax.Array:
@@ -36,7 +36,7 @@ def info_nce(z, z_pos, z_neg, mask=None, temperature=0.1) -> jax.Array:
         raise ValueError(f"z_neg must have shape (Q, n, D) with Q={q}, D={d}, got {np.shape(z_neg)}")
     if mask is not None and np.shape(mask) != (q,):
         raise ValueError(f"mask must have shape (Q,) = {(q,)}, got {np.shape(mask)}")
-    if is_concrete(temperature) and not float(temperature) > 0:
+    if values_checked(temperature) and not float(temperature) > 0:
         raise ValueError(f"temperature must be > 0, got {temperature}")
     for name, x in (("z", z), ("z_pos", z_pos), ("z_neg", z_neg)):
         check_finite(name, x)

@@ -27,7 +27,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_finite, check_integer, check_labels, check_number, check_rank, is_concrete
+from jaxanom._validate import (check_finite, check_integer, check_labels, check_number, check_rank, is_concrete,
+                               values_checked)
 from jaxanom.mixture import GaussianMixture, log_gaussian
 
 VOID = 255  # label of pixels that no window covers
@@ -271,7 +272,7 @@ def _check_vote_args(centers, labels, risks, patch_size, height, width, num_labe
     for name, value in (("patch_size", patch_size), ("height", height), ("width", width), ("num_labels", num_labels)):
         if int(value) < 1:
             raise ValueError(f"{name} must be >= 1, got {value}")
-    if is_concrete(labels):
+    if values_checked(labels):
         values = np.asarray(labels)
         if values.size and (values.min() < 0 or values.max() >= num_labels):
             raise ValueError(f"labels must lie in [0, {num_labels}), got range [{values.min()}, {values.max()}]")

@@ -33,7 +33,7 @@ import jax
 import numpy as np
 
 from jaxanom._validate import check_count
-from jaxanom.metrics.segmentation import miou, pixel_accuracy
+from jaxanom.metrics.segmentation import confusion_scores
 from jaxanom.train.checkpoint import Checkpointer
 from jaxanom.train.optim import OptimConfig, make_optimizer
 from jaxanom.train.runlog import RunLog
@@ -113,8 +113,8 @@ def evaluate(eval_step, variables, batches: Iterable[dict], mesh, ignore: int, m
         total = confusion if total is None else total + confusion
     if total is None:
         raise ValueError("val_data: expected at least one batch, got none")
-    confusion = np.asarray(jax.device_get(total))
-    return {"val/miou": miou(confusion), "val/pixel_accuracy": pixel_accuracy(confusion)}
+    scores = confusion_scores(np.asarray(jax.device_get(total)))
+    return {"val/miou": scores["miou"], "val/pixel_accuracy": scores["pixel_accuracy"]}
 
 
 def check_batch(batch: Any, num_classes: int, ignore: int) -> None:

@@ -1,4 +1,5 @@
-"""What the scoring commands read besides their data: method names, plug-ins, SML statistics."""
+"""What the commands read besides their data: method names, plug-ins, SML statistics, config
+files and ``NAME=VALUE`` overrides of a config's fields."""
 from __future__ import annotations
 
 from jaxanom.errors import InputError, reading
@@ -35,3 +36,23 @@ def load_stats(path: str | None):
     return mean, std
 
 
+def read_config(path: str, cls, variable: str = "config"):
+    """The ``cls`` of the config file ``path`` (JSON, or Python defining ``variable``; see
+    ``jaxanom.app.configs``); InputError naming ``config``, the file and the field's dotted name."""
+    from jaxanom.app.configs import ConfigError, load_config
+
+    try:
+        return load_config(path, cls, variable)
+    except ConfigError as error:
+        raise InputError("config", str(error)) from None
+
+
+def with_overrides(config, overrides=()):
+    """``config`` with each ``"dotted.name=VALUE"`` of ``overrides`` applied (``--set``), checked whole
+    before any work; InputError naming ``overrides`` and the field's dotted name."""
+    from jaxanom.app.configs import ConfigError, override
+
+    try:
+        return override(config, overrides)
+    except ConfigError as error:
+        raise InputError("overrides", str(error)) from None

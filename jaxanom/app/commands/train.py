@@ -3,13 +3,13 @@ fields overridden; ``resume`` continues a run from its last checkpoint."""
 from __future__ import annotations
 
 import dataclasses
-import runpy
 from pathlib import Path
 
+from jaxanom.app.commands.inputs import read_config, with_overrides
 from jaxanom.app.outputs import CLAIM, claim, out_folder
 from jaxanom.errors import InputError, reading
 
-__all__ = ["load_config", "train"]
+__all__ = ["train"]
 
 
 def train(*, out: str, config: str | None = None, resume: bool = False, model: str | None = None,
@@ -17,15 +17,18 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
           steps: int | None = None, batch_size: int | None = None, seed: int | None = None,
           distributed: bool = False, init_from: str | None = None, init_modules: str | None = None,
           cudam_position: str | None = None, cudam_gate: str | None = None, cudam_tau: float | None = None,
-          progress: bool = True) -> None:
-    """Train into the new or empty run folder ``out`` the experiment of the Python file ``config``
-    (or the defaults; with ``init_from``, that run's network), each argument given (not None)
-    replacing its field; ``attention="none"`` trains without an attention module, and an
-    ``attention`` given also sets its paper's objective unless the config's agrees. ``resume``
-    continues ``out``'s own run. ``distributed``: one process per host (``jax.distributed``)."""
+          overrides=(), progress: bool = True) -> None:
+    """Train into the new or empty run folder ``out`` the experiment of the file ``config`` (a
+    Python file defining ``experiment``, or an Experiment's JSON such as a run's experiment.json;
+    without it the defaults, or with ``init_from`` that run's network), each argument given (not
+    None) replacing its field, then each ``"dotted.name=VALUE"`` of ``overrides``;
+    ``attention="none"`` trains without an attention module, and an ``attention`` given also sets
+    its paper's objective unless the config's agrees. ``resume`` continues ``out``'s own run.
+    ``distributed``: one process per host (``jax.distributed``)."""
     import jax
 
-    from jaxanom.app.experiment import attention_positions, check_objective, load_experiment, run_training
+    from jaxanom.app.experiment import (Experiment, attention_positions, check_objective, load_experiment,
+                                        run_training)
     from jaxanom.train.loop import NonFiniteLossError
 
     if distributed:  # before any JAX work: loading the data or the model may touch devices
@@ -44,7 +47,7 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
         if lead:
             claim(out_dir / CLAIM, out_dir)
     else:
-        experiment = load_config(config) if config else _base_experiment(init_from)
+        experiment = read_config(config, Experiment, "experiment") if config else _base_experiment(init_from)
         if lead:
             out_folder(out, overwrite=False, hint="continue the run there with {resume}")
     with reading("experiment"):  # the fields' own checks (Experiment, TrainConfig, the objective)
@@ -52,6 +55,7 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
                                steps=steps, batch_size=batch_size, seed=seed, distributed=distributed,
                                init_from=init_from, init_modules=init_modules, cudam_position=cudam_position,
                                cudam_gate=cudam_gate, cudam_tau=cudam_tau)
+        experiment = with_overrides(experiment, overrides)
         check_objective(experiment)
     if experiment.train.objective.name == "cudam":
         positions = attention_positions(experiment, *experiment.crop)
@@ -60,30 +64,12 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
     try:
         run_training(experiment, out_dir, progress=progress)
     except NonFiniteLossError as error:
-        raise InputError("config", f"the run diverged: {error}. {{resume}} repeats the same steps from there; start a "
-                         f"new run with a lower learning rate (optim.lr, now {experiment.train.optim.lr:g}) or "
-                         "gradient clipping (optim.clip_norm) in {config}", mentions=("resume",)) from None
+        raise InputError("overrides", f"the run diverged: {error}. {{resume}} repeats the same steps from there; start "
+                         f"a new run with a lower learning rate ({{overrides}} train.optim.lr=..., now "
+                         f"{experiment.train.optim.lr:g}) or gradient clipping ({{overrides}} train.optim.clip_norm=...)",
+                         mentions=("resume",)) from None
     print(f"trained {experiment.train.steps} steps on {jax.device_count()} devices ({jax.process_count()} "
           f"processes); checkpoints in {out_dir / 'checkpoints'}")
-
-
-def load_config(path: str):
-    """The ``experiment`` that a config file defines."""
-    from jaxanom.app.experiment import Experiment
-
-    if not Path(path).is_file():
-        raise InputError("config", f"{path}: no such file")
-    try:
-        experiment = runpy.run_path(path).get("experiment")
-    except SystemExit as stop:
-        raise InputError("config", f"{path}: called sys.exit({stop.code!r}) instead of defining `experiment`") from None
-    except Exception as error:  # the config is the user's Python: any failure is a bad config, in one line
-        where = f" (line {error.lineno})" if isinstance(error, SyntaxError) else ""
-        raise InputError("config", f"{path}: {type(error).__name__}{where}: {error}") from None
-    if not isinstance(experiment, Experiment):
-        raise InputError("config", f"{path}: expected it to define `experiment = Experiment(...)`, "
-                         f"found {type(experiment).__name__}")
-    return experiment
 
 
 def _base_experiment(init_from: str | None):

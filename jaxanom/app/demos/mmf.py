@@ -8,7 +8,6 @@ dissimilarity a | superpixels | final score (Eq. 6).
 """
 from __future__ import annotations
 
-import dataclasses
 import time
 from pathlib import Path
 
@@ -17,6 +16,7 @@ import numpy as np
 from jaxanom.app.evaluate import anomaly_results
 from jaxanom.app.mmf_experiment import MMFDemoConfig, evaluation_frames
 from jaxanom.app.mmf_pipeline import MMFPipeline, scored_batches
+from jaxanom.config_codec import encode
 from jaxanom.io import write_bytes_atomic, write_json_atomic
 
 # Table 2's rows: (method, assistant maps, post-processor)
@@ -79,7 +79,7 @@ def run_mmf_demo(out_dir: str | Path, config: MMFDemoConfig = MMFDemoConfig(), *
     text = table(metrics)
     results = {"metrics": metrics, "frames": len(source), "split": config.anomaly_split,
                "seconds": {"training": trained, "total": time.perf_counter() - tick},
-               "config": dataclasses.asdict(config)}
+               "config": encode(config)}
     write_json_atomic(out_dir / "results.json", results)
     write_bytes_atomic(out_dir / "table.md", (text + "\n").encode())
     log(text)

@@ -11,8 +11,6 @@ labels | voted labels | risk map | CRF labels, titled, with a class legend and a
 """
 from __future__ import annotations
 
-import dataclasses
-import json
 import time
 from pathlib import Path
 
@@ -23,6 +21,7 @@ from jaxanom.app.offroad_experiment import (OffroadDemoConfig, annotated, as_flo
                                             source_frames)
 from jaxanom.app.offroad_pipeline import (OffroadModel, active_round, learn, segment, segmentation_scores,
                                           sequence_risk_sweep, to_classes)
+from jaxanom.config_codec import encode
 from jaxanom.io import write_json_atomic
 from jaxanom.offroad.risk import mean_frame_risk, scene_coverage
 
@@ -136,7 +135,7 @@ def run_offroad_demo(out_dir: str | Path, config: OffroadDemoConfig = OffroadDem
                             "mflr_after": mean_frame_risk(flr_active_after),
                             "coverage_after": scene_coverage(flr_active_after, pipe.epsilon), "hard_frames": chosen},
         "test_before": before, "test_after": after, "seconds": time.perf_counter() - started,
-        "config": json.loads(json.dumps(dataclasses.asdict(config), default=str)),
+        "config": encode(config),
     }
     write_json_atomic(out_dir / "results.json", results)
     log(results_table(results))

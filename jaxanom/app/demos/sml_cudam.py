@@ -18,6 +18,7 @@ from jaxanom.cudam_objective import CuDAM
 from jaxanom.cudam_score import PAPER_TEST_POSITIONS, PAPER_TRAIN_POSITIONS, equivalent_weight
 from jaxanom.data.synthetic import ANOMALY_SPLITS
 from jaxanom.app.evaluate import anomaly_results, class_statistics, predictions, predictor, segmentation_results
+from jaxanom.config_codec import encode
 from jaxanom.app.experiment import Experiment, build_network, frames, run_training
 from jaxanom.app.reports import results_table, write_pictures
 from jaxanom.io import write_json_atomic
@@ -107,7 +108,7 @@ def run_demo(out_dir: str | Path, config: DemoConfig = DemoConfig(), *, progress
     plot_curves(out_dir / "pr.png", {n: c["pr"] for n, c in curves.items()}, kind="pr")
     results = {"anomaly": {"split": config.anomaly_split, "frames": config.anomaly_frames, "metrics": metrics},
                "segmentation": segmentation, "sml_classes_never_predicted": never_predicted,
-               "experiment": experiment.to_dict()}
+               "config": encode(config)}
     write_json_atomic(out_dir / "results.json", results)
     log(results_table(metrics, segmentation))
     log(f"results in {out_dir}/ (results.json, roc.png, pr.png, frame_*.png)")
