@@ -39,7 +39,7 @@ from experiments.common import (COMPETENT_MIOU, HERE, RUNS, TABLE_BINS, Scale, _
 from experiments.jobs import Job
 from experiments.stats import binned_auroc, binned_metrics, hierarchical, hierarchical_draws
 from jaxanom import sml
-from jaxanom.app.demos.mmf import MMFDemoConfig, evaluation_frames
+from jaxanom.app.mmf_experiment import MMFDemoConfig, evaluation_frames
 from jaxanom.app.evaluate import anomaly_results, class_statistics, predictions, predictor, segmentation_results
 from jaxanom.app.experiment import frames
 from jaxanom.app.mmf_pipeline import DISSIM_NETS, DISSIM_VARIANTS, MMFConfig, MMFPipeline, module_calls, scored_batch

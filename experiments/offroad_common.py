@@ -38,7 +38,7 @@ from experiments.common import Finding, Scale, _cell, _delta, _row_json, _tested
 from experiments.jobs import Job
 from experiments.stats import hierarchical, hierarchical_draws
 from jaxanom.io import write_bytes_atomic, write_json_atomic
-from jaxanom.app.demos.offroad import OffroadDemoConfig, annotated, source_frames
+from jaxanom.app.offroad_experiment import OffroadDemoConfig, annotated, source_frames
 from jaxanom.offroad.encoder import AnnotatedFrames
 from jaxanom.app.offroad_pipeline import OffroadModel, learn
 

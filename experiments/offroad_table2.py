@@ -34,7 +34,7 @@ from scipy.stats import spearmanr
 from experiments.common import HERE, RUNS, Finding, Scale, _cell
 from experiments.offroad_common import PER_FRAME, OffroadSizes, beats, chain, model_on_a, run_seeds
 from jaxanom.offroad.active import random_frames, select_hard_frames, uniform_frames
-from jaxanom.app.demos.offroad import Source, annotated, as_float, num_classes, source_frames
+from jaxanom.app.offroad_experiment import Source, annotated, as_float, num_classes, source_frames
 from jaxanom.offroad.encoder import concat_frames
 from jaxanom.app.offroad_pipeline import (active_round, segment, segmentation_scores, sequence_risk_sweep, to_classes,
                                       update_model)

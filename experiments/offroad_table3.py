@@ -34,7 +34,7 @@ from experiments.common import HERE, RUNS, Finding, Scale
 from experiments.offroad_common import PER_FRAME, OffroadSizes, beats, model_on_a, not_beaten, run_seeds
 from jaxanom.data.offroad import GRANULARITIES
 from jaxanom.offroad.active import select_hard_frames
-from jaxanom.app.demos.offroad import Source, annotated, as_float, source_frames
+from jaxanom.app.offroad_experiment import Source, annotated, as_float, source_frames
 from jaxanom.offroad.encoder import AnnotatedFrames, concat_frames
 from jaxanom.app.offroad_pipeline import (crf_labels, fine_tune, fit_category_model, segment,
                                           segment_supervised, segmentation_scores, sequence_risk_sweep, to_classes)

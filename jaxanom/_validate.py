@@ -1,6 +1,7 @@
 """Input checks for the public, eager entry points.
 
-Each check raises ``ValueError`` naming the argument, what was expected and what came.
+Each check raises ``ValueError`` naming the argument, what was expected and what came (the
+count and number checks an ``InputError``, whose argument a caller can spell as its own).
 Shapes, ranks and dtypes are checked always: they are known without the data, even while tracing.
 Values (finiteness, signs, ranges, class indices) are checked where the data already is on the
 host: a NumPy array, a list or a Python number is read by NumPy, which copies nothing. A
@@ -18,6 +19,8 @@ import contextvars
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from jaxanom.errors import InputError
 
 _READ_DEVICE_ARRAYS = contextvars.ContextVar("jaxanom_validate_values", default=False)
 
@@ -137,21 +140,21 @@ def check_range(name: str, x, low: float, high: float, hint: str = "") -> None:
 def check_count(name: str, value, minimum: int = 1, maximum: int = 2**31 - 1) -> int:
     """A whole number (int, or an integer NumPy scalar; not bool, not float) in ``[minimum, maximum]``."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r} ({type(value).__name__})")
+        raise InputError(name, f"must be an integer >= {minimum}, got {value!r} ({type(value).__name__})")
     if value < minimum:
-        raise ValueError(f"{name} must be >= {minimum}, got {value}")
+        raise InputError(name, f"must be >= {minimum}, got {value}")
     if value > maximum:
-        raise ValueError(f"{name} must be <= {maximum}, got {value}")
+        raise InputError(name, f"must be <= {maximum}, got {value}")
     return int(value)
 
 
 def check_number(name: str, value, low: float = -np.inf, high: float = np.inf, *, open_low: bool = False) -> float:
     """A finite real number (int or float; not bool, not str) in ``[low, high]`` (``(low, high]`` with ``open_low``)."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise ValueError(f"{name} must be a number, got {value!r} ({type(value).__name__})")
+        raise InputError(name, f"must be a number, got {value!r} ({type(value).__name__})")
     inside = (value > low if open_low else value >= low) and value <= high
     if not (np.isfinite(value) and inside):
-        raise ValueError(f"{name} must be a finite number in {'(' if open_low else '['}{low}, {high}], got {value!r}")
+        raise InputError(name, f"must be a finite number in {'(' if open_low else '['}{low}, {high}], got {value!r}")
     return float(value)
 
 

@@ -23,6 +23,8 @@ import types
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
 
+from jaxanom.errors import InputError
+
 ENTRY_POINTS = "jaxanom.methods"
 
 # What a batch can give the methods, and how a missing input is described in an error.
@@ -101,7 +103,7 @@ def get(name: str) -> Method:
     """The method called ``name``; ValueError naming it and the known names otherwise."""
     _load()
     if name not in _METHODS:
-        raise ValueError(f"methods: expected names from {', '.join(_METHODS)}; got unknown {name!r}")
+        raise InputError("methods", f": expected names from {', '.join(_METHODS)}; got unknown {name!r}")
     return _METHODS[name]
 
 
@@ -122,14 +124,14 @@ def check(method_names: Iterable[str], provided: Iterable[str], options: Options
     _load()
     unknown = [n for n in selected if n not in _METHODS]
     if unknown or not selected:
-        raise ValueError(f"methods: expected names from {', '.join(_METHODS)}; got {list(selected)}")
+        raise InputError("methods", f": expected names from {', '.join(_METHODS)}; got {list(selected)}")
     provided = set(provided)
     for key in INPUTS:  # the first missing input, with every method that needs it
         if key not in provided and (missing := [n for n in selected if key in _METHODS[n].needs]):
-            raise ValueError(f"methods {missing} need {INPUTS[key]}; none were given")
+            raise InputError("methods", f"{missing} need {INPUTS[key]}; none were given")
     declared = {k for m in _METHODS.values() for k in m.defaults}
     if stray := sorted(set(options or {}) - declared):
-        raise ValueError(f"options: expected names from {sorted(declared)}, got {stray}")
+        raise InputError("options", f": expected names from {sorted(declared)}, got {stray}")
     return selected
 
 

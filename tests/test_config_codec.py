@@ -12,11 +12,11 @@ from hypothesis import HealthCheck, given, reject, settings
 from hypothesis import strategies as st
 
 from jaxanom.app.configs import load_config
-from jaxanom.app.demos.mmf import MMFDemoConfig
-from jaxanom.app.demos.offroad import OffroadDemoConfig, Source
 from jaxanom.app.demos.sml_cudam import DemoConfig
 from jaxanom.app.experiment import Experiment, jsonable, load_experiment
+from jaxanom.app.mmf_experiment import MMFDemoConfig
 from jaxanom.app.mmf_pipeline import MMFConfig
+from jaxanom.app.offroad_experiment import OffroadDemoConfig, Source
 from jaxanom.app.predict import PredictSettings
 from jaxanom.cli import main
 from jaxanom.config_codec import ConfigError, decode, encode, override
@@ -357,6 +357,24 @@ def test_train_and_demo_take_the_same_files_and_set(tmp_path, started, capsys):
     quick = DemoConfig.quick()
     assert started.pop() == dataclasses.replace(quick, experiment=dataclasses.replace(
         quick.experiment, train=dataclasses.replace(quick.experiment.train, seed=3)))
+
+
+def test_the_command_functions_name_config_and_overrides(tmp_path, started):
+    """A Python caller of ``jaxanom.app.commands`` gets an InputError naming its own argument."""
+    from jaxanom.app.commands.demo import demo
+    from jaxanom.app.commands.train import train
+    from jaxanom.errors import InputError
+
+    with pytest.raises(InputError) as caught:
+        train(out=str(tmp_path / "r"), overrides=["train.optim.lr=fast"], progress=False)
+    assert (caught.value.argument, str(caught.value)) == \
+        ("overrides", "overrides train.optim.lr: expected a number, got 'fast'")
+    (tmp_path / "bad.json").write_text('{"experiment": {"heigth": 3}}')
+    with pytest.raises(InputError) as caught:
+        demo(config=str(tmp_path / "bad.json"), out=str(tmp_path / "d"), progress=False)
+    assert caught.value.argument == "config"
+    assert str(caught.value).startswith(f"config {tmp_path / 'bad.json'}: experiment.heigth: unknown field of Experiment")
+    assert not started
 
 
 @pytest.mark.parametrize("argv, message", [

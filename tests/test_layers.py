@@ -2,7 +2,9 @@
 
 Every ``import`` counts, also those inside functions: a lazy upward import is still an upward
 dependency. Library modules import neither ``jaxanom.app`` nor ``jaxanom.cli``; application
-modules do not import ``jaxanom.cli``; and no group of modules imports itself in a cycle.
+modules do not import ``jaxanom.cli``; and no group of modules imports itself in a cycle. The
+command line reaches jaxanom only through ``jaxanom.app`` and the error types, and the demos
+are leaves: nothing builds on them but the ``demo`` command that runs them (tests may import them).
 """
 import ast
 from pathlib import Path
@@ -10,6 +12,8 @@ from pathlib import Path
 import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "jaxanom"
+REPOSITORY = PACKAGE.parent
+DEMO_RUNNER = "jaxanom.app.commands.demo"  # the one module that imports the demos: it runs them
 
 
 def module_name(path: Path, root: Path) -> str:
@@ -125,3 +129,61 @@ def test_no_package_file_names_the_shared_folder_beside_the_repository():
 def test_the_shared_folder_check_finds_a_docstring_that_names_it(fake_package):
     (fake_package / "app" / "demo.py").write_text('"""See ``../shared/METHODS.md`` section 1."""\n')
     assert files_naming_shared_notes(fake_package) == ["app/demo.py"]
+
+
+def cli_imports_beyond_the_app(graph: dict[str, set[str]]) -> list[str]:
+    """``cli -> module`` for each jaxanom module a ``jaxanom.cli`` module imports other than
+    ``jaxanom.app`` (and below), ``jaxanom.errors`` and ``jaxanom.cli`` itself."""
+    allowed = ("jaxanom.app", "jaxanom.errors", "jaxanom.cli")
+    return sorted(f"{a} -> {b}" for a, deps in graph.items() if layer(a) == 2 for b in deps
+                  if not any(b == p or b.startswith(p + ".") for p in allowed) and b != "jaxanom")
+
+
+def imports_of_demos(files: dict[str, Path]) -> list[str]:
+    """``module -> demo`` for each module of ``files`` ({name: path}) that imports ``jaxanom.app.demos``
+    or one of its modules, but the demos themselves and the demo command."""
+    found = []
+    for name, path in files.items():
+        if name.startswith("jaxanom.app.demos") or name == DEMO_RUNNER:
+            continue
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                targets = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                targets = [node.module] + [f"{node.module}.{alias.name}" for alias in node.names]
+            else:
+                continue
+            found += [f"{name} -> {t}" for t in targets if t == "jaxanom.app.demos" or t.startswith("jaxanom.app.demos.")
+                      and t.count(".") == 3]
+    return sorted(set(found))
+
+
+def source_files(root: Path = REPOSITORY) -> dict[str, Path]:
+    """The modules of the package, the experiments and the benchmarks (not the tests)."""
+    return {module_name(path, root / folder): path
+            for folder in ("jaxanom", "experiments", "benchmarks") for path in (root / folder).rglob("*.py")}
+
+
+def test_the_cli_imports_only_the_application_and_the_errors():
+    assert cli_imports_beyond_the_app(import_graph()) == []
+
+
+def test_nothing_but_the_demo_command_imports_a_demo():
+    assert imports_of_demos(source_files()) == []
+
+
+def test_the_cli_and_demo_checks_find_what_they_forbid(fake_package):
+    (fake_package / "cli" / "run.py").write_text("from jaxanom.app import demo\nfrom jaxanom.errors import InputError\n"
+                                                 "def f():\n    from jaxanom.sml import stats\n")
+    (fake_package / "errors.py").write_text("")
+    (fake_package / "sml").mkdir()
+    (fake_package / "sml" / "__init__.py").write_text("")
+    (fake_package / "sml" / "stats.py").write_text("")
+    assert cli_imports_beyond_the_app(import_graph(fake_package)) == ["jaxanom.cli.main -> jaxanom.scores",
+                                                                      "jaxanom.cli.run -> jaxanom.sml.stats"]
+    (fake_package / "app" / "demos").mkdir()
+    (fake_package / "app" / "demos" / "__init__.py").write_text("")
+    (fake_package / "app" / "demos" / "mmf.py").write_text("from jaxanom.app import demo\n")
+    (fake_package / "app" / "experiment.py").write_text("def f():\n    from jaxanom.app.demos.mmf import Config\n")
+    files = {module_name(path, fake_package): path for path in fake_package.rglob("*.py")}
+    assert imports_of_demos(files) == ["jaxanom.app.experiment -> jaxanom.app.demos.mmf"]

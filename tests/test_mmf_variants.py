@@ -83,7 +83,7 @@ def test_scored_batch_gives_the_mmf_rows_the_named_net():
 def test_a_config_with_variants_round_trips_through_json():
     import json
 
-    from jaxanom.app.demos.mmf import MMFDemoConfig
+    from jaxanom.app.mmf_experiment import MMFDemoConfig
     from jaxanom.config_codec import decode, encode
 
     config = MMFDemoConfig(pipeline=dataclasses.replace(QUICK, dissim_variants=("no_depth", "truth_resynthesis")))

@@ -64,7 +64,7 @@ def test_a_deepscene_source_gives_resized_frames_and_five_classes(tmp_path):
     import cv2
     import numpy as np
 
-    from jaxanom.app.demos.offroad import Source, num_classes, source_frames
+    from jaxanom.app.offroad_experiment import Source, num_classes, source_frames
 
     for i in range(3):
         for folder, name, value in (("rgb", f"b{i}-1_Clipped.jpg", (90, 90, 90)), ("GT_color", f"b{i}-1_mask.png", (0, 255, 0))):

@@ -195,7 +195,7 @@ def test_corrupt_image_stops_with_one_line(tiny_run, real_frames, tmp_path, caps
     (["--methods", "sml"], "statistics"),
     (["--methods", "mmf"], "methods"),
     (["--format", "smiyc"], "dataset"),
-    (["--format", "tiff"], "formats"),
+    (["--format", "tiff"], "--format: expected names from"),
     (["--size", "48by96"], "--size"),
     (["--size", "0x96"], "--size"),
     (["--format", "smiyc", "--dataset", "../up"], "dataset"),

@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from jaxanom import sml
-from jaxanom.cli import common
+from jaxanom.app import outputs
+from jaxanom.errors import InputError
+from jaxanom.app.streamed_array import StreamedArray
 from jaxanom.cli import main
 from jaxanom.data.image_io import read_label, read_rgb
 from jaxanom.app.experiment import Experiment, frames
@@ -46,25 +48,25 @@ def test_truncated_image_is_an_error_naming_the_file(tmp_path, ext, reader):
 def test_two_claims_on_one_output_folder(tmp_path):
     out = tmp_path / "out"
     try:
-        common.out_folder(str(out), overwrite=False)
-        with pytest.raises(common.CommandError, match="another jaxanom command is writing there"):
-            common.out_folder(str(out), overwrite=True)
-        assert (out / common.CLAIM).is_file()
+        outputs.out_folder(str(out), overwrite=False)
+        with pytest.raises(InputError, match="another jaxanom command is writing there"):
+            outputs.out_folder(str(out), overwrite=True)
+        assert (out / outputs.CLAIM).is_file()
     finally:
-        common.release_claims()
-    assert not (out / common.CLAIM).exists()
-    common.out_folder(str(out), overwrite=False)  # released: the (still empty) folder can be claimed again
-    common.release_claims()
+        outputs.release_claims()
+    assert not (out / outputs.CLAIM).exists()
+    outputs.out_folder(str(out), overwrite=False)  # released: the (still empty) folder can be claimed again
+    outputs.release_claims()
 
 
 def test_second_command_into_a_claimed_folder_fails_clearly(tmp_path, capsys):
     out = tmp_path / "out"
     out.mkdir()
-    (out / common.CLAIM).write_text(f"{os.getppid()}\n")  # a first command, still running
+    (out / outputs.CLAIM).write_text(f"{os.getppid()}\n")  # a first command, still running
     np.save(tmp_path / "l.npy", np.zeros((1, 3, 4, 5), np.float32))
     code = main(["score", "--logits", str(tmp_path / "l.npy"), "--methods", "msp", "--out", str(out)])
     _one_line_error(capsys, code, "another jaxanom command")
-    assert sorted(p.name for p in out.iterdir()) == [common.CLAIM]  # nothing written, its claim left alone
+    assert sorted(p.name for p in out.iterdir()) == [outputs.CLAIM]  # nothing written, its claim left alone
 
 
 @pytest.mark.parametrize("umask", [0o022, 0o002, 0o077])
@@ -98,7 +100,7 @@ def test_streamed_array_reads_image_by_image(tmp_path, kind):
     else:
         save = np.savez_compressed if kind == "npz_compressed" else np.savez
         save(path, logits=np.asfortranarray(array) if kind == "npz_fortran" else array)
-    streamed = common.StreamedArray(str(path), "logits")
+    streamed = StreamedArray(str(path), "logits")
     assert streamed.shape == array.shape and streamed.dtype == array.dtype
     np.testing.assert_array_equal(np.stack(list(streamed)), array)
 
@@ -203,8 +205,8 @@ def test_failed_train_does_not_block_its_retry(tmp_path, capsys):
                  "--no-progress"])
     _one_line_error(capsys, code, "nowhere")
     assert not run.exists()  # nothing written, the folder it made removed: a retry may start
-    common.out_folder(str(run), overwrite=False)
-    common.release_claims()
+    outputs.out_folder(str(run), overwrite=False)
+    outputs.release_claims()
 
 
 def test_fit_stats_refuses_zero_frames_and_a_folder_as_output(tmp_path, capsys):

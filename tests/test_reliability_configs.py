@@ -8,7 +8,7 @@ import pytest
 
 from jaxanom.cli import main
 from jaxanom.app.configs import encode, load_config
-from jaxanom.app.demos.offroad import OffroadDemoConfig
+from jaxanom.app.offroad_experiment import OffroadDemoConfig
 
 
 class Custom:

@@ -127,3 +127,28 @@ def test_a_full_disk_names_the_file_it_could_not_write(tmp_path, capsys, monkeyp
     error = capsys.readouterr().err.strip()
     assert error.startswith("jaxanom score: error: No space left on device: ") and "msp.npy" in error, error
     assert [p for p in tmp_path.rglob("*") if p.name != "logits.npy"] == []  # nothing half-written is left
+
+
+def test_a_library_bug_keeps_its_traceback_and_bad_input_names_the_flag(monkeypatch, tmp_path, capsys):
+    """A plain ValueError from deep code is a bug, not bad input: it propagates (a traceback), while an
+    InputError is one line with its argument and mentions spelled as the command's flags."""
+    from jaxanom.app.commands import score
+    from jaxanom.errors import InputError
+
+    argv = ["score", "--logits", str(tmp_path / "l.npy"), "--out", str(tmp_path / "o")]
+
+    def bug(**settings):
+        raise ValueError("a shape mismatch deep in the library")
+
+    monkeypatch.setattr(score, "score", bug)
+    with pytest.raises(ValueError, match="deep in the library"):
+        main(argv)
+
+    def bad_input(**settings):
+        raise InputError("any_layout", ": not with {layout} NHWC; see {plugins}", mentions=("layout", "plugins"))
+
+    monkeypatch.setattr(score, "score", bad_input)
+    assert main(argv) == 2
+    assert capsys.readouterr().err.strip() == "jaxanom score: error: --any-layout: not with --layout NHWC; see --plugin"
+    assert str(InputError("any_layout", ": not with {layout} NHWC", mentions=("layout",))) == \
+        "any_layout: not with layout NHWC"

@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxanom.cli import common, main
+from jaxanom.app import outputs
+from jaxanom.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -45,7 +46,7 @@ def _logits(tmp_path, bad_label=False):
 def test_a_claim_of_a_gone_process_is_taken_over_with_its_temporaries(tmp_path, capsys, marker_text):
     out = tmp_path / "out"
     (out / "scores").mkdir(parents=True)
-    (out / common.CLAIM).write_text(marker_text.format(pid=_gone_pid(), host=socket.gethostname()))
+    (out / outputs.CLAIM).write_text(marker_text.format(pid=_gone_pid(), host=socket.gethostname()))
     leftovers = [out / ".metrics.json.k2j3.tmp", out / "scores" / ".msp.npy.x9y8.tmp"]
     for path in leftovers:
         path.write_bytes(b"half")
@@ -53,7 +54,7 @@ def test_a_claim_of_a_gone_process_is_taken_over_with_its_temporaries(tmp_path, 
     error = capsys.readouterr().err
     assert "took over" in error and "removed 2 unfinished" in error and len(error.strip().splitlines()) == 1
     assert not any(path.exists() for path in leftovers)
-    assert (out / "scores" / "msp.npy").is_file() and not (out / common.CLAIM).exists()
+    assert (out / "scores" / "msp.npy").is_file() and not (out / outputs.CLAIM).exists()
 
 
 @pytest.mark.parametrize("owner", ["live", "other host", "not a marker"])
@@ -62,22 +63,22 @@ def test_a_claim_of_a_live_process_or_another_host_still_refuses(tmp_path, capsy
     out.mkdir()
     text = {"live": f"{os.getppid()} {socket.gethostname()} -", "other host": f"{_gone_pid()} elsewhere.example -",
             "not a marker": "hello"}[owner]
-    (out / common.CLAIM).write_text(text)
+    (out / outputs.CLAIM).write_text(text)
     (out / ".x.tmp").write_bytes(b"theirs")
     _one_line(capsys, main([*_logits(tmp_path), "--out", str(out), "--overwrite"]), "another jaxanom command")
-    assert (out / common.CLAIM).read_text() == text and (out / ".x.tmp").exists()
+    assert (out / outputs.CLAIM).read_text() == text and (out / ".x.tmp").exists()
 
 
 def test_a_file_claim_of_a_killed_process_is_taken_over(tmp_path, capsys):
     target = tmp_path / "stats.npz"
-    script = ("import os, signal, sys; from pathlib import Path; from jaxanom.cli.common import claim, CLAIM; "
-              "p = Path(sys.argv[1]); claim(p.parent / (p.name + CLAIM), 'x'); "
+    script = ("import os, signal, sys; from pathlib import Path; from jaxanom.app.outputs import claim, CLAIM; "
+              "p = Path(sys.argv[1]); claim(p.parent / (p.name + CLAIM), p); "
               "(p.parent / ('.' + p.name + '.abc.tmp')).write_bytes(b'half'); os.kill(os.getpid(), signal.SIGKILL)")
     killed = subprocess.run([sys.executable, "-c", script, str(target)], env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert killed.returncode == -signal.SIGKILL
-    assert (tmp_path / f"stats.npz{common.CLAIM}").exists()
-    common.claim(tmp_path / f"stats.npz{common.CLAIM}", "--out")
-    common.release_claims()
+    assert (tmp_path / f"stats.npz{outputs.CLAIM}").exists()
+    outputs.claim(tmp_path / f"stats.npz{outputs.CLAIM}", tmp_path / "stats.npz")
+    outputs.release_claims()
     assert "took over" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == []
 
@@ -86,11 +87,12 @@ _SLOW_COMMAND = """
 import sys, time
 from pathlib import Path
 import numpy as np
-from jaxanom.cli import common, main, score
+from jaxanom.app import outputs
+from jaxanom.cli import main, score
 from jaxanom.io import NpyWriter
 
 def slow(args):  # a command half-way through writing its outputs
-    out = common.out_folder(args.out, args.overwrite)
+    out = outputs.out_folder(args.out, args.overwrite)
     with NpyWriter(out / "scores" / "msp.npy", (2, 3), np.float32) as writer:
         writer.write(np.zeros(3))
         Path(sys.argv[2]).write_text("ready")
@@ -110,7 +112,7 @@ def test_sigterm_unwinds_like_ctrl_c_leaving_nothing(tmp_path):
         while not ready.exists() and child.poll() is None and time.monotonic() < deadline:
             time.sleep(0.1)
         assert ready.exists(), child.stderr.read() if child.poll() is not None else "timed out"
-        assert list(out.rglob("*.tmp")) and (out / common.CLAIM).exists()
+        assert list(out.rglob("*.tmp")) and (out / outputs.CLAIM).exists()
         child.send_signal(signal.SIGTERM)
         error = child.communicate(timeout=60)[1].strip()
     finally:

@@ -12,7 +12,7 @@ import pytest
 import jaxanom.app.evaluate
 from jaxanom.app.runs import write_run
 from jaxanom.cli import main
-from jaxanom.cli.common import CLAIM, claim, release_claims
+from jaxanom.app.outputs import CLAIM, claim, release_claims
 from jaxanom.models import build_model
 
 
@@ -85,7 +85,7 @@ def test_evaluate_spills_its_maps_into_its_out_where_a_take_over_removes_them(ti
     folder.mkdir()  # what a kill -9 during the component pass leaves, under a claim of a process now gone
     (folder / "msp_0.npy").write_bytes(b"x")
     (out / CLAIM).write_text(f"{2**22 + 1} {os.uname().nodename} -\n")
-    claim(out / CLAIM, "--out")  # what the next command on this folder does first
+    claim(out / CLAIM, out)  # what the next command on this folder does first
     release_claims()
     assert not folder.exists()
 

@@ -19,6 +19,7 @@ from jaxanom.metrics import anomaly_metrics, pr_curve, restrict_to_roi, roc_curv
 from jaxanom.metrics.evaluator import (Components, PixelAnomaly, Segmentation, SmiycPixels, run_evaluators,
                                        update_keyed)
 from jaxanom.train.step import model_input
+from jaxanom.errors import InputError
 
 CONVENTIONS = ("exact", "smiyc")  # jaxanom's exact curves; the official SegmentMeIfYouCan kit's bins
 
@@ -247,7 +248,7 @@ def dataset_reader(dataset: str, path: str, *, base: str | None = None, frames: 
     if dataset == "lost-and-found":
         return data.LostAndFound(path)
     if not base:
-        raise ValueError(f"--base: the {dataset} dataset needs the root of its base images")
+        raise InputError("base", f": the {dataset} dataset needs the root of its base images")
     reader = data.FishyscapesLostAndFound if dataset == "fishyscapes-laf" else data.FishyscapesStatic
     return reader(path, base)
 

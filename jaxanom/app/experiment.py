@@ -14,6 +14,7 @@ from typing import Any, Sequence
 import jax
 import numpy as np
 
+from jaxanom.errors import InputError
 from jaxanom._validate import check_count, check_fits_memory, check_number
 from jaxanom.config_codec import encode
 from jaxanom.cudam_objective import CuDAM
@@ -243,18 +244,18 @@ def check_same_run(stored: Experiment, experiment: Experiment, run_dir: str | os
     if differences:
         name, there, here = differences[0]
         more = f" (and {len(differences) - 1} more)" if len(differences) > 1 else ""
-        raise ValueError(f"run_dir: {os.fspath(run_dir)} holds a run of a different experiment: {name} is {there!r} "
+        raise InputError("run_dir", f": {os.fspath(run_dir)} holds a run of a different experiment: {name} is {there!r} "
                          f"there, {here!r} here{more}; choose another folder")
     old, new = stored.train.steps, experiment.train.steps
     if new != old and schedule_depends_on_steps(experiment.train.optim):
-        raise ValueError(
-            f"train.steps: the run in {os.fspath(run_dir)} has {old} steps and its learning rate decays to "
+        raise InputError(
+            "train.steps", f": the run in {os.fspath(run_dir)} has {old} steps and its learning rate decays to "
             f"{experiment.train.optim.end_lr:g} at the last one (poly_power {experiment.train.optim.poly_power:g}), so "
             f"{new} steps would not continue it; start a new run (init_from={os.fspath(run_dir)!r} starts from its "
             "weights) or use a schedule that does not depend on the steps (optim.poly_power=0)")
     trained = _trained_steps(Path(run_dir))
     if trained > new:
-        raise ValueError(f"train.steps: expected at least the {trained} steps the run in {os.fspath(run_dir)} has "
+        raise InputError("train.steps", f": expected at least the {trained} steps the run in {os.fspath(run_dir)} has "
                          f"trained, got {new}")
 
 

@@ -37,7 +37,9 @@ from typing import Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
+from jaxanom.app.outputs import inside
 from jaxanom.config_codec import encode
+from jaxanom.errors import InputError
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".webp")
 FORMATS = ("npy", "png", "smiyc")
@@ -86,22 +88,23 @@ class PredictSettings:
 
         check(self.methods, set(INPUTS) - {"mmf_maps"})  # all a run can give predict (no MMF pipeline)
         if len(set(self.methods)) != len(self.methods) or len(set(self.formats)) != len(self.formats):
-            raise ValueError(f"methods, formats: expected no repeats, got {list(self.methods)}, {list(self.formats)}")
+            raise InputError("methods", ", {formats}: expected no repeats, got "
+                             f"{list(self.methods)}, {list(self.formats)}", mentions=("formats",))
         if not self.formats or any(f not in FORMATS for f in self.formats):
-            raise ValueError(f"formats: expected names from {FORMATS}, got {list(self.formats)}")
+            raise InputError("formats", f": expected names from {FORMATS}, got {list(self.formats)}")
         if self.size is not None and (len(self.size) != 2 or min(self.size) < 1):
-            raise ValueError(f"size: expected (height, width) >= 1, got {self.size}")
+            raise InputError("size", f": expected (height, width) >= 1, got {self.size}")
         if self.batch_size < 1:
-            raise ValueError(f"batch_size: expected >= 1, got {self.batch_size}")
+            raise InputError("batch_size", f": expected >= 1, got {self.batch_size}")
         if "smiyc" in self.formats and self.dataset not in SMIYC_DATASETS:
-            raise ValueError(f"dataset: the smiyc format needs a dataset folder the benchmark's kit reads, one of "
+            raise InputError("dataset", ": the smiyc format needs a dataset folder the benchmark's kit reads, one of "
                              f"{', '.join(SMIYC_DATASETS)} (a split such as AnomalyTrack-validation reads its full "
                              f"set's), got {self.dataset!r}")
         if self.slic_step is not None and self.slic_step < 1:
-            raise ValueError(f"slic_step: expected >= 1, got {self.slic_step}")
+            raise InputError("slic_step", f": expected >= 1, got {self.slic_step}")
         if self.unit_interval is not None and not (len(self.unit_interval) == 2 and np.isfinite(self.unit_interval).all()
                                                    and self.unit_interval[1] > 0):
-            raise ValueError(f"unit_interval: expected (center, scale > 0), finite, got {self.unit_interval}")
+            raise InputError("unit_interval", f": expected (center, scale > 0), finite, got {self.unit_interval}")
 
 
 def _plain_name(name) -> bool:
@@ -115,9 +118,9 @@ def list_images(inputs: Sequence[str], out: Path | None = None) -> tuple[list[Pa
     (``predict``'s own outputs, matched by a recursive glob over a tree that holds them) are
     left out. Returns ``(images, how many were left out)``.
 
-    FileNotFoundError for an input that names nothing, or when every image lies under ``out``;
-    ValueError for a named file without an image extension, or two images with the same file
-    stem (their outputs would collide).
+    FileNotFoundError for an input that names nothing; InputError (a ValueError) when every image
+    lies under ``out``, for a named file without an image extension, or two images with the same
+    file stem (their outputs would collide).
     """
     found: list[Path] = []
     for text in inputs:
@@ -126,7 +129,7 @@ def list_images(inputs: Sequence[str], out: Path | None = None) -> tuple[list[Pa
             matches = sorted(p for p in path.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS)
         elif path.is_file():
             if path.suffix.lower() not in IMAGE_EXTENSIONS:
-                raise ValueError(f"images: expected files ending in {IMAGE_EXTENSIONS}, got {text}")
+                raise InputError("images", f": expected files ending in {IMAGE_EXTENSIONS}, got {text}")
             matches = [path]
         elif glob.has_magic(text):
             matches = sorted(Path(p) for p in glob.glob(text, recursive=True)
@@ -141,11 +144,12 @@ def list_images(inputs: Sequence[str], out: Path | None = None) -> tuple[list[Pa
         unique.setdefault(os.path.abspath(path), path)
     kept = [p for p in unique.values() if out is None or not _under(p, out)]
     if not kept:
-        raise FileNotFoundError(f"images: every image given lies inside --out {out}, where predict writes")
+        raise InputError("images", f": every image given lies inside {{out}} {out}, where predict writes",
+                         mentions=("out",))
     stems: dict[str, Path] = {}
     for path in kept:
         if path.stem in stems:
-            raise ValueError(f"images: {stems[path.stem]} and {path} share the frame name {path.stem!r}; "
+            raise InputError("images", f": {stems[path.stem]} and {path} share the frame name {path.stem!r}; "
                              "their outputs would overwrite each other")
         stems[path.stem] = path
     return kept, len(unique) - len(kept)
@@ -217,12 +221,12 @@ def _difference(earlier: dict | None, record: dict) -> str | None:
         if before == now:
             continue
         if key == "network":
-            return f"made with another network (weights or experiment) than --run {record[READ_FROM]['run']} holds now"
+            return f"made with another network (weights or experiment) than {{run}} {record[READ_FROM]['run']} holds now"
         if key == "statistics" and before and now:
-            return f"made with other statistics than --stats {record[READ_FROM]['stats']} holds now"
+            return f"made with other statistics than {{stats}} {record[READ_FROM]['stats']} holds now"
         if key == "statistics":
             return "made with statistics, now without" if before else \
-                f"made without statistics, now with --stats {record[READ_FROM]['stats']}"
+                f"made without statistics, now with {{stats}} {record[READ_FROM]['stats']}"
         return f"made with {key}={before!r}, now {key}={now!r}"
     return None
 
@@ -236,8 +240,8 @@ def check_resumable(out: Path, record: dict) -> bool:
         return False
     difference = _difference(_earlier_record(out), record)
     if difference is not None and existing_maps(out):
-        raise ValueError(f"out: {out} holds maps {difference}; choose another folder, "
-                         "or pass --overwrite to recompute them")
+        raise InputError("out", f"{out}: holds maps {difference}; choose another folder, "
+                         "or pass {overwrite} to recompute them", mentions=("overwrite", "run", "stats"))
     return True
 
 
@@ -345,7 +349,7 @@ def write_frame(out: Path, frame: dict, maps: dict, settings: PredictSettings) -
         half = None
         if {"npy", "smiyc"} & set(settings.formats):
             if not (np.isfinite(score).all() and np.abs(score).max(initial=0.0) <= FLOAT16_MAX):
-                raise ValueError(f"method {method}: scores of {frame['name']} are not finite in float16 "
+                raise InputError("method", f"{method}: scores of {frame['name']} are not finite in float16 "
                                  f"(|score| <= {FLOAT16_MAX:g}); the npy and smiyc formats store float16")
             half = score.astype(np.float16)
         for fmt in settings.formats:
@@ -429,12 +433,6 @@ def predict_images(paths: Sequence[Path], out: Path, scorer: Scorer, *, progress
     return {"frames": len(paths), "written": len(todo), "skipped": len(paths) - len(todo)}
 
 
-def inside(path: Path, folder: Path) -> bool:
-    """True when ``path`` is ``folder`` or lies under it (both resolved)."""
-    path, folder = Path(path).resolve(), Path(folder).resolve()
-    return path == folder or folder in path.parents
-
-
 def logits_shape(model, variables, size: tuple[int, int]) -> tuple[int, ...]:
     """The shape of ``model``'s logits for one (h, w) image (``jax.eval_shape``: no compute;
     any float input will do for shapes, so the network's own normalisation is not needed)."""
@@ -454,10 +452,10 @@ def size_check(model, variables) -> Callable[[tuple[int, int], str], None]:
             logits = logits_shape(model, variables, tuple(shape))
         except Exception as error:  # flax / XLA shape errors of many types: one line naming the size
             reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-            raise ValueError(f"size: the network does not run on {shape[0]}x{shape[1]} images ({frame}): "
-                             f"{reason}; choose a working size it takes (--size)") from None
+            raise InputError("size", f": the network does not run on {shape[0]}x{shape[1]} images ({frame}): "
+                             f"{reason}; choose a working size it takes ({{size}})") from None
         if logits[1:3] != tuple(shape):
-            raise ValueError(f"size: the network's logits are {logits[1:3]} for {shape[0]}x{shape[1]} images "
+            raise InputError("size", f": the network's logits are {logits[1:3]} for {shape[0]}x{shape[1]} images "
                              f"({frame}); expected the input's size")
 
     return check

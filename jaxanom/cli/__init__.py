@@ -2,7 +2,10 @@
 
 Every command writes into an output folder that must be new or empty (``--overwrite`` allows
 a non-empty one), and ends with a non-zero exit and a one-line reason on bad input.
-One module per command; each has ``add_parser(commands)`` and ``run(args)``.
+One module per command; each has ``add_parser(commands)`` and ``run(args)``, which calls the
+command's one function in ``jaxanom.app.commands``. Bad input (``jaxanom.errors.InputError``, a
+missing or existing file, a file system refusal) is one line naming the flag, exit status 2; any
+other error is a bug and keeps its traceback.
 """
 from __future__ import annotations
 
@@ -12,8 +15,9 @@ import signal
 import sys
 import threading
 
+from jaxanom.app.outputs import end_outputs, release_claims
 from jaxanom.cli import convert_weights, demo, evaluate, fit_stats, predict, score, train
-from jaxanom.cli.common import CommandError, end_outputs, release_claims
+from jaxanom.errors import InputError
 
 COMMANDS = (demo, train, fit_stats, evaluate, predict, score, convert_weights)
 
@@ -29,7 +33,10 @@ def main(argv: list[str] | None = None) -> int:
         with _sigterm_as_interrupt():
             args.handler(args)
         failed = False
-    except (CommandError, ValueError, FileNotFoundError, FileExistsError) as error:
+    except InputError as error:
+        print(f"jaxanom {args.command}: error: {error.render(args.spell)}", file=sys.stderr)
+        return 2
+    except (FileNotFoundError, FileExistsError) as error:
         print(f"jaxanom {args.command}: error: {error}", file=sys.stderr)
         return 2
     except OSError as error:  # the file system refused (permissions, full disk, read-only): one line too
@@ -74,7 +81,26 @@ def _parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", metavar="COMMAND")
     for command in COMMANDS:
         command.add_parser(commands)
+    for subparser in commands.choices.values():
+        subparser.set_defaults(spell=_speller(subparser))
     return parser
+
+
+def _speller(parser: argparse.ArgumentParser):
+    """``spell(argument)``: the flag (``--stats``) or positional (``IN``) of ``parser`` that sets the
+    app function's ``argument``, found through its destination (``ALIASES`` of the command's module
+    for names that differ, e.g. ``plugins`` -> ``plugin``); other names are kept as they are."""
+    flags = {}
+    for action in parser._actions:
+        long = [option for option in action.option_strings if option.startswith("--")]
+        flags[action.dest] = long[0] if long else action.option_strings[0] if action.option_strings else (
+            action.metavar or action.dest)
+    aliases = parser.get_default("aliases") or {}
+
+    def spell(argument: str) -> str:
+        return flags.get(aliases.get(argument, argument), argument)
+
+    return spell
 
 
 if __name__ == "__main__":

@@ -1,9 +1,7 @@
 """``jaxanom demo``: train, fit SML statistics and evaluate on synthetic scenes."""
 from __future__ import annotations
 
-import dataclasses
-
-from jaxanom.cli.common import CommandError, add_common, add_config, out_folder, positive_int, read_config, with_set
+from jaxanom.cli.common import add_common, add_config, positive_int
 
 
 def add_parser(commands) -> None:
@@ -24,56 +22,11 @@ def add_parser(commands) -> None:
     add_config(parser, "the demo's configuration (DemoConfig, MMFDemoConfig or OffroadDemoConfig): a JSON file of "
                "any of its fields, e.g. a results.json of the same demo, or a Python file defining `config`")
     add_common(parser, progress=True)
-    parser.set_defaults(handler=run)
+    parser.set_defaults(handler=run, aliases={"overrides": "set"})
 
 
 def run(args) -> None:
-    if args.paper == "offroad":
-        return run_offroad(args)
-    if args.paper == "mmf":
-        return run_mmf(args)
-    from jaxanom.app.demos.sml_cudam import DemoConfig, run_demo
+    from jaxanom.app.commands.demo import demo
 
-    config = _config(args, DemoConfig)
-    if args.steps is not None:
-        experiment = config.experiment
-        config = dataclasses.replace(config, experiment=dataclasses.replace(
-            experiment, train=dataclasses.replace(experiment.train, steps=args.steps)))
-    config = with_set(config, args)  # checked before the output folder is claimed
-    run_demo(out_folder(args.out, args.overwrite), config, progress=not args.no_progress)
-
-
-def _config(args, cls):
-    """``--config``'s ``cls``, else ``--quick``'s or the default one."""
-    if args.quick and args.config:
-        raise CommandError("--quick, --config: give one of them")
-    return read_config(args.config, cls) if args.config else cls.quick() if args.quick else cls()
-
-
-def run_mmf(args) -> None:
-    """``jaxanom demo mmf [--quick | --config FILE] [--steps N] [--out DIR] [--overwrite]`` (N: segmenter steps)."""
-    from jaxanom.app.demos.mmf import MMFDemoConfig, run_mmf_demo
-
-    config = _config(args, MMFDemoConfig)
-    if args.steps is not None:
-        seg = config.pipeline.segmenter
-        seg = dataclasses.replace(seg, train=dataclasses.replace(seg.train, steps=args.steps))
-        config = dataclasses.replace(config, pipeline=dataclasses.replace(config.pipeline, segmenter=seg))
-    if getattr(args, "synthesizer", None):
-        pipeline = dataclasses.replace(config.pipeline, synthesizer=args.synthesizer)
-        config = dataclasses.replace(config, pipeline=pipeline)
-    config = with_set(config, args)  # checked before the output folder is claimed
-    run_mmf_demo(out_folder(args.out, args.overwrite), config, progress=not args.no_progress)
-
-
-def run_offroad(args) -> None:
-    """``jaxanom demo offroad [--quick] [--steps N] [--config FILE] [--out DIR]``."""
-    from jaxanom.app.demos.offroad import OffroadDemoConfig, run_offroad_demo
-
-    config = _config(args, OffroadDemoConfig)
-    if args.steps is not None:
-        encoder = dataclasses.replace(config.pipeline.encoder, steps=args.steps)
-        config = dataclasses.replace(config, pipeline=dataclasses.replace(config.pipeline, encoder=encoder))
-    out = "jaxanom-demo-offroad" if args.out == "jaxanom-demo" else args.out
-    config = with_set(config, args)  # checked before the output folder is claimed
-    run_offroad_demo(out_folder(out, args.overwrite), config, progress=not args.no_progress)
+    demo(args.paper, out=args.out, quick=args.quick, steps=args.steps, config=args.config,
+         synthesizer=args.synthesizer, overrides=args.set, overwrite=args.overwrite, progress=not args.no_progress)

@@ -1,12 +1,12 @@
 """``jaxanom predict``: anomaly maps of image files (npy, png, SegmentMeIfYouCan's hdf5 tree)."""
 from __future__ import annotations
 
-from jaxanom.cli.common import (DEFAULT_METHODS, CommandError, add_common, add_config, add_methods, load_plugins,
-                                load_stats, out_folder, positive_int, size_hw, with_set)
+from jaxanom.cli.common import add_common, add_config, add_methods, positive_int, size_hw
+from jaxanom.errors import InputError
 
 
 def add_parser(commands) -> None:
-    from jaxanom.app.predict import FORMATS, SMIYC_DATASETS
+    from jaxanom.app.commands.predict import FORMATS, SMIYC_DATASETS
 
     parser = commands.add_parser(
         "predict", help="anomaly maps of images (files, folders, globs) with a trained or converted run",
@@ -39,69 +39,16 @@ def add_parser(commands) -> None:
                         "benchmark documents scores in [0, 1]); AP / AUROC / FPR keep their values, float16 ties do not")
     add_config(parser)  # the PredictSettings, e.g. --set size=512,1024
     add_common(parser, progress=True)
-    parser.set_defaults(handler=run)
+    parser.set_defaults(handler=run, aliases={"formats": "format", "plugins": "plugin", "overrides": "set"})
 
 
 def run(args) -> None:
-    import json
-    from pathlib import Path
+    from jaxanom.app.commands.predict import predict
 
-    from jaxanom.app import scoring
-    from jaxanom.app.evaluate import predictor
-    from jaxanom.app.experiment import build_network, jsonable, load_experiment, load_variables
-    from jaxanom.io import write_json_atomic
-    from jaxanom.app.predict import (DeviceOutOfMemory, PredictSettings, Scorer, check_resumable, fingerprint, inside,
-                                     list_images, logits_shape, predict_images, remove_other_maps, settings_record,
-                                     size_check)
-
-    load_plugins(args)
-    settings = PredictSettings(methods=tuple((args.methods or DEFAULT_METHODS).split(",")),
-                               formats=tuple(args.format.split(",")), size=size_hw(args.size),
-                               batch_size=args.batch_size, dataset=args.dataset, slic_step=args.slic_step,
-                               cudam_sigma=args.cudam_sigma, unit_interval=_pair(args.unit_interval))
-    settings = with_set(settings, args)
-    if "smiyc" in settings.formats:
-        try:
-            import h5py  # noqa: F401
-        except ImportError:
-            raise CommandError("--format smiyc: needs h5py (pip install 'jaxanom[smiyc]')") from None
-    run_dir, out = Path(args.run), Path(args.out)
-    paths, left_out = list_images(args.images, out)
-    if not (run_dir / "experiment.json").is_file():
-        raise CommandError(f"--run {run_dir}: expected a run folder (with experiment.json)")
-    if inside(out, run_dir):
-        raise CommandError(f"--out {out}: lies inside --run {run_dir}; predict never writes into a run")
-    experiment = load_experiment(run_dir)
-    stats = load_stats(args.stats)
-    scoring.check(settings.methods, scoring.run_inputs(experiment, stats=stats is not None))
-    model = build_network(experiment)
-    _, variables = load_variables(run_dir)
-    check = size_check(model, variables)
-    if settings.size is not None:
-        check(settings.size, "--size")
-    if stats is not None:
-        classes = logits_shape(model, variables, tuple(experiment.crop))[-1]
-        if len(stats[0]) != classes:
-            raise CommandError(f"--stats {args.stats}: has {len(stats[0])} classes, the network's logits {classes}")
-    # the maps depend on what the files hold, not where they are: a moved run resumes, a re-fitted one does not
-    network = fingerprint({"experiment": json.dumps(jsonable(experiment), sort_keys=True), "variables": variables})
-    record = settings_record(settings, network=network, statistics=None if stats is None else fingerprint(stats),
-                             read_from={"run": str(run_dir.resolve()),
-                                        "stats": None if args.stats is None else str(Path(args.stats).resolve())})
-    resuming = not args.overwrite and out.is_dir() and check_resumable(out, record)
-    out = out_folder(args.out, args.overwrite or resuming, hint="pass --overwrite (or rerun with its settings)")
-    if args.overwrite and (removed := remove_other_maps(out, record, settings)):
-        print(f"jaxanom predict: removed {removed} maps of other settings, network or statistics from {out}")
-    write_json_atomic(out / "settings.json", record)
-    scorer = Scorer(predictor(model, variables), settings, stats, check_size=None if settings.size else check)
-    try:
-        summary = predict_images(paths, out, scorer, progress=not args.no_progress, redo=args.overwrite)
-    except DeviceOutOfMemory as error:
-        raise CommandError(f"{error}; rerun with a smaller --batch-size to resume, or a smaller --size "
-                           "(into another --out, or with --overwrite)") from None
-    skipped = f", {left_out} images under --out left out" if left_out else ""
-    print(f"jaxanom predict: {summary['written']} frames written, {summary['skipped']} already there{skipped}, "
-          f"{len(settings.methods)} methods, formats {','.join(settings.formats)} -> {out}")
+    predict(args.images, run=args.run, out=args.out, methods=args.methods, plugins=args.plugin, stats=args.stats,
+            formats=args.format, size=size_hw(args.size), batch_size=args.batch_size, dataset=args.dataset,
+            slic_step=args.slic_step, cudam_sigma=args.cudam_sigma, unit_interval=_pair(args.unit_interval),
+            overrides=args.set, overwrite=args.overwrite, progress=not args.no_progress)
 
 
 def _pair(text: str | None) -> tuple[float, float] | None:
@@ -111,5 +58,5 @@ def _pair(text: str | None) -> tuple[float, float] | None:
     try:
         center, scale = (float(x) for x in text.split(","))
     except ValueError:
-        raise CommandError(f"--unit-interval: expected CENTER,SCALE (two numbers), got {text!r}") from None
+        raise InputError("unit_interval", f": expected CENTER,SCALE (two numbers), got {text!r}") from None
     return center, scale

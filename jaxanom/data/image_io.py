@@ -4,7 +4,7 @@
 the missing part of a truncated JPEG with grey (libjpeg only warns). Every reader goes through
 these functions, which read the bytes and decode them strictly (``cv2.imdecode`` fails on a
 truncated stream; a JPEG must also hold its end-of-image marker after the scan), so that a bad
-file gives a ``FileNotFoundError`` or a ``ValueError`` with its path.
+file gives a ``FileNotFoundError`` or an ``InputError`` (a ``ValueError``) with its path.
 """
 from __future__ import annotations
 
@@ -12,6 +12,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
+from jaxanom.errors import InputError
 
 ANOMALY_LABEL_VALUES = (0, 1, 255)
 
@@ -39,10 +41,10 @@ def _decode(path: Path, what: str, flags: int) -> np.ndarray:
     except cv2.error as error:  # OpenCV refuses images above its pixel limit (2^30 by default) this way
         reason = "more pixels than OpenCV decodes (OPENCV_IO_MAX_IMAGE_PIXELS, 2^30 by default)" if (
             "CV_IO_MAX_IMAGE_PIXELS" in str(error)) else str(error).strip().splitlines()[-1]
-        raise ValueError(f"{what}: cannot decode {path} ({reason})") from None
+        raise InputError(what, f": cannot decode {path} ({reason})") from None
     jpeg = data[:2] == b"\xff\xd8"
     if image is None or (jpeg and data.find(b"\xff\xd9", data.find(b"\xff\xda")) < 0):
-        raise ValueError(f"{what}: cannot decode {path} (truncated, corrupt or unsupported format)")
+        raise InputError(what, f": cannot decode {path} (truncated, corrupt or unsupported format)")
     return image
 
 
@@ -55,7 +57,7 @@ def read_label(path: Path) -> np.ndarray:
     """A single-channel 8-bit label PNG -> (H, W) uint8, values unchanged."""
     label = _decode(path, "label", cv2.IMREAD_UNCHANGED)
     if label.ndim != 2 or label.dtype != np.uint8:
-        raise ValueError(f"label: expected a single-channel 8-bit image in {path}, "
+        raise InputError("label", f": expected a single-channel 8-bit image in {path}, "
                          f"got shape {label.shape} dtype {label.dtype}")
     return label
 
@@ -64,10 +66,10 @@ def check_values(label: np.ndarray, allowed, path: Path) -> np.ndarray:
     """Return ``label`` if all its values are in ``allowed``, else ValueError naming the file."""
     bad = np.setdiff1d(np.unique(label), np.asarray(allowed))
     if bad.size:
-        raise ValueError(f"label: expected values in {tuple(allowed)} in {path}, got {bad.tolist()}")
+        raise InputError("label", f": expected values in {tuple(allowed)} in {path}, got {bad.tolist()}")
     return label
 
 
 def check_same_size(image: np.ndarray, label: np.ndarray, path: Path) -> None:
     if image.shape[:2] != label.shape:
-        raise ValueError(f"label: size {label.shape} of {path} differs from its image's {image.shape[:2]}")
+        raise InputError("label", f": size {label.shape} of {path} differs from its image's {image.shape[:2]}")

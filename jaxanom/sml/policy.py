@@ -29,6 +29,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxanom.errors import InputError
+
 POLICIES = ("none", "min_count", "shrink")
 # The default, chosen on real frames (experiments/real_sml.md, docs/decisions/sml.md): ESPNet's statistics
 # from 8 Cityscapes frames at 1024x512 (4.2 M pixels), scored on RoadAnomaly21 and RoadObstacle21. Shrinkage
@@ -58,11 +60,11 @@ class FinalizedStats(NamedTuple):
 
 def check_policy(policy: str, min_count, strength) -> None:
     if policy not in POLICIES:
-        raise ValueError(f"policy must be one of {POLICIES}, got {policy!r}")
+        raise InputError("policy", f"must be one of {POLICIES}, got {policy!r}")
     if not (np.isscalar(min_count) and np.isfinite(min_count) and min_count >= 0):
-        raise ValueError(f"min_count must be a finite number of pixels >= 0, got {min_count!r}")
+        raise InputError("min_count", f"must be a finite number of pixels >= 0, got {min_count!r}")
     if not (np.isscalar(strength) and np.isfinite(strength) and strength > 0):
-        raise ValueError(f"strength must be a finite number of pixels > 0, got {strength!r}")
+        raise InputError("strength", f"must be a finite number of pixels > 0, got {strength!r}")
 
 
 def pooled_moments(count: np.ndarray, mean: np.ndarray, m2: np.ndarray) -> tuple[float, float, float]:
@@ -96,11 +98,10 @@ def finalize(count, mean, m2, *, policy: str, min_count: float, strength: float,
     if degenerate.any():
         classes = np.flatnonzero(degenerate).tolist()
         if policy == "none" and missing == "error":
-            raise ValueError(
-                f"stats has classes {classes} with counts {count[degenerate].astype(int).tolist()}: "
-                'each class needs >= 2 predicted pixels with some spread; fit on more data, pass missing="pooled" '
-                'or a policy ("min_count", "shrink")'
-            )
+            raise InputError(
+                "stats", f"has classes {classes} with counts {count[degenerate].astype(int).tolist()}: each class "
+                "needs >= 2 predicted pixels with some spread; fit on more data, pass {missing} pooled, or {policy} "
+                "min_count or shrink", mentions=("missing", "policy"))
         mean = np.where(degenerate, mean0, mean)
         var = np.where(degenerate, var0, var)
         status[degenerate] = "pooled"
@@ -112,8 +113,8 @@ def finalize(count, mean, m2, *, policy: str, min_count: float, strength: float,
         mean32, std32 = np.float32(mean), np.float32(np.sqrt(var))  # what is saved and scored with
     if not (np.isfinite(mean32).all() and np.isfinite(std32).all() and (std32 > 0).all()):
         bad = np.flatnonzero(~(np.isfinite(mean32) & np.isfinite(std32) & (std32 > 0))).tolist()
-        raise ValueError(f"stats: the {policy} policy gives classes {bad} a mean / std that is not a finite float32 "
-                         f"with std > 0 (mean {mean32[bad][:5].tolist()}, std {std32[bad][:5].tolist()})"
-                         + ("; use a smaller strength" if policy == "shrink" else ""))
+        raise InputError("stats", f": the {policy} policy gives classes {bad} a mean / std that is not a finite "
+                         f"float32 with std > 0 (mean {mean32[bad][:5].tolist()}, std {std32[bad][:5].tolist()})"
+                         + ("; use a smaller {strength}" if policy == "shrink" else ""), mentions=("strength",))
     return FinalizedStats(jnp.asarray(mean32), jnp.asarray(std32),
                           np.rint(count).astype(np.int64), tuple(status.tolist()), np.asarray(weight, np.float64))

@@ -8,50 +8,20 @@ dissimilarity a | superpixels | final score (Eq. 6).
 """
 from __future__ import annotations
 
-import dataclasses
 import time
 from pathlib import Path
 
 import numpy as np
 
-from jaxanom._validate import check_count
-from jaxanom.data.synthetic import ANOMALY_SPLITS, SyntheticScenes
-from jaxanom.app.evaluate import anomaly_results, dataset_reader
-from jaxanom.app.configs import load_config
+from jaxanom.app.evaluate import anomaly_results
+from jaxanom.app.mmf_experiment import MMFDemoConfig, evaluation_frames
+from jaxanom.app.mmf_pipeline import MMFPipeline, scored_batches
 from jaxanom.config_codec import encode
 from jaxanom.io import write_bytes_atomic, write_json_atomic
-from jaxanom.app.mmf_pipeline import MMFConfig, MMFPipeline, scored_batches
 
 # Table 2's rows: (method, assistant maps, post-processor)
 ROWS = (("entropy", "-", "-"), ("resynthesis", "no", "no"), ("resynthesis_post", "no", "yes"),
         ("mmf_raw", "yes", "no"), ("mmf", "yes", "yes"))
-
-
-@dataclasses.dataclass(frozen=True)
-class MMFDemoConfig:
-    """The pipeline, and the anomaly frames scored (another seed than any training frame)."""
-
-    pipeline: MMFConfig = MMFConfig()
-    anomaly_split: str = "anomaly"
-    anomaly_frames: int = 32
-    pictures: int = 4
-
-    def __post_init__(self):
-        if self.anomaly_split not in ANOMALY_SPLITS:
-            raise ValueError(f"anomaly_split: expected one of {ANOMALY_SPLITS}, got {self.anomaly_split!r}")
-        check_count("anomaly_frames", self.anomaly_frames)
-        check_count("pictures", self.pictures, minimum=0)
-
-    @classmethod
-    def quick(cls) -> "MMFDemoConfig":
-        return cls(pipeline=MMFConfig.quick(), anomaly_frames=2, pictures=1)
-
-
-def evaluation_frames(config: MMFDemoConfig) -> SyntheticScenes:
-    """Anomaly frames with disparity and the road ROI, seed = segmenter seed + 2."""
-    seg = config.pipeline.segmenter
-    return SyntheticScenes(config.anomaly_split, config.anomaly_frames, seg.train.seed + 2, height=seg.height,
-                           width=seg.width, disparity=True, roi=True)
 
 
 def table(metrics: dict) -> str:
@@ -115,19 +85,3 @@ def run_mmf_demo(out_dir: str | Path, config: MMFDemoConfig = MMFDemoConfig(), *
     log(text)
     log(f"results in {out_dir}/ (results.json, table.md, frame_*.png); {results['seconds']['total']:.0f} s")
     return results
-
-
-def mmf_scored_batches(folder: str, dataset: str, path: str, *, frames: int | None = None, depth: str | None = None):
-    """``(source, batches)``: ``dataset`` scored by the MMF pipeline of ``folder`` (written by
-    ``jaxanom demo mmf``), read-only; a dataset without disparity is refused."""
-    folder = Path(folder)
-    if not (folder / "results.json").is_file():
-        raise ValueError(f"--mmf {folder}: expected a folder written by `jaxanom demo mmf` (with results.json)")
-    config = load_config(folder / "results.json", MMFDemoConfig).pipeline
-    if dataset not in ("synthetic", "lost-and-found", "smiyc") or (dataset == "smiyc" and not depth):
-        raise ValueError(f"--mmf: the {dataset} dataset has no disparity; use synthetic, lost-and-found or "
-                         "smiyc with --depth")
-    seg = config.segmenter
-    source = dataset_reader(dataset, path, frames=frames, depth=depth,
-                            size={"height": seg.height, "width": seg.width, "disparity": True, "roi": True})
-    return source, scored_batches(MMFPipeline.load(config, folder / "runs"), source, batch_size=1)

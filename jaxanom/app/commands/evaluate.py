@@ -1,0 +1,121 @@
+"""``jaxanom evaluate``: pooled anomaly metrics on an anomaly dataset, of a run's network, an MMF
+pipeline's folder or score maps written by ``jaxanom predict --format smiyc``."""
+from __future__ import annotations
+
+from jaxanom.app.commands.inputs import DEFAULT_METHODS, load_plugins, load_stats, method_names
+from jaxanom.app.outputs import check_out_outside, out_folder
+from jaxanom.app.protocols import PROTOCOLS
+from jaxanom.errors import InputError, reading
+
+__all__ = ["MMF_DEFAULT_METHODS", "PROTOCOLS", "TRACKS", "evaluate", "statistics_record"]
+
+MMF_DEFAULT_METHODS = ("entropy", "resynthesis", "resynthesis_post", "mmf_raw", "mmf")
+# SegmentMeIfYouCan's component rules per dataset (smiyc: RoadAnomaly21 or RoadObstacle21, say which)
+TRACKS = {"synthetic": "anomaly", "road-anomaly": "anomaly", "fishyscapes-laf": "anomaly",
+          "fishyscapes-static": "anomaly", "lost-and-found": "obstacle", "smiyc": None}
+
+
+def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: str | None = None,
+             maps: str | None = None, base: str | None = None, depth: str | None = None, frames: int = 64,
+             stats: str | None = None, methods: str | None = None, plugins=(), fpr_convention: str | None = None,
+             ap_convention: str = "step", cudam_sigma: float | None = None, track: str | None = None,
+             convention: str = "exact", protocol: str = "native", pictures: int = 0,
+             all_conventions: bool = False, overwrite: bool = False) -> dict:
+    """Score ``dataset`` (its folder ``path``) with one of ``run`` (a network), ``mmf`` (a folder
+    of ``jaxanom demo mmf``) or ``maps`` (saved score maps) and write ``out/metrics.json``, which
+    is returned; prints the results table. ``track`` picks SegmentMeIfYouCan's component rules
+    (default: the dataset's), ``protocol`` how frames become counted pixels (with ``run``);
+    ``all_conventions`` also prints every AP and FPR convention side by side."""
+    from jaxanom._validate import check_number
+    from jaxanom.app import scoring
+    from jaxanom.app.evaluate import anomaly_results, dataset_reader, predictor, protocol_predictions, saved_map_batches
+    from jaxanom.app.experiment import build_network, load_experiment, load_variables
+    from jaxanom.app.mmf_experiment import mmf_scored_batches
+    from jaxanom.app.protocols import get_protocol
+    from jaxanom.app.reports import conventions_table, results_table
+    from jaxanom.io import write_json_atomic
+
+    if sum(x is not None for x in (run, mmf, maps)) != 1:
+        raise InputError("run", ", {mmf}, {maps}: give exactly one", mentions=("mmf", "maps"))
+    if dataset not in TRACKS:
+        raise InputError("dataset", f": expected one of {', '.join(TRACKS)}, got {dataset!r}")
+    track = track or TRACKS[dataset]
+    if track is None:
+        raise InputError("track", ": the smiyc dataset holds either track; pass {track} anomaly (RoadAnomaly21) or "
+                         "{track} obstacle (RoadObstacle21)")
+    check_out_outside(out, {"run": run, "mmf": mmf, "maps": maps})
+    protocol_ = get_protocol(protocol)
+    if protocol_.name != "native" and not run:
+        raise InputError("protocol", f" {protocol_.name}: resizes the frames the network sees, so it needs {{run}}",
+                         mentions=("run",))
+    load_plugins(plugins)
+    mean_std = load_stats(stats)
+    if cudam_sigma is not None:
+        check_number("cudam_sigma", cudam_sigma, 0.0, open_low=True)
+    options = {"cudam_sigma": cudam_sigma}
+    if mmf:  # every check before the first frame is read or scored
+        names = scoring.check(method_names(methods, MMF_DEFAULT_METHODS),
+                              scoring.provided(classes=None, stats=mean_std is not None, mmf_maps=True), options)
+        source, batches = mmf_scored_batches(mmf, dataset, path, frames=frames, depth=depth)
+    elif maps:
+        with reading("path", path):  # a folder that does not hold the dataset
+            source = dataset_reader(dataset, path, base=base, frames=frames, depth=depth)
+        try:
+            names, batches = saved_map_batches(maps, source, methods.split(",") if methods else None)
+        except FileNotFoundError as error:
+            raise InputError("maps", f": {error}") from None
+    else:  # the frames' images come with every batch (evaluation_batches)
+        with reading("run", run):
+            experiment = load_experiment(run)
+        names = scoring.check(method_names(methods, DEFAULT_METHODS),
+                              scoring.run_inputs(experiment, stats=mean_std is not None), options)
+        with reading("path", path):  # a folder that does not hold the dataset
+            source = dataset_reader(dataset, path, base=base, frames=frames, depth=depth)
+        with reading("run", run):
+            experiment, variables = load_variables(run)
+        predict = predictor(build_network(experiment), variables)
+    skipped: list[str] = []
+    if run:
+        batches = protocol_predictions(predict, source, protocol_, skipped)
+    out_dir = out_folder(out, overwrite)
+    metrics, _ = anomaly_results(batches, names, stats=mean_std, options=options,
+                                 fpr_convention=fpr_convention or protocol_.fpr_convention,
+                                 ap_convention=ap_convention, track=None if track == "none" else track,
+                                 spill_dir=out_dir, convention=convention, drop_void=protocol_.drop_void)
+    record = {"dataset": dataset, "path": path, "frames": len(source), "convention": convention,
+              "protocol": protocol_.name, "metrics": metrics}
+    if skipped:
+        record["frames_skipped"] = skipped
+    if mmf:
+        record["mmf"] = mmf
+    if maps:
+        record["maps"] = maps
+    if mean_std is not None:
+        record["sml_statistics"] = statistics_record(stats)
+    if "cudam" in metrics:
+        record["cudam_sigma"] = {"values": metrics["cudam"]["options"]["cudam_sigma"],
+                                 "source": "given" if cudam_sigma is not None else "paper-equivalent"}
+    write_json_atomic(out_dir / "metrics.json", record)
+    if pictures and run:  # MMF's pictures: jaxanom demo mmf; maps': jaxanom predict --format png
+        from jaxanom.app.reports import write_pictures
+
+        write_pictures(out_dir, predict, source, mean_std, pictures)
+    if convention == "smiyc":
+        print("The official SegmentMeIfYouCan kit's numbers (binned; the exact ones: metrics.json, \"exact\"):")
+    print(results_table(metrics))
+    if all_conventions:
+        print("\n" + conventions_table(metrics))
+    return record
+
+
+def statistics_record(path: str) -> dict:
+    """What ``metrics.json`` says about the SML statistics: file, policy, counts, pooled and shrunk classes."""
+    from jaxanom.sml import load_stats, load_stats_info
+
+    info = load_stats_info(path)
+    record = {"file": path, "policy": info["policy"], "counts": load_stats(path)[2].tolist()}
+    if info["status"] is None:
+        record["classes"] = "unknown: the file has no per-class status (written without a policy)"
+    else:
+        record["classes"] = {s: [c for c, x in enumerate(info["status"]) if x == s] for s in ("pooled", "shrunk")}
+    return record

@@ -1,0 +1,101 @@
+"""``jaxanom fit-stats``: SML class statistics (Eqs. 3-4) of a trained run, written as .npz."""
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+from jaxanom.app.outputs import CLAIM, check_out_outside, claim
+from jaxanom.errors import InputError, reading
+from jaxanom.sml.policy import DEFAULT_POLICY, DEFAULT_STRENGTH, POLICIES
+
+__all__ = ["DEFAULT_POLICY", "DEFAULT_STRENGTH", "POLICIES", "OneSize", "fit_stats", "stats_table"]
+
+
+def fit_stats(*, run: str, out: str, frames: int = 200, cityscapes: str | None = None,
+              size: tuple[int, int] | None = None, missing: str = "error", policy: str = DEFAULT_POLICY,
+              min_count: float = 10_000, strength: float = DEFAULT_STRENGTH, overwrite: bool = False) -> Path:
+    """Fit the statistics of ``run``'s network on ``frames`` of its training data (or of the train
+    split of the Cityscapes folder ``cityscapes``, no labels read), resized to ``size`` (H, W)
+    when given; finalize them by ``policy`` (``jaxanom.sml.stats_finalize``) and write ``out``
+    (.npz). Prints the per-class table and warns on classes below ``min_count`` pixels."""
+    from jaxanom import sml
+    from jaxanom.app.evaluate import class_statistics, predictor
+    from jaxanom.app.experiment import build_network, frames as run_frames, load_variables
+    from jaxanom.data import Cityscapes
+    from jaxanom.data.frames import FirstFrames, Resized
+    from jaxanom.data.pipeline import evaluation_batches
+    from jaxanom.sml.policy import check_policy
+
+    path = Path(out)
+    if path.is_dir():
+        raise InputError("out", f"{path}: is a folder; expected the path of the .npz file to write")
+    if str(out).endswith(("/", os.sep)):
+        raise InputError("out", f"{out}: names a folder; expected the path of the .npz file to write")
+    if path.suffix != ".npz":
+        raise InputError("out", f"{out}: expected a file name ending in .npz (what {{stats}} reads)",
+                         mentions=("stats",))
+    check_out_outside(out, {"run": run})
+    if path.exists() and not overwrite:
+        raise InputError("out", f"{path}: file exists; choose another or pass {{overwrite}}", mentions=("overwrite",))
+    check_policy(policy, min_count, strength)
+    with reading("run", run):
+        experiment, variables = load_variables(run)
+    if cityscapes:  # the statistics use the network's predictions only: no labels read
+        with reading("cityscapes", cityscapes):
+            source = FirstFrames(Cityscapes(cityscapes, "train", with_labels=False), frames)
+    else:
+        source = run_frames(experiment, "train", frames)
+    if size is not None:
+        source = Resized(source, *size)
+    elif cityscapes:
+        source = OneSize(source, cityscapes)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    claim(path.parent / f"{path.name}{CLAIM}", path)
+    batches = evaluation_batches(source, batch_size=experiment.batch_size)
+    stats = class_statistics(predictor(build_network(experiment), variables), batches)
+    final = sml.stats_finalize_report(stats, missing=missing, policy=policy, min_count=min_count, strength=strength)
+    record = {"policy": policy, "missing": missing, "min_count": min_count, "strength": strength,
+              "frames": len(source)}
+    sml.save_stats(path, final.mean, final.std, final.count, status=final.status, policy=record)
+    print(stats_table(final))
+    scarce = [c for c, n in enumerate(final.count) if n < min_count]
+    if scarce:
+        print(f"jaxanom fit-stats: warning: classes {scarce} have fewer than {min_count:g} predicted pixels "
+              f"(counts {[int(final.count[c]) for c in scarce]}); their statistics are "
+              f"{'unreliable (consider --policy shrink or min_count)' if policy == 'none' else 'pooled or shrunk as the table says'}",
+              file=sys.stderr)
+    print(f"statistics of {len(final.mean)} classes from {record['frames']} frames, policy {policy} -> {path}")
+    return path
+
+
+def stats_table(final) -> str:
+    """Per-class lines: pixels, mean, std, status (and the prior's weight when shrunk)."""
+    lines = ["class   pixels       mean      std  status"]
+    for c, (n, m, s, status, w) in enumerate(zip(final.count, final.mean, final.std, final.status,
+                                                 final.prior_weight)):
+        extra = f" (prior weight {w:.2f})" if status == "shrunk" else ""
+        lines.append(f"{c:5d} {n:8d} {float(m):10.4f} {float(s):8.4f}  {status}{extra}")
+    return "\n".join(lines)
+
+
+class OneSize:
+    """The frames of a random-access source (the Cityscapes folder ``root``), InputError naming
+    ``cityscapes`` and ``size`` when one's size differs from the first's (frames are batched, and
+    a batch holds frames of one size)."""
+
+    def __init__(self, source, root: str):
+        self.source, self.root, self.first = source, root, None
+
+    def __len__(self) -> int:
+        return len(self.source)
+
+    def __getitem__(self, index: int) -> dict:
+        frame = self.source[index]
+        seen = (frame.get("name", str(index)), frame["image"].shape[:2])
+        self.first = self.first or seen
+        if seen[1] != self.first[1]:
+            raise InputError("cityscapes", f"{self.root}: frames differ in size ({self.first[0]} is "
+                             f"{self.first[1][0]}x{self.first[1][1]}, {seen[0]} is {seen[1][0]}x{seen[1][1]}); "
+                             "pass {size} HxW to resize them to one", mentions=("size",))
+        return frame

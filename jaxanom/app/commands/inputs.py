@@ -1,0 +1,58 @@
+"""What the commands read besides their data: method names, plug-ins, SML statistics, config
+files and ``NAME=VALUE`` overrides of a config's fields."""
+from __future__ import annotations
+
+from jaxanom.errors import InputError, reading
+
+DEFAULT_METHODS = ("msp", "max_logit", "entropy", "energy", "sml", "sml_post")
+
+
+def method_names(methods: str | None, default: tuple[str, ...] = DEFAULT_METHODS) -> tuple[str, ...]:
+    """Comma-separated ``methods`` as a tuple (None: ``default``)."""
+    return tuple(methods.split(",")) if methods else tuple(default)
+
+
+def load_plugins(plugins) -> None:
+    """Import the plug-in modules (their methods are registered on import)."""
+    from jaxanom.app.scoring import load_plugin
+
+    for module in plugins:
+        try:
+            load_plugin(module)
+        except ModuleNotFoundError as error:
+            if error.name is None or not (module + ".").startswith(error.name + "."):
+                raise  # the plug-in itself imports something missing: its traceback says what
+            raise InputError("plugin", f"{module}: no module named {error.name!r} on the Python path") from None
+
+
+def load_stats(path: str | None):
+    """``(mean, std)`` from a statistics .npz, or None for None."""
+    if path is None:
+        return None
+    from jaxanom.sml import load_stats as load
+
+    with reading("stats", path):
+        mean, std, _ = load(path)
+    return mean, std
+
+
+def read_config(path: str, cls, variable: str = "config"):
+    """The ``cls`` of the config file ``path`` (JSON, or Python defining ``variable``; see
+    ``jaxanom.app.configs``); InputError naming ``config``, the file and the field's dotted name."""
+    from jaxanom.app.configs import ConfigError, load_config
+
+    try:
+        return load_config(path, cls, variable)
+    except ConfigError as error:
+        raise InputError("config", str(error)) from None
+
+
+def with_overrides(config, overrides=()):
+    """``config`` with each ``"dotted.name=VALUE"`` of ``overrides`` applied (``--set``), checked whole
+    before any work; InputError naming ``overrides`` and the field's dotted name."""
+    from jaxanom.app.configs import ConfigError, override
+
+    try:
+        return override(config, overrides)
+    except ConfigError as error:
+        raise InputError("overrides", str(error)) from None

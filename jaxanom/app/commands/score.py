@@ -1,0 +1,80 @@
+"""``jaxanom score``: scores and metrics from logits saved by another framework.
+
+Streams: the logits (and labels) are read one image at a time (``jaxanom.app.streamed_array``),
+each image is scored and added to the exact metric accumulators, and its score maps are appended
+to ``scores/<method>.npy`` files that appear only once complete. Memory: one image's logits and
+scores, plus the accumulators' ~6 bytes per distinct score (see ``jaxanom.metrics.accumulator``).
+"""
+from __future__ import annotations
+
+import contextlib
+
+from jaxanom.app.commands.inputs import DEFAULT_METHODS, load_plugins, load_stats, method_names
+from jaxanom.app.outputs import out_folder
+from jaxanom.app.streamed_array import StreamedArray
+from jaxanom.errors import InputError
+from jaxanom.metrics.anomaly import AP_CONVENTIONS
+
+__all__ = ["AP_CONVENTIONS", "score"]
+
+
+def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = False, labels: str | None = None,
+          stats: str | None = None, methods: str | None = None, plugins=(), fpr_convention: str | None = None,
+          ap_convention: str = "step", overwrite: bool = False) -> dict | None:
+    """Score the logits file ``logits`` ((N, C, H, W) or, ``layout="NHWC"``, (N, H, W, C)) with
+    the comma-separated ``methods`` into ``out/scores/<method>.npy``; with ``labels`` (N, H, W)
+    also the metrics (``out/metrics.json``, returned)."""
+    import numpy as np
+
+    from jaxanom.app import scoring
+    from jaxanom.app.reports import results_table
+    from jaxanom.io import NpyWriter, write_json_atomic
+    from jaxanom.metrics import AnomalyMetricAccumulator
+
+    load_plugins(plugins)
+    streamed = StreamedArray(logits, "logits")
+    if streamed.ndim != 4:
+        raise InputError("logits", f": expected 4 dimensions ({layout}), got shape {streamed.shape}")
+    channels_first = layout == "NCHW"
+    size = (streamed.shape[2:] if channels_first else streamed.shape[1:3])
+    classes = streamed.shape[1] if channels_first else streamed.shape[3]
+    if classes > min(size) and not any_layout:
+        raise InputError("logits", f": with {{layout}} {layout}, shape {streamed.shape} has {classes} classes but "
+                         f"images of {size[0]} x {size[1]} pixels; check {{layout}}, or pass {{any_layout}} if so",
+                         mentions=("layout", "any_layout"))
+    label_array = None if labels is None else StreamedArray(labels, "labels")
+    shape = (len(streamed), *size)
+    if label_array is not None and label_array.shape != shape:
+        raise InputError("labels", f": expected shape {shape} (N, H, W) to match the logits, got {label_array.shape}")
+    mean_std = load_stats(stats)
+    if mean_std is not None and len(mean_std[0]) != classes:
+        raise InputError("stats", f": has {len(mean_std[0])} classes, the logits have {classes}")
+    names = scoring.check(method_names(methods, DEFAULT_METHODS),
+                          scoring.provided(classes=classes, stats=mean_std is not None))
+    out_dir = out_folder(out, overwrite)
+    accumulators = {name: AnomalyMetricAccumulator() for name in names}
+    label_images = iter(label_array if label_array is not None else ())
+    with contextlib.ExitStack() as files:
+        writers = {name: files.enter_context(NpyWriter(out_dir / "scores" / f"{name}.npy", shape, np.float32))
+                   for name in names}
+        for index, image in enumerate(streamed):
+            image = np.moveaxis(image, 0, -1) if channels_first else image
+            label = None if label_array is None else next(label_images)
+            try:
+                scores, _ = scoring.score_all(names, scoring.inputs_of({"logits": image[None]}, mean_std))
+                scores = {name: np.asarray(value)[0] for name, value in scores.items()}
+                if label is not None:
+                    for name, value in scores.items():
+                        accumulators[name].update(value, label)
+            except ValueError as error:  # the library's checks of this image's values (finite logits, labels)
+                raise InputError("image", f"{index}: {error}") from None
+            for name, value in scores.items():
+                writers[name].write(value)
+    print(f"score maps of {len(streamed)} images -> {out_dir / 'scores'}/<method>.npy")
+    if label_array is None:
+        return None
+    metrics = {name: accumulators.pop(name).compute(fpr_convention=fpr_convention or "first",  # freed in turn
+                                                    ap_convention=ap_convention) for name in names}
+    write_json_atomic(out_dir / "metrics.json", {"metrics": metrics})
+    print(results_table(metrics))
+    return metrics
