@@ -1,8 +1,8 @@
 """The Cityscapes label table against facts of the official definition, written out here."""
 import numpy as np
 
-from jaxanom.data.cityscapes_labels import (CLASS_COLORS, CLASS_NAMES, LABEL_ID_TO_TRAIN_ID,
-                                            NUM_CLASSES, colorize)
+from jaxanom.data.cityscapes_labels import CLASS_COLORS, CLASS_NAMES, LABEL_ID_TO_TRAIN_ID, NUM_CLASSES
+from jaxanom.viz import colorize
 
 
 def test_label_ids_map_to_the_official_train_ids():
@@ -23,9 +23,9 @@ def test_names_and_colours_of_the_19_classes():
     assert len({tuple(c) for c in CLASS_COLORS.tolist()}) == 19
 
 
-def test_colorize_paints_train_ids_and_blacks_out_ignore():
+def test_the_palette_paints_train_ids_and_blacks_out_ignore():
     train_ids = np.array([[0, 13], [255, 18]], np.uint8)
-    out = colorize(train_ids)
+    out = colorize(train_ids, CLASS_COLORS)
     assert out.shape == (2, 2, 3) and out.dtype == np.uint8
     assert out[0, 0].tolist() == [128, 64, 128] and out[0, 1].tolist() == [0, 0, 142]
     assert out[1, 0].tolist() == [0, 0, 0] and out[1, 1].tolist() == [119, 11, 32]

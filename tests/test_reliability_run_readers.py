@@ -5,32 +5,13 @@ import os
 from pathlib import Path
 
 import cv2
-import jax
 import numpy as np
 import pytest
 
 import jaxanom.app.evaluate
-from jaxanom.app.runs import write_run
 from jaxanom.cli import main
 from jaxanom.app.outputs import CLAIM, claim, release_claims
-from jaxanom.models import build_model
-
-
-@pytest.fixture(scope="module")
-def tiny_run(tmp_path_factory):
-    """A DeepLabV3+ tiny run folder (19 classes, random weights) as convert-weights writes one."""
-    model = build_model("deeplabv3plus_tiny", num_classes=19, attention=None, output_stride=16)
-    shapes = jax.eval_shape(lambda x: model.init(jax.random.key(0), x, train=False), np.zeros((1, 32, 32, 3)))
-    rng = np.random.default_rng(0)
-
-    def fill(path, leaf):
-        if path[-1].key in ("scale", "var"):
-            return np.ones(leaf.shape, np.float32)
-        return (rng.normal(size=leaf.shape) * 0.1).astype(np.float32)
-
-    folder = tmp_path_factory.mktemp("tiny") / "run"
-    write_run(folder, "deeplabv3plus_tiny", model, jax.tree_util.tree_map_with_path(fill, shapes))
-    return folder
+from test_predict import tiny_run  # noqa: F401  (a module-scoped fixture: a converted tiny DeepLabV3+)
 
 
 def _tree(folder: Path) -> dict:

@@ -39,10 +39,3 @@ LABEL_ID_TO_TRAIN_ID = np.full(256, IGNORE_INDEX, dtype=np.uint8)
 for _label_id, _train_id in _TRAIN_ID_OF_LABEL_ID.items():
     LABEL_ID_TO_TRAIN_ID[_label_id] = _train_id
 del _label_id, _train_id
-
-
-def colorize(train_ids: np.ndarray) -> np.ndarray:
-    """Colour a trainId map (H, W) with the official palette -> (H, W, 3) uint8; 255 is black."""
-    palette = np.zeros((256, 3), dtype=np.uint8)
-    palette[:NUM_CLASSES] = CLASS_COLORS
-    return palette[np.asarray(train_ids, dtype=np.uint8)]

@@ -20,7 +20,7 @@ from jaxanom.mmf.uncertainty import minmax
 REDUCTIONS = ("sum", "mean")
 
 
-def resize_bilinear(x: jax.Array, out_hw: tuple[int, int]) -> jax.Array:
+def _resize_map(x: jax.Array, out_hw: tuple[int, int]) -> jax.Array:
     """(h, w, ...) -> (H, W, ...) bilinear with half-pixel centres and edge clamping, no antialiasing."""
     return jax.image.resize(x, tuple(out_hw) + x.shape[2:], "bilinear", antialias=False)
 
@@ -30,12 +30,12 @@ def _perceptual(feats_x, feats_r, out_hw, weights, reduction: str):
     for fx, fr, w in zip(feats_x, feats_r, weights):
         diff = jnp.abs(fx.astype(jnp.float32) - fr.astype(jnp.float32))
         per_pixel = jnp.sum(diff, -1) if reduction == "sum" else jnp.mean(diff, -1)
-        total = total + w * resize_bilinear(per_pixel, out_hw)
+        total = total + w * _resize_map(per_pixel, out_hw)
     return minmax(total)
 
 
 def _anomaly(entropy, perceptual):
-    return resize_bilinear(entropy.astype(jnp.float32), perceptual.shape[:2]) * perceptual
+    return _resize_map(entropy.astype(jnp.float32), perceptual.shape[:2]) * perceptual
 
 
 _STATIC = ("out_hw", "reduction")

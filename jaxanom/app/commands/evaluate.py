@@ -2,7 +2,7 @@
 pipeline's folder or score maps written by ``jaxanom predict --format smiyc``."""
 from __future__ import annotations
 
-from jaxanom.app.commands.inputs import DEFAULT_METHODS, load_plugins, load_stats, method_names
+from jaxanom.app.commands.inputs import DEFAULT_METHODS, load_plugins, method_names, read_stats
 from jaxanom.app.outputs import check_out_outside, out_folder
 from jaxanom.app.protocols import PROTOCOLS
 from jaxanom.errors import InputError, reading
@@ -49,7 +49,7 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
         raise InputError("protocol", f" {protocol_.name}: resizes the frames the network sees, so it needs {{run}}",
                          mentions=("run",))
     load_plugins(plugins)
-    mean_std = load_stats(stats)
+    mean_std = read_stats(stats)
     if cudam_sigma is not None:
         check_number("cudam_sigma", cudam_sigma, 0.0, open_low=True)
     options = {"cudam_sigma": cudam_sigma}

@@ -25,7 +25,7 @@ def load_plugins(plugins) -> None:
             raise InputError("plugin", f"{module}: no module named {error.name!r} on the Python path") from None
 
 
-def load_stats(path: str | None):
+def read_stats(path: str | None):
     """``(mean, std)`` from a statistics .npz, or None for None."""
     if path is None:
         return None

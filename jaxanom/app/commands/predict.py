@@ -4,7 +4,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from jaxanom.app.commands.inputs import DEFAULT_METHODS, load_plugins, load_stats, method_names, with_overrides
+from jaxanom.app.commands.inputs import DEFAULT_METHODS, load_plugins, method_names, read_stats, with_overrides
 from jaxanom.app.outputs import inside, out_folder
 from jaxanom.app.predict import FORMATS, SMIYC_DATASETS
 from jaxanom.errors import InputError, reading
@@ -50,7 +50,7 @@ def predict(images, *, run: str, out: str, methods: str | None = None, plugins=(
                          mentions=("run",))
     with reading("run", run_dir):
         experiment = load_experiment(run_dir)
-    mean_std = load_stats(stats)
+    mean_std = read_stats(stats)
     scoring.check(settings.methods, scoring.run_inputs(experiment, stats=mean_std is not None))
     model = build_network(experiment)
     with reading("run", run_dir):

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import contextlib
 
-from jaxanom.app.commands.inputs import DEFAULT_METHODS, load_plugins, load_stats, method_names
+from jaxanom.app.commands.inputs import DEFAULT_METHODS, load_plugins, method_names, read_stats
 from jaxanom.app.outputs import out_folder
 from jaxanom.app.streamed_array import StreamedArray
 from jaxanom.errors import InputError
@@ -46,7 +46,7 @@ def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = Fal
     shape = (len(streamed), *size)
     if label_array is not None and label_array.shape != shape:
         raise InputError("labels", f": expected shape {shape} (N, H, W) to match the logits, got {label_array.shape}")
-    mean_std = load_stats(stats)
+    mean_std = read_stats(stats)
     if mean_std is not None and len(mean_std[0]) != classes:
         raise InputError("stats", f": has {len(mean_std[0])} classes, the logits have {classes}")
     names = scoring.check(method_names(methods, DEFAULT_METHODS),
