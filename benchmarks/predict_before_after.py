@@ -15,6 +15,7 @@ before and after the run. Not a ``bench_*`` module (``python -m benchmarks`` has
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import statistics
@@ -32,7 +33,6 @@ METHODS = ("msp", "max_logit", "entropy", "energy", "softmax_distance", "sml", "
 
 def measure(frames: Path, out: Path) -> dict:
     """In a process whose ``jaxanom`` is the tree's: images per second of ``predict_images`` over ``frames``."""
-    import jax
     import numpy as np
 
     import jaxanom
@@ -40,19 +40,12 @@ def measure(frames: Path, out: Path) -> dict:
     from jaxanom.app.predict import PredictSettings, Scorer, predict_images
     from jaxanom.models import build_model
 
+    sys.path.insert(0, str(HERE.parent / "tests"))  # the tests' NumPy-drawn weights: no init to compile
+    from tiny_models import random_variables
+
     model = build_model(NETWORK, num_classes=CLASSES)
+    variables = random_variables(0, functools.partial(model.init, train=False), np.zeros((1, *SIZE, 3), np.float32))
     rng = np.random.default_rng(0)
-
-    def draw(path, leaf):
-        name = jax.tree_util.keystr(path[-1:])
-        if any(key in name for key in ("bias", "mean")):
-            return np.zeros(leaf.shape, leaf.dtype)
-        if any(key in name for key in ("scale", "var")):
-            return np.ones(leaf.shape, leaf.dtype)
-        return rng.normal(0, max(1, int(np.prod(leaf.shape[:-1]))) ** -0.5, leaf.shape).astype(leaf.dtype)
-
-    shapes = jax.eval_shape(lambda x: model.init(jax.random.key(0), x, train=False), np.zeros((1, *SIZE, 3), np.float32))
-    variables = jax.tree_util.tree_map_with_path(draw, shapes)
     stats = (rng.normal(size=CLASSES).astype(np.float32), rng.uniform(0.5, 2, CLASSES).astype(np.float32))
     scorer = Scorer(predictor(model, variables), PredictSettings(METHODS), stats)
     paths = sorted(frames.glob("*.png"))
