@@ -2,7 +2,7 @@
 
 Meant for a change's before and after: ``--before`` is a checkout of the commit before it (a
 temporary ``git worktree``). Each measurement is a fresh process that imports jaxanom from one
-tree and scores the same FRAMES random 256x512 PNG frames with ESPNet (p=2, q=8, 20 outputs;
+tree and scores the same FRAMES random PNG frames (256x512 unless ``--size``) with ESPNet (p=2, q=8, 20 outputs;
 weights drawn by NumPy, which the speed does not depend on) through ``app.predict.predict_images``
 with seven methods that read the logits (``METHODS``; SML statistics from NumPy): decode, forward,
 scores, resize back, float16 ``.npy`` writes. Two frames are scored first, so compiling is not
@@ -10,7 +10,7 @@ timed. The trees alternate (before, after, before, ...), so a change of the mach
 both; a row gives the median of the rounds and every round's figure, and the load average
 before and after the run. Not a ``bench_*`` module (``python -m benchmarks`` has one tree).
 
-    PYTHONPATH=. python benchmarks/predict_before_after.py --before PATH [--frames 24] [--rounds 3]
+    PYTHONPATH=. python benchmarks/predict_before_after.py --before PATH [--frames 24] [--rounds 3] [--size H W]
 """
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ NETWORK, CLASSES = "espnet_p2_q8", 20
 METHODS = ("msp", "max_logit", "entropy", "energy", "softmax_distance", "sml", "void")
 
 
-def measure(frames: Path, out: Path) -> dict:
+def measure(frames: Path, out: Path, size: tuple[int, int] = SIZE) -> dict:
     """In a process whose ``jaxanom`` is the tree's: images per second of ``predict_images`` over ``frames``."""
     import numpy as np
 
@@ -44,7 +44,7 @@ def measure(frames: Path, out: Path) -> dict:
     from tiny_models import random_variables
 
     model = build_model(NETWORK, num_classes=CLASSES)
-    variables = random_variables(0, functools.partial(model.init, train=False), np.zeros((1, *SIZE, 3), np.float32))
+    variables = random_variables(0, functools.partial(model.init, train=False), np.zeros((1, *size, 3), np.float32))
     rng = np.random.default_rng(0)
     stats = (rng.normal(size=CLASSES).astype(np.float32), rng.uniform(0.5, 2, CLASSES).astype(np.float32))
     scorer = Scorer(predictor(model, variables), PredictSettings(METHODS), stats)
@@ -56,10 +56,10 @@ def measure(frames: Path, out: Path) -> dict:
     return {"images_per_s": len(paths) / seconds, "seconds": seconds, "jaxanom": jaxanom.__file__}
 
 
-def _child(tree: Path, frames: Path, out: Path) -> dict:
+def _child(tree: Path, frames: Path, out: Path, size: tuple[int, int]) -> dict:
     code = (f"import sys, json; sys.path.insert(0, {str(tree)!r}); sys.path.insert(1, {str(HERE)!r}); "
             f"from predict_before_after import measure; from pathlib import Path; "
-            f"print(json.dumps(measure(Path({str(frames)!r}), Path({str(out)!r}))))")
+            f"print(json.dumps(measure(Path({str(frames)!r}), Path({str(out)!r}), {tuple(size)!r})))")
     done = subprocess.run([sys.executable, "-c", code], cwd=tree, capture_output=True, text=True, check=False,
                           env={**os.environ, "PYTHONPATH": str(tree)})
     if done.returncode:
@@ -73,6 +73,7 @@ def main() -> None:
     parser.add_argument("--after", type=Path, default=HERE.parent, help="default: this tree")
     parser.add_argument("--frames", type=int, default=24)
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--size", type=int, nargs=2, default=SIZE, metavar=("H", "W"), help="frame size (default 256 512)")
     args = parser.parse_args()
     import cv2
     import numpy as np
@@ -87,15 +88,15 @@ def main() -> None:
         frames.mkdir()
         rng = np.random.default_rng(0)
         for index in range(args.frames):
-            cv2.imwrite(str(frames / f"frame{index:03d}.png"), rng.integers(0, 256, (*SIZE, 3), dtype=np.uint8))
+            cv2.imwrite(str(frames / f"frame{index:03d}.png"), rng.integers(0, 256, (*args.size, 3), dtype=np.uint8))
         for round_ in range(args.rounds):
             for name, tree in trees.items():
-                result = _child(tree, frames, Path(folder) / f"{name}{round_}")
+                result = _child(tree, frames, Path(folder) / f"{name}{round_}", args.size)
                 runs[name].append(result["images_per_s"])
                 print(f"round {round_ + 1} {name}: {result['images_per_s']:.2f} images/s ({result['jaxanom']})",
                       file=sys.stderr)
     load_after = os.getloadavg()
-    case = f"{NETWORK} {SIZE[0]}x{SIZE[1]}, {args.frames} PNG frames, {len(METHODS)} methods, npy"
+    case = f"{NETWORK} {args.size[0]}x{args.size[1]}, {args.frames} PNG frames, {len(METHODS)} methods, npy"
     rows = [{"benchmark": "predict images/s", "case": case, "impl": f"{name} ({trees[name]})",
              "images_per_s": f"{statistics.median(values):.2f}",
              "note": "rounds: " + ", ".join(f"{v:.2f}" for v in values)} for name, values in runs.items()]

@@ -26,7 +26,7 @@ from jaxanom.objectives import Objective, objective_class, objective_names
 from jaxanom.train.loop import TrainConfig
 from jaxanom.train.optim import OptimConfig
 
-WRITTEN_BEFORE = Path(__file__).parent / "data" / "configs"  # by jaxanom 8925539 (make_files.py)
+WRITTEN_BEFORE = Path(__file__).parent / "fixtures" / "configs"  # by jaxanom 8925539 (make_files.py)
 # one valid instance of every command's config class: the values the random configs start from
 BASES = {"experiment": Experiment(), "cudam_demo": DemoConfig(), "mmf_demo": MMFDemoConfig.quick(),
          "offroad_demo": OffroadDemoConfig.quick(), "predict": PredictSettings(methods=("msp", "entropy"))}

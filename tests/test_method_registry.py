@@ -2,7 +2,6 @@
 and the ``jaxanom.methods`` entry points) scored through ``score``, ``evaluate`` and ``predict``."""
 import json
 import sys
-import textwrap
 
 import cv2
 import numpy as np
@@ -11,7 +10,7 @@ import pytest
 from jaxanom import method_registry
 from jaxanom.cli import main
 from jaxanom.cudam_score import paper_sigma
-from test_predict import SIZE, tiny_run  # noqa: F401  (the fixture)
+from converted_run import SIZE, tiny_run  # noqa: F401  (the fixture)
 
 PLUGIN = """
 import jax.numpy as jnp

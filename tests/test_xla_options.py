@@ -1,6 +1,5 @@
 """conv_compiler_options: XLA's own convolutions on the CPU, results within float32 rounding."""
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 

@@ -8,5 +8,5 @@ off-road pipelines (``mmf_pipeline``, ``offroad_pipeline``) and their experiment
 (``outputs``), one function per command (``commands``) and the demos (``demos``, leaves that only
 ``commands.demo`` imports).
 The library never imports this package, and this package never imports ``jaxanom.cli``
-(``tests/test_layers.py``).
+(``tests/project/test_layers.py``).
 """

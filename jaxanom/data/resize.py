@@ -8,7 +8,7 @@ labels with PIL's ``NEAREST``.
   antialias=True)``, rounded to uint8 as PIL's output is. PIL computes in 22-bit fixed point
   and rounds to uint8 between its two one-dimensional passes (and its pass order varies between
   versions), so the two differ by at most one grey level (measured on random and real frames,
-  ``tests/test_data_resize.py``).
+  ``tests/data/test_data_resize.py``).
 - ``resize_labels_nearest``: PIL's nearest neighbour exactly. PIL walks the source by repeated
   addition of the scale in double precision, which picks another pixel than
   ``floor((x + 0.5) * scale)`` (``jax.image.resize``'s rule) for about a third of size pairs.

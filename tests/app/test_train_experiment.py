@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from jaxanom.app.experiment import (Experiment, check_objective, check_same_run, jsonable, load_experiment,
+from jaxanom.app.experiment import (Experiment, check_objective, check_same_run, load_experiment,
                                     run_training)
 from jaxanom.cli import main
 from jaxanom.config_codec import decode

@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 from pyflakes import api, messages, reporter
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 UNDEFINED = (messages.UndefinedName, messages.UndefinedLocal, messages.UndefinedExport)
 
 

@@ -11,7 +11,7 @@ from jaxanom.data.frames import Resized
 from jaxanom.data.transforms import normalize
 from jaxanom.models import build_model
 from jaxanom.sml import load_stats
-from test_predict import tiny_run  # noqa: F401  (a module-scoped fixture: a converted tiny DeepLabV3+)
+from converted_run import tiny_run  # noqa: F401  (a module-scoped fixture: a converted tiny DeepLabV3+)
 
 CITYSCAPES8 = REALDATA / "cityscapes8"
 

@@ -7,7 +7,7 @@ import pytest
 from jaxanom.models import RESNETS, build_model
 from jaxanom.nn import CuDAMAttention
 from test_models import IMAGES, KEY, NUM_CLASSES, random_variables, with_alpha, without_cudam
-from test_nn_attention import as_np, cudam_reference
+from attention_reference import as_np, cudam_reference
 
 
 def test_scale_free_gate_is_eq3_with_alpha_times_hw():

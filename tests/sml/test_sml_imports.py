@@ -10,5 +10,5 @@ def test_scoring_modules_import_nothing_heavy():
         "print(sorted({m.split('.')[0] for m in sys.modules} & {'torch', 'grain', 'matplotlib', 'tensorboardX'}))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                         cwd=Path(__file__).resolve().parents[1])
+                         cwd=Path(__file__).resolve().parents[2])
     assert out.stdout.strip() == "[]"

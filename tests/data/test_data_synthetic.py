@@ -146,5 +146,5 @@ def test_bad_arguments_raise_value_error_naming_them(kwargs, match):
 def test_importing_the_generator_does_not_import_grain_or_jax():
     code = "import sys, jaxanom.data.synthetic; print('grain' in sys.modules, 'jax' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                         cwd=Path(__file__).resolve().parents[1])
+                         cwd=Path(__file__).resolve().parents[2])
     assert out.stdout.split() == ["False", "False"]

@@ -11,7 +11,7 @@ import pytest
 import jaxanom.app.evaluate
 from jaxanom.cli import main
 from jaxanom.app.outputs import CLAIM, claim, release_claims
-from test_predict import tiny_run  # noqa: F401  (a module-scoped fixture: a converted tiny DeepLabV3+)
+from converted_run import tiny_run  # noqa: F401  (a module-scoped fixture: a converted tiny DeepLabV3+)
 
 
 def _tree(folder: Path) -> dict:

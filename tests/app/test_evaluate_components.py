@@ -8,8 +8,8 @@ from sklearn.metrics import average_precision_score, roc_auc_score
 
 from conftest import REALDATA
 from jaxanom.app.evaluate import anomaly_results
-from test_metrics_components import one_predicted_component_over_two_objects, small_object_under_a_prediction
-from test_predict import tiny_run  # noqa: F401  (the fixture)
+from component_scenes import one_predicted_component_over_two_objects, small_object_under_a_prediction
+from converted_run import tiny_run  # noqa: F401  (the fixture)
 
 
 def logits_for(mask: np.ndarray) -> np.ndarray:

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxanom.cli import main
-from test_predict import tiny_run  # noqa: F401 (the module fixture: a tiny converted run)
+from converted_run import tiny_run  # noqa: F401 (the module fixture: a tiny converted run)
 
 
 def write_images(folder, names, shape=(48, 96), seed=0):

@@ -15,7 +15,6 @@ cannot take the all-void frame (``np.min`` of nothing), so its numbers are of th
 """
 import json
 
-import h5py
 import numpy as np
 import pytest
 

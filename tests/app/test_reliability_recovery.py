@@ -14,7 +14,7 @@ import pytest
 from jaxanom.app import outputs
 from jaxanom.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _one_line(capsys, code, *fragments, exit_code=2):
@@ -193,7 +193,7 @@ def test_a_diverging_run_is_one_line_naming_the_last_good_step_and_what_to_chang
     import jaxanom.app.experiment
     from jaxanom.train.loop import NonFiniteLossError
 
-    def diverging(experiment, run_dir, **kwargs):  # what the loop raises (tests/test_train_loop.py)
+    def diverging(experiment, run_dir, **kwargs):  # what the loop raises (tests/train/test_train_loop.py)
         jaxanom.app.experiment.write_json_atomic(Path(run_dir) / "experiment.json", jaxanom.app.experiment.jsonable(experiment))
         raise NonFiniteLossError("loss nan, gradient norm nan at step 2: training stopped; last good checkpoint: "
                                  f"step 1 in {run_dir}/checkpoints")

@@ -5,7 +5,6 @@ import functools
 import json
 import types
 
-import jax
 import numpy as np
 import pytest
 
@@ -221,7 +220,7 @@ def untrained_parts(monkeypatch):
 
 def test_table_over_two_seeds_is_written_and_summarised(tmp_path, untrained_parts):
     out, runs = tmp_path / "out", tmp_path / "runs"
-    result = exp.run(Scale.smoke(), 2, out, runs, log=lambda *_: None, description="MMF smoke.")
+    exp.run(Scale.smoke(), 2, out, runs, log=lambda *_: None, description="MMF smoke.")
     assert sorted(p.name for p in out.iterdir()) == [f"{exp.NAME}{s}" for s in (".json", ".md", "_pr.png", "_roc.png")]
     saved = json.loads((out / f"{exp.NAME}.json").read_text())
     assert saved["num_seeds"] == 2 and saved["scale"]["height"] == 32 and saved["scale"]["width"] == 64

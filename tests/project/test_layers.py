@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-PACKAGE = Path(__file__).resolve().parents[1] / "jaxanom"
+PACKAGE = Path(__file__).resolve().parents[2] / "jaxanom"
 REPOSITORY = PACKAGE.parent
 DEMO_RUNNER = "jaxanom.app.commands.demo"  # the one module that imports the demos: it runs them
 

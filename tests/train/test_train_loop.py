@@ -22,7 +22,7 @@ from compiles import compiled_during
 from host_reads import count_host_reads
 from tiny_models import TinySegNet, init_variables, make_batch
 
-TESTS = Path(__file__).parent
+TESTS = Path(__file__).resolve().parents[1]  # the tests folder: resume_script.py and tiny_models.py
 
 
 def config(run_dir, **kwargs):

@@ -1,0 +1,29 @@
+"""A tiny converted run: the module fixture of the tests of commands that read a run folder."""
+import jax
+import numpy as np
+import pytest
+
+from jaxanom.app.runs import write_run
+from jaxanom.models import build_model
+
+SIZE = (48, 96)  # the network's working size in these tests
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    """A DeepLabV3+ tiny run folder (19 classes) written as convert-weights writes one."""
+    model = build_model("deeplabv3plus_tiny", num_classes=19, attention=None, output_stride=16)
+    shapes = jax.eval_shape(lambda x: model.init(jax.random.key(0), x, train=False), np.zeros((1, 32, 32, 3)))
+    rng = np.random.default_rng(0)
+
+    def fill(path, leaf):
+        name = path[-1].key
+        if name in ("scale", "var"):
+            return np.ones(leaf.shape, np.float32)
+        if name in ("bias", "mean"):
+            return np.zeros(leaf.shape, np.float32)
+        return (rng.normal(size=leaf.shape) * np.sqrt(2 / np.prod(leaf.shape[:-1]))).astype(np.float32)
+
+    folder = tmp_path_factory.mktemp("tiny") / "run"
+    write_run(folder, "deeplabv3plus_tiny", model, jax.tree_util.tree_map_with_path(fill, shapes))
+    return folder
