@@ -52,9 +52,10 @@ class GANConfig:
     save_every: int = 500
     keep: int = 1
     progress: bool = True
+    log_every: int = 50  # steps between reads of the losses (each step still gets its line in the log)
 
     def __post_init__(self):
-        for name in ("steps", "save_every", "keep"):
+        for name in ("steps", "save_every", "keep", "log_every"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}: expected >= 1, got {getattr(self, name)}")
         if not (self.g_lr > 0 and self.d_lr > 0):
@@ -170,7 +171,7 @@ def train_gan(config: GANConfig, generator, discriminator, batches: Iterable[dic
     generator.check(np.asarray(first["label"]))
     # the step depends on the losses and optimisers only: runs that differ elsewhere share it
     step_fn = _jitted_step(dataclasses.replace(config, run_dir="", steps=1, seed=0, save_every=1, keep=1,
-                                               progress=False), generator, discriminator)
+                                               progress=False, log_every=1), generator, discriminator)
     log = RunLog(config.run_dir)
 
     def log_steps(logged: list, images_per_s: float) -> dict:
@@ -180,11 +181,11 @@ def train_gan(config: GANConfig, generator, discriminator, batches: Iterable[dic
             log.scalars(step, {f"train/{name}": value for name, value in metrics.items()})
         return {"g": f"{metrics['g_loss']:.3f}", "d": f"{metrics['d_loss']:.3f}", "l1": f"{metrics['l1']:.3f}"}
 
-    try:  # every step is a logging step: the GAN's log has one line per step, each with its own throughput
+    try:  # the losses of the steps since the last read are read together: one log line per step, the window's throughput
         return run_loop(lambda state, batch: step_fn(state, *_inputs(batch)),
                         lambda: init_gan_state(config, generator, discriminator, first), source, config.steps,
                         first=first, checkpoints=Checkpoints(config.run_dir, config.save_every, config.keep),
-                        log_every=1, on_log=log_steps, examples=lambda batch: len(batch["image"]),
+                        log_every=config.log_every, on_log=log_steps, examples=lambda batch: len(batch["image"]),
                         progress=progress_bar(config.progress))
     finally:
         log.close()

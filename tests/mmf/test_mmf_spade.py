@@ -20,6 +20,7 @@ from jaxanom.mmf.synthesis import ClassMeanSynthesizer, SPADESynthesizer, resynt
 from jaxanom.models.patch_discriminator import MultiscaleDiscriminator
 from jaxanom.models.spade_generator import SPADEGenerator
 from compiles import compiled_during
+from host_reads import count_host_reads
 
 PIPELINE = dataclasses.replace(MMFConfig.quick(), synthesizer="spade", gan_steps=2, gan_nf=4, gan_upsamples=2,
                                gan_hidden=8, gan_layers=2)
@@ -287,3 +288,20 @@ def test_step_losses_are_those_of_separate_critic_calls(state):
     np.testing.assert_allclose([metrics["feature_matching"], metrics["d_loss"], metrics["g_hinge"]], [fm, d, g],
                                rtol=1e-4, atol=1e-6)
     assert fm > 1e-3  # the features differ: a feature term of zero would show
+
+
+def test_losses_are_read_on_logging_steps_only(tmp_path, monkeypatch):
+    drawn = []
+
+    def batches():
+        for seed in range(5):
+            drawn.append(seed)
+            yield _batch(seed)
+
+    config = GANConfig(str(tmp_path), steps=5, save_every=5, progress=False, log_every=2)
+    reads = count_host_reads(monkeypatch, lambda: len(drawn))  # tagged: how many steps were dispatched
+    train_gan(config, GENERATOR, CRITIC, batches())
+    monkeypatch.undo()
+    assert set(reads) == {2, 4, 5}  # logging steps 2 and 4, and the last (with its save)
+    lines = (tmp_path / "log.jsonl").read_text().splitlines()
+    assert [json.loads(line)["step"] for line in lines] == [1, 2, 3, 4, 5]  # every step still logged
