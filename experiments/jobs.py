@@ -29,17 +29,24 @@ class Job:
     minutes: float
 
 
-def _worker_start(cache_dir: str, processes: int) -> None:
-    """A worker ends with the process that started it (Linux), shares the runner's compilation cache and, on
-    an accelerator, takes its share of the memory (JAX would preallocate 75% in each process)."""
-    os.environ.setdefault("XLA_PYTHON_CLIENT_MEM_FRACTION", f"{0.8 / processes:.2f}")
+def end_with_parent() -> None:
+    """Make this worker process end (SIGTERM) when the process that started it dies, killed included
+    (Linux; nothing elsewhere): no orphan keeps computing or writing a run that a rerun rewrites.
+    A pool's ``initializer``."""
     try:
         import ctypes
         import signal
 
-        ctypes.CDLL("libc.so.6").prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG: no orphan keeps writing a run
+        ctypes.CDLL("libc.so.6").prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
     except (OSError, AttributeError):
         pass
+
+
+def _worker_start(cache_dir: str, processes: int) -> None:
+    """A worker ends with the process that started it, shares the runner's compilation cache and, on
+    an accelerator, takes its share of the memory (JAX would preallocate 75% in each process)."""
+    os.environ.setdefault("XLA_PYTHON_CLIENT_MEM_FRACTION", f"{0.8 / processes:.2f}")
+    end_with_parent()
     import jax
 
     jax.config.update("jax_compilation_cache_dir", cache_dir)

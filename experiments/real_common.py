@@ -70,11 +70,15 @@ NETWORKS = {"ESPNet": espnet, "ERFNet": erfnet}
 
 def per_network(run: Callable[[str], object]) -> dict[str, object]:
     """``{network: run(network)}`` for every network of ``NETWORKS``, each in its own spawned process at
-    once (a forked JAX process is unsafe): two processes get twice the share of a busy machine."""
+    once (a forked JAX process is unsafe): two processes get twice the share of a busy machine. The
+    workers end with this process (a killed experiment leaves none behind)."""
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    with ProcessPoolExecutor(len(NETWORKS), mp_context=multiprocessing.get_context("spawn")) as pool:
+    from experiments.jobs import end_with_parent
+
+    with ProcessPoolExecutor(len(NETWORKS), mp_context=multiprocessing.get_context("spawn"),
+                             initializer=end_with_parent) as pool:
         return dict(zip(NETWORKS, pool.map(run, NETWORKS)))
 
 

@@ -1,5 +1,9 @@
 """``python -m experiments --jobs``: the work done before the tables, in worker processes."""
+import os
 import subprocess
+import sys
+import textwrap
+import time
 from pathlib import Path
 
 import pytest
@@ -9,6 +13,8 @@ from experiments.__main__ import jobs_of, parse_args
 from experiments.common import Scale, evaluation_cache, seed_scales
 from experiments.jobs import Job, run_jobs
 from experiments.offroad_common import cache_path, offroad_sizes
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_jobs_run_in_worker_processes_and_a_failure_is_reported(tmp_path):
@@ -72,3 +78,36 @@ def test_command_line_rejects_a_non_positive_count(flag, capsys):
         parse_args([flag, "0"])
     assert f"{flag}: expected a positive integer, got 0" in capsys.readouterr().err
     assert parse_args([]).jobs == 2 and parse_args(["--jobs", "3"]).jobs == 3
+
+
+def _alive(pid: int) -> bool:
+    """A process that exists and is not a zombie (nobody may reap an orphan here)."""
+    try:
+        return Path(f"/proc/{pid}/status").read_text().split("State:")[1].split()[0] != "Z"
+    except (FileNotFoundError, IndexError):
+        return False
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_a_killed_parent_takes_its_workers_with_it(tmp_path):
+    script = textwrap.dedent("""
+        import multiprocessing, os, time
+        from concurrent.futures import ProcessPoolExecutor
+        from experiments.jobs import end_with_parent
+        if __name__ == "__main__":
+            with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"), initializer=end_with_parent) as pool:
+                print(pool.submit(os.getpid).result(), flush=True)
+                pool.submit(time.sleep, 120).result()
+        """)
+    errors = tmp_path / "stderr"  # the pool's resource tracker outlives the parent and writes here too
+    with errors.open("w") as stderr, subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True,
+                                                      stderr=stderr, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}) as parent:
+        line = parent.stdout.readline()
+        assert line.strip().isdigit(), errors.read_text()
+        worker = int(line)
+        assert _alive(worker)
+        parent.kill()
+    deadline = time.monotonic() + 20
+    while _alive(worker) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not _alive(worker), f"worker {worker} outlived its killed parent"
