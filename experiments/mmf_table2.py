@@ -112,7 +112,7 @@ ROWS = (Row(ENTROPY, "entropy", paper="Softmax Entropy"),
         Row("MSP", "msp"), Row("max logit", "max_logit"), Row("SML", "sml"),
         Row("MMF, connected superpixels", "mmf", slic=(("slic_connectivity", True),)),
         Row("MMF, SLIC on the anomaly map a", "mmf", slic=(("slic_input", "anomaly"),)),
-        Row(CONTROL, "mmf_raw", net="truth_resynthesis", paper="a control of ours (issue 21)"),
+        Row(CONTROL, "mmf_raw", net="truth_resynthesis", paper="a control of ours"),
         Row(SPADE_BASE, "resynthesis", synthesizer="spade", paper=_TABLE4),
         Row(SPADE_FULL, "mmf", synthesizer="spade", paper=_TABLE4))
 TABLE2 = (BASE, POST, ASSISTED, FULL)
@@ -425,7 +425,7 @@ def report(result: dict) -> str:
               f"histograms over {TABLE_BINS} bins (their AP, FPR95 and AUROC of all frames are within "
               f"{result['binning']:.2f} points of the exact ones) and per-frame component counts.", "",
               "Each network's quality (mean ± std over seeds): the segmenter's mIoU on "
-              f"{result['scale']['val_frames']} validation frames {_cell(result['table'][0], 'miou')}% (issue 21's bar "
+              f"{result['scale']['val_frames']} validation frames {_cell(result['table'][0], 'miou')}% (our bar "
               f"for a competent baseline is 60%: {'met' if result['table'][0]['miou'] >= 60 else '**not met**'}), the "
               f"RGB-D net's on the same frames with disparity {_spread(q['rgbd_val_miou'])}% (the bar "
               f"{'met' if np.mean(q['rgbd_val_miou']) >= COMPETENT_MIOU else '**not met**'}; a claim comparing a row "

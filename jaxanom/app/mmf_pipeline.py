@@ -173,8 +173,9 @@ SYNTHESIZERS = ("class_mean", "spade")
 DISSIM_NETS = {"mmf": (2, True, False), "resynthesis": (0, False, False)}
 DISSIM_VARIANTS = {"no_depth": (2, False, False), "no_uncertainty": (0, True, False),
                    "truth_resynthesis": (0, False, True)}
-# hashed into the part's folder key as written (its wording, a ticket name included, is data: changing it
-# orphans every cached dissimilarity part)
+# hashed into the part's folder key as written: the text is data, not a comment (the number in it is the
+# change's internal record); rewording it would retrain every cached dissimilarity part and rename the
+# folders that experiments/mmf_table2.md cites
 _REVISIONS = {"dissimilarity": "correlation concatenated after the prior product (issue 20)"}
 _SLIC_FIELDS = ("slic_step", "slic_input", "slic_connectivity")  # scoring only: in no part's key
 # each variant is its own folder (its name in it): the list of them is in no part's key
