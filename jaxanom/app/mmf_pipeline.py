@@ -173,10 +173,9 @@ SYNTHESIZERS = ("class_mean", "spade")
 DISSIM_NETS = {"mmf": (2, True, False), "resynthesis": (0, False, False)}
 DISSIM_VARIANTS = {"no_depth": (2, False, False), "no_uncertainty": (0, True, False),
                    "truth_resynthesis": (0, False, True)}
-# hashed into the part's folder key as written: the text is data, not a comment (the number in it is the
-# change's internal record); rewording it would retrain every cached dissimilarity part and rename the
-# folders that experiments/mmf_table2.md cites
-_REVISIONS = {"dissimilarity": "correlation concatenated after the prior product (issue 20)"}
+# a part's revision text is hashed into its folder key, so a changed network or training never reuses older
+# folders. Rewording the text alone (to "revision 2: ...") made cached dissimilarity parts retrain once.
+_REVISIONS = {"dissimilarity": "revision 2: correlation concatenated after the prior product"}
 _SLIC_FIELDS = ("slic_step", "slic_input", "slic_connectivity")  # scoring only: in no part's key
 # each variant is its own folder (its name in it): the list of them is in no part's key
 _SPADE_FIELDS = ("gan_steps", "gan_nf", "gan_upsamples", "gan_hidden", "gan_layers")
