@@ -1,7 +1,7 @@
 """ERFNet forward pass at 1024x512, batch 1 and 8, against PyTorch.
 
 Both carry the same weights (the authors' Cityscapes weights, the int8 redistribution dequantised,
-when ../shared/realdata has it, else the peer's random ones), imported with
+when the real-data folder (``JAXANOM_REALDATA``) has them, else the peer's random ones), imported with
 ``jaxanom.weights.from_torch``; the comparison is ``benchmarks.forward_vs_torch``'s. ``quick`` runs
 64x128 without the peer: a smoke test of the code path. ``--one-thread`` (run as a script) gives
 the robust comparison on a shared CPU: one thread each, interleaved, process CPU time.

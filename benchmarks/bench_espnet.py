@@ -1,7 +1,7 @@
 """ESPNet (p=2, q=8, light decoder) forward pass at 1024x512, batch 1 and 8, against PyTorch.
 
-Both carry the same weights (the authors' Cityscapes checkpoint when ../shared/realdata has it,
-else the peer's random ones), imported with ``jaxanom.weights.from_torch``; the comparison is
+Both carry the same weights (the authors' Cityscapes checkpoint when the real-data folder
+(``JAXANOM_REALDATA``) has it, else the peer's random ones), imported with ``jaxanom.weights.from_torch``; the comparison is
 ``benchmarks.forward_vs_torch``'s. ``quick`` runs 64x128 without the peer: a smoke test of the
 code path.
 

@@ -19,7 +19,7 @@
   32, random weights) against the class-mean gather on the same batch of semantic maps (Table 4:
   the two synthesizers' cost; ratio = SPADE / class means, both jaxanom).
 
-Frames: real Road Anomaly frames (``../shared/realdata`` or ``JAXANOM_REALDATA``) resized to the
+Frames: real Road Anomaly frames (the real-data folder, ``JAXANOM_REALDATA``) resized to the
 evaluation size of docs/papers/mmf.md#superpixel-step, else a synthetic blocky image. Step S = 8 px. Rows give
 ratio = this row's time / jaxanom's (above 1: jaxanom is faster).
 

@@ -1,6 +1,6 @@
 """``jaxanom predict`` end to end: real frames in, SML + post-processing maps out, images per second.
 
-The converted ESPNet (the authors' Cityscapes weights from ../shared/realdata) scores the
+The converted ESPNet (the authors' Cityscapes weights from the real-data folder, ``JAXANOM_REALDATA``) scores the
 RoadAnomaly21 frames (1280x720 PNG) with ``sml_post`` (statistics fitted on 2 Cityscapes frames),
 writing float16 ``.npy`` maps. Two ``predict`` calls over the same frames into fresh folders
 (decode, forward, SML with boundary suppression and dilated smoothing, resize back, atomic writes):

@@ -1,6 +1,6 @@
-"""What the real-data experiments share: the files of ../shared/realdata, the authors' Cityscapes
-networks (``NETWORKS``: ESPNet and ERFNet), and the pooled metrics of their frames with bootstrap intervals
-(``experiments.stats``).
+"""What the real-data experiments share: the files of the real-data folder (``REALDATA``, set by
+``JAXANOM_REALDATA``), the authors' Cityscapes networks (``NETWORKS``: ESPNet and ERFNet), and the
+pooled metrics of their frames with bootstrap intervals (``experiments.stats``).
 
 Frames are few (RoadAnomaly21: 10, RoadObstacle21: 30), so every pooled pixel metric comes with a
 95% percentile interval from resampling *frames* with replacement (``bootstrap``): a replicate
