@@ -6,7 +6,7 @@ written as a plain PyTorch model below (torchvision is not installed here and it
 no V3+ decoder), CuDAM in the paper's order (resize, concatenate, 1x1 conv), measured in the
 same run; ``ratio`` = peer ms / jaxanom ms (above 1: jaxanom is faster).
 
-Sizes: the issue's 1x1024x2048 forward and 8x768x768 training step in bfloat16 (PyTorch:
+Sizes: the target's 1x1024x2048 forward and 8x768x768 training step in bfloat16 (PyTorch:
 autocast bfloat16, channels-last) when a GPU is present; on a CPU small inputs in float32 (CPU
 bfloat16 is emulated in both libraries, so its timings say nothing). ``quick`` runs the tiny
 preset without the peer: a smoke test of the code paths, not a measurement of ResNet-101.

@@ -7,7 +7,7 @@ memory (``VmHWM`` of ``/proc/self/status``, read at exit), which includes the Py
 and the memory-mapped pages of the input it touched. Not ``ru_maxrss``: on Linux a child's
 ``ru_maxrss`` starts from its parent's resident size at the fork, so inside ``python -m
 benchmarks`` (after the other benchmarks grew the parent) it measured the parent. The ``import only`` row is the runtime alone. The
-issue's bound: peak below input size + 900 MB. Run:
+bound it is held to: peak below input size + 900 MB. Run:
 ``PYTHONPATH=. python benchmarks/bench_score_memory.py [--quick]``.
 """
 from __future__ import annotations
@@ -90,7 +90,7 @@ def run(quick: bool = False) -> list[dict]:
 
 
 def interpret(rows: list[dict]) -> str:
-    """One line: the largest case's peak against the issue's bound (input + 900 MB)."""
+    """One line: the largest case's peak against its bound (input + 900 MB)."""
     largest = max(rows, key=lambda r: r["input_mb"])
     verdict = "within" if largest["peak_mb"] < largest["input_mb"] + 900 else "ABOVE"
     return (f"{largest['input_mb']:.0f} MB of logits peak at {largest['peak_mb']:.0f} MB, {verdict} the bound "

@@ -13,7 +13,7 @@ log 19: monotone maps of jaxanom's ``msp`` and ``entropy``, which leave AP and F
 
 This runs the same application functions as ``jaxanom evaluate --run RUN --dataset smiyc
 --protocol erfnet-community`` on the int8 redistribution of the weights (dequantised), so the
-issue's tolerance applies: about 1 AP point and 2 FPR95 points from the float weights' numbers.
+comparison allows about 1 AP point and 2 FPR95 points from the float weights' numbers.
 The ``void`` row (softmax probability of the 20th output) is ours: the authors trained that output
 with loss weight 0.
 """
