@@ -101,9 +101,11 @@ def test_dissimilarity_net_fits_one_batch_through_the_train_loop(tmp_path):
     model = DissimilarityNet(3, width=1 / 16)
     config = TrainConfig(str(tmp_path), steps=40, save_every=1000, progress=False,
                          optim=OptimConfig(name="adamw", lr=3e-3, weight_decay=0.0))
-    state = train(config, model, iter([batch] * 40))
     kw = {k: batch[k] for k in model.extra_inputs}
-    prob = np.asarray(anomaly_probability(model.apply(state.variables, batch["image"], **kw)["logits"]))
+    # NumPy-drawn start (an init compiles for seconds; the train loop's own init is tested in test_train_loop.py)
+    state = train(config, model, iter([batch] * 40), variables=random_variables(1, model.init, batch["image"], **kw))
+    # jitted: one compile of the forward instead of one per primitive
+    prob = np.asarray(anomaly_probability(jax.jit(model.apply)(state.variables, batch["image"], **kw)["logits"]))
     valid = label != 255
     assert ((prob > 0.5) == (label == 1))[valid].mean() > 0.95
 
