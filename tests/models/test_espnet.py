@@ -76,7 +76,8 @@ def test_normalize_espnet_is_the_authors_bgr_preprocessing():
 def test_predictor_normalises_uint8_images_for_espnet(random_net):
     model, variables = from_torch(random_net.state_dict(), "espnet-cityscapes")
     rgb = np.random.default_rng(2).integers(0, 256, size=(1, 16, 24, 3), dtype=np.uint8)
-    want = model.apply(variables, normalize_espnet(rgb), train=False)["logits"]
+    # jitted: one compile instead of one per primitive (the predictor is jitted too)
+    want = jax.jit(lambda v, x: model.apply(v, x, train=False))(variables, normalize_espnet(rgb))["logits"]
     np.testing.assert_allclose(predictor(model, variables)(rgb)["logits"], want, rtol=1e-6, atol=1e-6)
 
 

@@ -97,7 +97,9 @@ def test_rgbdnet_trains_through_the_train_loop_and_fits_one_batch(tmp_path):
     config = TrainConfig(str(tmp_path), steps=40, save_every=1000, progress=False,
                          optim=OptimConfig(name="adamw", lr=3e-3, weight_decay=0.0))
     model = _tiny(2)
-    state = train(config, model, iter([batch] * 40))
+    # NumPy-drawn start (an init compiles for seconds; the train loop's own init is tested in test_train_loop.py)
+    variables = random_variables(0, model.init, model_input(batch["image"]), depth=depth)
+    state = train(config, model, iter([batch] * 40), variables=variables)
     logits = jax.jit(model.apply)(state.variables, model_input(batch["image"]), depth=depth)["logits"]  # one compile, not one per op
     accuracy = (np.argmax(logits, -1) == label).mean()
     assert accuracy > 0.8, accuracy
