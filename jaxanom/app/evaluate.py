@@ -291,7 +291,7 @@ def saved_map_batches(folder: str | Path, source,
                 with h5py.File(files[method][index], "r") as f:
                     maps[method] = np.squeeze(f["value"][()])[None]
                 if maps[method].shape[1:] != frame["label"].shape:
-                    raise ValueError(f"maps: {files[method][index]} is {maps[method].shape[1:]}, its label "
+                    raise InputError("maps", f": {files[method][index]} is {maps[method].shape[1:]}, its label "
                                      f"{frame['label'].shape}")
             yield {"maps": maps, "label": frame["label"][None], "name": [frame["name"]]}
 
