@@ -96,8 +96,8 @@ class FishyscapesStatic(FrameReader):
             with np.load(path, allow_pickle=False) as archive:
                 overlay = archive["rgb"]
         except (OSError, ValueError, KeyError, zipfile.BadZipFile) as error:
-            raise InputError("overlay", f": Fishyscapes Static overlay: cannot read array 'rgb' from {path} ({error})") from None
+            raise InputError("overlay", f": cannot read array 'rgb' from {path} ({error})") from None
         if overlay.shape != base.shape:
-            raise InputError("overlay", f": Fishyscapes Static overlay: shape {overlay.shape} of {path} "
+            raise InputError("overlay", f": shape {overlay.shape} of {path} "
                              f"differs from its image's {base.shape}")
         return np.clip(base.astype(np.int32) + overlay.astype(np.int32), 0, 255).astype(np.uint8)

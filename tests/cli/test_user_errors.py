@@ -1,0 +1,100 @@
+"""A user's mistake found deep in the library (a file read lazily, a config value checked when
+the run starts) reaches the command line as one line naming its flag, exit status 2, with
+nothing left in --out; a library bug keeps its traceback."""
+import json
+
+import cv2
+import h5py
+import numpy as np
+import pytest
+
+from converted_run import tiny_run  # noqa: F401  (the module fixture: a tiny converted run)
+from jaxanom.cli import main
+
+H, W = 6, 10
+TRAIN = "from jaxanom.app.demos.sml_cudam import DemoConfig\nexperiment = DemoConfig.quick().experiment\n"
+
+
+def _road_anomaly(root):
+    """Two frames in Road Anomaly's official layout."""
+    names = ["cows.jpg", "rock.jpg"]
+    for k, name in enumerate(names):
+        (root / "frames" / f"{name[:-4]}.labels").mkdir(parents=True)
+        cv2.imwrite(str(root / "frames" / name), np.full((H, W, 3), 60 + 40 * k, np.uint8))
+        cv2.imwrite(str(root / "frames" / f"{name[:-4]}.labels" / "labels_semantic.png"),
+                    np.where(np.arange(H * W).reshape(H, W) % 3 == 0, 2, 0).astype(np.uint8))
+    (root / "frame_list.json").write_text(json.dumps(names))
+    return root
+
+
+def _static_with_bad_overlay(root):
+    """A Fishyscapes Static frame whose overlay is 3x3 while its Cityscapes image is H x W."""
+    masks, cityscapes = root / "fs_val_v3", root / "cityscapes"
+    (cityscapes / "leftImg8bit/val/lindau").mkdir(parents=True)
+    masks.mkdir()
+    cv2.imwrite(str(cityscapes / "leftImg8bit/val/lindau/lindau_000001_000019_leftImg8bit.png"),
+                np.zeros((H, W, 3), np.uint8))
+    cv2.imwrite(str(masks / "0003_lindau_000001_000019_labels.png"), np.zeros((H, W), np.uint8))
+    np.savez(masks / "0003_lindau_000001_000019_rgb.npz", rgb=np.zeros((3, 3, 3), np.int16))
+    return masks, cityscapes
+
+
+def _maps_of_the_wrong_size(root):
+    """Score maps as ``predict --format smiyc`` writes them, 5x5 for H x W frames."""
+    for name in ("cows", "rock"):
+        file = root / "anomaly_p" / "msp" / "RoadAnomaly" / f"{name}.hdf5"
+        file.parent.mkdir(parents=True, exist_ok=True)
+        with h5py.File(file, "w") as f:
+            f["value"] = np.zeros((5, 5), np.float16)
+    return root
+
+
+def _train_config(root):
+    (root / "exp.py").write_text(TRAIN)
+    return str(root / "exp.py")
+
+
+# each case: (the command's arguments but --out, a text the line holds (the flag or the file named))
+CASES = {
+    "evaluate: overlay of another size": lambda tmp, run: (
+        ["evaluate", "--run", str(run), "--dataset", "fishyscapes-static", "--methods", "msp",
+         "--path", str(_static_with_bad_overlay(tmp)[0]), "--base", str(tmp / "cityscapes")],
+        "overlay: shape (3, 3, 3) of "),
+    "evaluate: saved maps of another size": lambda tmp, run: (
+        ["evaluate", "--maps", str(_maps_of_the_wrong_size(tmp / "maps")), "--dataset", "road-anomaly",
+         "--path", str(_road_anomaly(tmp / "ra"))], "--maps: "),
+    "evaluate: a broken frame list": lambda tmp, run: (
+        ["evaluate", "--run", str(run), "--dataset", "road-anomaly", "--methods", "msp",
+         "--path", str(_road_anomaly(tmp / "ra"))], "--path "),
+    "train: warm-up longer than the run": lambda tmp, run: (
+        ["train", "--config", _train_config(tmp), "--set", "train.optim.warmup_steps=50", "--no-progress"],
+        "warmup_steps=50"),
+    "train: init-modules the network lacks": lambda tmp, run: (
+        ["train", "--init-from", str(run), "--init-modules", "nope", "--steps", "1", "--no-progress"],
+        "--init-from "),
+}
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_a_user_mistake_is_one_line_naming_it_and_writes_nothing(case, tiny_run, tmp_path, capsys):  # noqa: F811
+    argv, named = CASES[case](tmp_path, tiny_run)
+    if case == "evaluate: a broken frame list":
+        (tmp_path / "ra" / "frame_list.json").write_text("[not json")
+    out = tmp_path / "out"
+    assert main([*argv, "--out", str(out)]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"jaxanom {argv[0]}: error: "), lines
+    assert named in lines[0], lines
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_a_library_bug_while_reading_a_dataset_keeps_its_traceback(tiny_run, tmp_path, monkeypatch):  # noqa: F811
+    from jaxanom.data import RoadAnomaly
+
+    def broken(self, index):
+        raise ValueError("a bug of ours")
+
+    monkeypatch.setattr(RoadAnomaly, "__getitem__", broken)
+    with pytest.raises(ValueError, match="a bug of ours"):
+        main(["evaluate", "--run", str(tiny_run), "--dataset", "road-anomaly", "--methods", "msp",
+              "--path", str(_road_anomaly(tmp_path / "ra")), "--out", str(tmp_path / "out")])
