@@ -72,6 +72,12 @@ CASES = {
     "train: init-modules the network lacks": lambda tmp, run: (
         ["train", "--init-from", str(run), "--init-modules", "nope", "--steps", "1", "--no-progress"],
         "--init-from "),
+    "demo: --steps within its warm-up": lambda tmp, run: (
+        ["demo", "--steps", "5", "--no-progress"], "experiment: steps: "),
+    "demo mmf: --steps within the segmenter's warm-up": lambda tmp, run: (
+        ["demo", "mmf", "--steps", "5", "--no-progress"], "pipeline.segmenter: steps: "),
+    "demo: an attention its objective does not train": lambda tmp, run: (
+        ["demo", "--quick", "--set", "experiment.attention=msaam", "--no-progress"], "experiment: attention and "),
 }
 
 

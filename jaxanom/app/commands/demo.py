@@ -8,7 +8,7 @@ import dataclasses
 
 from jaxanom.app.commands.inputs import read_config, with_overrides
 from jaxanom.app.outputs import out_folder
-from jaxanom.errors import InputError
+from jaxanom.errors import InputError, reading
 
 __all__ = ["PAPERS", "demo"]
 
@@ -38,6 +38,7 @@ def demo(paper: str | None = None, *, out: str = "jaxanom-demo", quick: bool = F
         settings = dataclasses.replace(settings, experiment=dataclasses.replace(
             experiment, train=dataclasses.replace(experiment.train, steps=steps)))
     settings = with_overrides(settings, overrides)
+    _check_training(settings.experiment, "experiment")
     run_demo(out_folder(out, overwrite), settings, progress=progress)
 
 
@@ -46,6 +47,16 @@ def _settings(cls, quick: bool, config: str | None):
     if quick and config:
         raise InputError("quick", ", {config}: give one of them", mentions=("config",))
     return read_config(config, cls) if config else cls.quick() if quick else cls()
+
+
+def _check_training(experiment, field: str) -> None:
+    """The checks a training run makes when it starts, made before ``out`` is claimed: InputError
+    naming the config's ``field`` (the experiment within it) and the field that does not fit."""
+    from jaxanom.app.experiment import check_objective, check_schedule
+
+    with reading(field):
+        check_objective(experiment)
+        check_schedule(experiment)
 
 
 def _mmf(out, quick, steps, config, synthesizer, overrides, overwrite, progress) -> None:
@@ -62,6 +73,7 @@ def _mmf(out, quick, steps, config, synthesizer, overrides, overwrite, progress)
     if synthesizer:
         settings = dataclasses.replace(settings, pipeline=dataclasses.replace(settings.pipeline, synthesizer=synthesizer))
     settings = with_overrides(settings, overrides)
+    _check_training(settings.pipeline.segmenter, "pipeline.segmenter")
     run_mmf_demo(out_folder(out, overwrite), settings, progress=progress)
 
 
