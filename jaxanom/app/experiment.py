@@ -7,6 +7,7 @@ events, so ``load_variables(run_dir)`` can rebuild the network without the origi
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 from pathlib import Path
 from typing import Any, Sequence
@@ -226,7 +227,10 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
     config_file = run_dir / "experiment.json"
     if config_file.exists():
         check_same_run(load_experiment(run_dir), experiment, run_dir)
-    # data and network first: a config that fails there leaves the folder as it was, free for a retry
+    # starting weights, data and network first: a config that fails there leaves the folder as it
+    # was, free for a retry
+    started = (run_dir / "checkpoints").is_dir() and any((run_dir / "checkpoints").iterdir())
+    variables = initial_variables(experiment) if experiment.init_from and not started else None
     augment = Augment(crop_hw=tuple(experiment.crop), scale_range=tuple(experiment.scale_range))
     batches = training_batches(frames(experiment, "train"), batch_size=experiment.batch_size,
                                augment=augment, seed=experiment.train.seed)
@@ -235,8 +239,6 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
         val = list(evaluation_batches(frames(experiment, "val", max(experiment.batch_size, 8)),
                                       batch_size=experiment.batch_size))
     network = build_network(experiment)
-    started = (run_dir / "checkpoints").is_dir() and any((run_dir / "checkpoints").iterdir())
-    variables = initial_variables(experiment) if experiment.init_from and not started else None
     write_json_atomic(config_file, jsonable(experiment))
     config = dataclasses.replace(experiment.train, run_dir=str(run_dir), progress=progress)
     state = train(config, network, batches, val, variables)
@@ -293,11 +295,11 @@ def initial_variables(experiment: Experiment) -> dict:
 
     with reading("init_from", experiment.init_from):
         _, source = load_variables(experiment.init_from)
-    image = np.zeros((1, *experiment.crop, 3), np.float32)
-    fresh = jax.jit(build_network(experiment).init, static_argnames="train")(
-        jax.random.key(experiment.train.seed), image, train=False)
-    with reading("init_from", experiment.init_from):
-        return take_modules(jax.device_get(fresh), source, experiment.init_modules)
+    init = functools.partial(build_network(experiment).init, train=False)
+    key, image = jax.random.key(experiment.train.seed), np.zeros((1, *experiment.crop, 3), np.float32)
+    with reading("init_from", experiment.init_from):  # on the shapes: refused before compiling the network
+        take_modules(jax.eval_shape(init, key, image), source, experiment.init_modules)
+    return take_modules(jax.device_get(jax.jit(init)(key, image)), source, experiment.init_modules)
 
 
 def jsonable(experiment: Experiment) -> dict:

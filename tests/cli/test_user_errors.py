@@ -70,7 +70,8 @@ CASES = {
         ["train", "--config", _train_config(tmp), "--set", "train.optim.warmup_steps=50", "--no-progress"],
         "warmup_steps=50"),
     "train: init-modules the network lacks": lambda tmp, run: (
-        ["train", "--init-from", str(run), "--init-modules", "nope", "--steps", "1", "--no-progress"],
+        ["train", "--config", _train_config(tmp), "--init-from", str(run), "--init-modules", "nope",
+         "--no-progress"],
         "--init-from "),
     "demo: --steps within its warm-up": lambda tmp, run: (
         ["demo", "--steps", "5", "--no-progress"], "experiment: steps: "),
