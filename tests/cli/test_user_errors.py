@@ -49,12 +49,27 @@ def _maps_of_the_wrong_size(root):
     return root
 
 
+def _three_class_stats(root):
+    from jaxanom import sml
+
+    sml.save_stats(root / "stats.npz", np.zeros(3), np.ones(3), np.full(3, 1e6))
+    return str(root / "stats.npz")
+
+
+def _checkpoint_of_other_keys(root):
+    import torch
+
+    torch.save({"conv.weight": torch.zeros(2, 3, 1, 1)}, root / "other.pth")
+    return str(root / "other.pth")
+
+
 def _train_config(root):
     (root / "exp.py").write_text(TRAIN)
     return str(root / "exp.py")
 
 
-# each case: (the command's arguments but --out, a text the line holds (the flag or the file named))
+OUT = "<out>"  # where a case names its output itself; the others get --out <out>
+# each case: (the command's arguments, a text the line holds (the flag or the file named))
 CASES = {
     "evaluate: overlay of another size": lambda tmp, run: (
         ["evaluate", "--run", str(run), "--dataset", "fishyscapes-static", "--methods", "msp",
@@ -66,6 +81,16 @@ CASES = {
     "evaluate: a broken frame list": lambda tmp, run: (
         ["evaluate", "--run", str(run), "--dataset", "road-anomaly", "--methods", "msp",
          "--path", str(_road_anomaly(tmp / "ra"))], "--path "),
+    "evaluate: statistics of another class count": lambda tmp, run: (
+        ["evaluate", "--run", str(run), "--dataset", "road-anomaly", "--methods", "sml",
+         "--stats", _three_class_stats(tmp), "--path", str(_road_anomaly(tmp / "ra"))], "--stats "),
+    "fit-stats: frames too small to pool": lambda tmp, run: (
+        ["fit-stats", "--run", str(run), "--frames", "1", "--size", "3x3", "--policy", "shrink",
+         "--out", f"{OUT}/stats.npz"],
+        "stats has only 9 counted pixel(s)"),
+    "convert-weights: a checkpoint of another network": lambda tmp, run: (
+        ["convert-weights", "--from", "erfnet-cityscapes", _checkpoint_of_other_keys(tmp), OUT],
+        "IN: state dict does not match erfnet-cityscapes"),
     "train: warm-up longer than the run": lambda tmp, run: (
         ["train", "--config", _train_config(tmp), "--set", "train.optim.warmup_steps=50", "--no-progress"],
         "warmup_steps=50"),
@@ -89,7 +114,8 @@ def test_a_user_mistake_is_one_line_naming_it_and_writes_nothing(case, tiny_run,
         (tmp_path / "ra" / "frame_list.json").write_text("[not json")
     out = tmp_path / "out"
     out.mkdir()  # the user's empty folder stays, so what a command leaves in it shows
-    assert main([*argv, "--out", str(out)]) == 2
+    argv = [a.replace(OUT, str(out)) for a in argv] if any(OUT in a for a in argv) else [*argv, "--out", str(out)]
+    assert main(argv) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"jaxanom {argv[0]}: error: "), lines
     assert named in lines[0], lines
