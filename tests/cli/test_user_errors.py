@@ -63,6 +63,16 @@ def _checkpoint_of_other_keys(root):
     return str(root / "other.pth")
 
 
+def _deepscene(root):
+    """Two frames of DeepScene's train split (its colour-coded labels all 'road')."""
+    for k in range(2):
+        (root / "train" / "rgb").mkdir(parents=True, exist_ok=True)
+        (root / "train" / "GT_color").mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(root / "train" / "rgb" / f"b{k}-0{k}517_Clipped.jpg"), np.zeros((H, W, 3), np.uint8))
+        cv2.imwrite(str(root / "train" / "GT_color" / f"b{k}-0{k}517_mask.png"), np.full((H, W, 3), 170, np.uint8))
+    return str(root)
+
+
 def _train_config(root):
     (root / "exp.py").write_text(TRAIN)
     return str(root / "exp.py")
@@ -98,6 +108,9 @@ CASES = {
         ["train", "--config", _train_config(tmp), "--init-from", str(run), "--init-modules", "nope",
          "--no-progress"],
         "--init-from "),
+    "demo offroad: a source starting past its frames": lambda tmp, run: (
+        ["demo", "offroad", "--quick", "--set", "active.reader=deepscene", "--set", f"active.root={_deepscene(tmp)}",
+         "--set", "active.start=5", "--no-progress"], "active: deepscene source in "),
     "demo: --steps within its warm-up": lambda tmp, run: (
         ["demo", "--steps", "5", "--no-progress"], "experiment: steps: "),
     "demo mmf: --steps within the segmenter's warm-up": lambda tmp, run: (

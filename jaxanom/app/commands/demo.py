@@ -80,12 +80,13 @@ def _mmf(out, quick, steps, config, synthesizer, overrides, overwrite, progress)
 def _offroad(out, quick, steps, config, overrides, overwrite, progress) -> None:
     """``jaxanom demo offroad [--quick | --config FILE] [--steps N] [--set NAME=VALUE] [--out DIR]``."""
     from jaxanom.app.demos.offroad import run_offroad_demo
-    from jaxanom.app.offroad_experiment import OffroadDemoConfig
+    from jaxanom.app.offroad_experiment import OffroadDemoConfig, check_sources
 
     settings = _settings(OffroadDemoConfig, quick, config)
     if steps is not None:
         encoder = dataclasses.replace(settings.pipeline.encoder, steps=steps)
         settings = dataclasses.replace(settings, pipeline=dataclasses.replace(settings.pipeline, encoder=encoder))
     settings = with_overrides(settings, overrides)
+    check_sources(settings)
     out = "jaxanom-demo-offroad" if out == "jaxanom-demo" else out
     run_offroad_demo(out_folder(out, overwrite), settings, progress=progress)
