@@ -2,6 +2,8 @@
 the run starts) reaches the command line as one line naming its flag, exit status 2, with
 nothing left in --out; a library bug keeps its traceback."""
 import json
+import shutil
+from pathlib import Path
 
 import cv2
 import h5py
@@ -79,6 +81,13 @@ def _deepscene(root):
     return str(root)
 
 
+def _mmf_folder_without_networks(root):
+    """A folder with the results.json of ``jaxanom demo mmf`` and none of its trained networks."""
+    root.mkdir()
+    shutil.copy(Path(__file__).parents[1] / "fixtures" / "configs" / "mmf_results.json", root / "results.json")
+    return str(root)
+
+
 def _train_config(root):
     (root / "exp.py").write_text(TRAIN)
     return str(root / "exp.py")
@@ -100,6 +109,9 @@ CASES = {
     "evaluate: statistics of another class count": lambda tmp, run: (
         ["evaluate", "--run", str(run), "--dataset", "road-anomaly", "--methods", "sml",
          "--stats", _three_class_stats(tmp), "--path", str(_road_anomaly(tmp / "ra"))], "--stats "),
+    "evaluate: an MMF folder without its networks": lambda tmp, run: (
+        ["evaluate", "--mmf", _mmf_folder_without_networks(tmp / "mmf"), "--dataset", "synthetic", "--path", "anomaly",
+         "--frames", "1"], "--mmf "),
     "fit-stats: frames too small to pool": lambda tmp, run: (
         ["fit-stats", "--run", str(run), "--frames", "1", "--size", "3x3", "--policy", "shrink",
          "--out", f"{OUT}/stats.npz"],
