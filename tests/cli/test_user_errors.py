@@ -151,6 +151,20 @@ def test_a_user_mistake_is_one_line_naming_it_and_writes_nothing(case, tiny_run,
     assert list(out.iterdir()) == []
 
 
+def test_resuming_a_damaged_checkpoint_is_one_line_naming_out_and_changes_nothing(tiny_run, tmp_path,  # noqa: F811
+                                                                                   capsys):
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run, run)
+    for array_file in (run / "checkpoints").rglob("ocdbt.process_0/d/*"):
+        array_file.write_bytes(b"garbage")
+    before = {path: path.read_bytes() for path in run.rglob("*") if path.is_file()}
+    assert main(["train", "--resume", "--out", str(run), "--no-progress"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"jaxanom train: error: --out {run}: checkpoint directory "), lines
+    assert "step 0 cannot be read" in lines[0]
+    assert {path: path.read_bytes() for path in run.rglob("*") if path.is_file()} == before
+
+
 def test_a_library_bug_while_reading_a_dataset_keeps_its_traceback(tiny_run, tmp_path, monkeypatch):  # noqa: F811
     from jaxanom.data import RoadAnomaly
 

@@ -29,6 +29,7 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
 
     from jaxanom.app.experiment import (Experiment, attention_positions, check_objective, check_schedule,
                                         load_experiment, run_training)
+    from jaxanom.train.checkpoint import DamagedCheckpointError
     from jaxanom.train.loop import NonFiniteLossError
 
     if distributed:  # before any JAX work: loading the data or the model may touch devices
@@ -69,6 +70,8 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
                          f"a new run with a lower learning rate ({{overrides}} train.optim.lr=..., now "
                          f"{experiment.train.optim.lr:g}) or gradient clipping ({{overrides}} train.optim.clip_norm=...)",
                          mentions=("resume",)) from None
+    except DamagedCheckpointError as error:  # only --resume finds checkpoints in --out
+        raise InputError("out", f"{out_dir}: {error}") from None
     print(f"trained {experiment.train.steps} steps on {jax.device_count()} devices ({jax.process_count()} "
           f"processes); checkpoints in {out_dir / 'checkpoints'}")
 
