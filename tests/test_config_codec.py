@@ -347,11 +347,11 @@ def started(monkeypatch):
 
 def test_train_and_demo_take_the_same_files_and_set(tmp_path, started, capsys):
     run_file = WRITTEN_BEFORE / "experiment_cudam_demo.json"  # a run's experiment.json as a config
-    assert main(["train", "--config", str(run_file), "--out", str(tmp_path / "r"), "--steps", "5",
+    assert main(["train", "--config", str(run_file), "--out", str(tmp_path / "r"), "--steps", "40",
                  "--set", "train.optim.lr=0.5", "--set", "train.objective.beta=0.25", "--no-progress"]) == 0
     cudam = DemoConfig().experiment
     assert started.pop() == dataclasses.replace(cudam, train=dataclasses.replace(
-        cudam.train, steps=5, optim=dataclasses.replace(cudam.train.optim, lr=0.5),
+        cudam.train, steps=40, optim=dataclasses.replace(cudam.train.optim, lr=0.5),
         objective=dataclasses.replace(cudam.train.objective, beta=0.25)))
     (tmp_path / "demo.json").write_text(json.dumps({"config": encode(DemoConfig.quick())}))  # as results.json
     assert main(["demo", "--config", str(tmp_path / "demo.json"), "--set", "experiment.train.seed=3",

@@ -131,41 +131,46 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
     pixels, kept, used, frames, binned = {}, {}, {}, [], {}  # method -> (evaluator, state)
     spill = (tempfile.TemporaryDirectory(prefix=".jaxanom-maps-", suffix=".tmp", dir=spill_dir)
              if track is not None else None)
-    for batch in outputs:
-        if "maps" in batch:  # finished score maps (saved_map_batches)
-            batch_scores = batch["maps"]
-        else:
-            batch_scores, options_used = score_all(method_names, inputs_of(batch, stats), options,
-                                                   drop_void=drop_void)
-            for name, values in options_used.items():
-                for key, value in values.items():
-                    if value not in (seen := used.setdefault(name, {}).setdefault(key, [])):
-                        seen.append(value)
-        labels = np.asarray(batch["label"])
-        if "roi" in batch:  # evaluate inside the region of interest only (MMF: the road)
-            labels = restrict_to_roi(labels, batch["roi"])
-        first = len(frames)
-        if spill is not None:
-            names_in_batch = batch.get("name", [None] * len(labels))
-            for index, label in enumerate(labels):
-                name = names_in_batch[index]
-                frames.append({"name": str(name) if name is not None else str(first + index), "pixels": {}})
-                np.save(Path(spill.name) / f"label_{first + index}.npy", label)
-        scored = {"scores": batch_scores, "label": labels}
-        for name, score in batch_scores.items():
-            update_keyed(pixels, name, lambda: PixelAnomaly(name, mode, fpr_convention, ap_convention,
-                                                            conventions=True), scored)
-            if convention == "smiyc":
-                update_keyed(binned, name, lambda: SmiycPixels(name), scored)
-            if keep_curves:
-                kept.setdefault(name, []).extend(zip(np.asarray(score), labels))
+    try:
+        for batch in outputs:
+            if "maps" in batch:  # finished score maps (saved_map_batches)
+                batch_scores = batch["maps"]
+            else:
+                batch_scores, options_used = score_all(method_names, inputs_of(batch, stats), options,
+                                                       drop_void=drop_void)
+                for name, values in options_used.items():
+                    for key, value in values.items():
+                        if value not in (seen := used.setdefault(name, {}).setdefault(key, [])):
+                            seen.append(value)
+            labels = np.asarray(batch["label"])
+            if "roi" in batch:  # evaluate inside the region of interest only (MMF: the road)
+                labels = restrict_to_roi(labels, batch["roi"])
+            first = len(frames)
             if spill is not None:
-                for index, (one, label) in enumerate(zip(np.asarray(score), labels)):
-                    np.save(Path(spill.name) / f"{name}_{first + index}.npy", one)
-                    frames[first + index]["pixels"][name] = _frame_pixel_metrics(one, label, fpr_convention,
-                                                                                  ap_convention)
-    if not pixels:
-        raise ValueError("outputs: expected at least one batch, got none")
+                names_in_batch = batch.get("name", [None] * len(labels))
+                for index, label in enumerate(labels):
+                    name = names_in_batch[index]
+                    frames.append({"name": str(name) if name is not None else str(first + index), "pixels": {}})
+                    np.save(Path(spill.name) / f"label_{first + index}.npy", label)
+            scored = {"scores": batch_scores, "label": labels}
+            for name, score in batch_scores.items():
+                update_keyed(pixels, name, lambda: PixelAnomaly(name, mode, fpr_convention, ap_convention,
+                                                                conventions=True), scored)
+                if convention == "smiyc":
+                    update_keyed(binned, name, lambda: SmiycPixels(name), scored)
+                if keep_curves:
+                    kept.setdefault(name, []).extend(zip(np.asarray(score), labels))
+                if spill is not None:
+                    for index, (one, label) in enumerate(zip(np.asarray(score), labels)):
+                        np.save(Path(spill.name) / f"{name}_{first + index}.npy", one)
+                        frames[first + index]["pixels"][name] = _frame_pixel_metrics(one, label, fpr_convention,
+                                                                                      ap_convention)
+        if not pixels:
+            raise ValueError("outputs: expected at least one batch, got none")
+    except BaseException:  # a refused frame mid-way leaves no spilled maps in --out
+        if spill is not None:
+            spill.cleanup()
+        raise
     metrics = {name: evaluator.finalize(state) for name, (evaluator, state) in pixels.items()}
     for name, values in used.items():
         if values:
@@ -291,7 +296,7 @@ def saved_map_batches(folder: str | Path, source,
                 with h5py.File(files[method][index], "r") as f:
                     maps[method] = np.squeeze(f["value"][()])[None]
                 if maps[method].shape[1:] != frame["label"].shape:
-                    raise ValueError(f"maps: {files[method][index]} is {maps[method].shape[1:]}, its label "
+                    raise InputError("maps", f": {files[method][index]} is {maps[method].shape[1:]}, its label "
                                      f"{frame['label'].shape}")
             yield {"maps": maps, "label": frame["label"][None], "name": [frame["name"]]}
 

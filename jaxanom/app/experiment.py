@@ -7,6 +7,7 @@ events, so ``load_variables(run_dir)`` can rebuild the network without the origi
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 from pathlib import Path
 from typing import Any, Sequence
@@ -14,7 +15,7 @@ from typing import Any, Sequence
 import jax
 import numpy as np
 
-from jaxanom.errors import InputError
+from jaxanom.errors import InputError, reading
 from jaxanom._validate import check_count, check_fits_memory, check_number
 from jaxanom.config_codec import encode
 from jaxanom.cudam_objective import CuDAM
@@ -24,7 +25,7 @@ from jaxanom.losses import CrossEntropy
 from jaxanom.msaam_objective import MSAAM
 from jaxanom.objectives import Objective
 from jaxanom.train.loop import TrainConfig
-from jaxanom.train.optim import schedule_depends_on_steps
+from jaxanom.train.optim import poly_schedule, schedule_depends_on_steps
 
 DATASETS = ("synthetic", "cityscapes")
 # Each attention module's paper objective. A network and an objective agree when the objective reads
@@ -154,6 +155,13 @@ def check_objective(experiment: Experiment) -> None:
         f"{advice}train.objective={wanted.__name__}(...)")
 
 
+def check_schedule(experiment: Experiment) -> None:
+    """ValueError unless the learning-rate schedule has updates left after its warm-up: checked
+    before a run starts, not when its optimizer is built."""
+    optim = experiment.train.optim
+    poly_schedule(optim, experiment.train.steps // optim.accum_steps)
+
+
 def _outputs(needs: tuple[str, ...]) -> str:
     return "the logits only" if not needs else " and ".join(repr(name) for name in needs)
 
@@ -215,10 +223,14 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
 
     run_dir = Path(run_dir)
     check_objective(experiment)
+    check_schedule(experiment)
     config_file = run_dir / "experiment.json"
     if config_file.exists():
         check_same_run(load_experiment(run_dir), experiment, run_dir)
-    # data and network first: a config that fails there leaves the folder as it was, free for a retry
+    # starting weights, data and network first: a config that fails there leaves the folder as it
+    # was, free for a retry
+    started = (run_dir / "checkpoints").is_dir() and any((run_dir / "checkpoints").iterdir())
+    variables = initial_variables(experiment) if experiment.init_from and not started else None
     augment = Augment(crop_hw=tuple(experiment.crop), scale_range=tuple(experiment.scale_range))
     batches = training_batches(frames(experiment, "train"), batch_size=experiment.batch_size,
                                augment=augment, seed=experiment.train.seed)
@@ -229,8 +241,6 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
     network = build_network(experiment)
     write_json_atomic(config_file, jsonable(experiment))
     config = dataclasses.replace(experiment.train, run_dir=str(run_dir), progress=progress)
-    started = (run_dir / "checkpoints").is_dir() and any((run_dir / "checkpoints").iterdir())
-    variables = initial_variables(experiment) if experiment.init_from and not started else None
     state = train(config, network, batches, val, variables)
     return jax.device_get(state.variables)
 
@@ -279,14 +289,17 @@ def _trained_steps(run_dir: Path) -> int:
 
 def initial_variables(experiment: Experiment) -> dict:
     """The variables a run of ``experiment`` starts from: ``init_modules`` of the ``init_from`` run,
-    the rest initialised with ``train.seed``; ValueError when they do not fit the network."""
+    the rest initialised with ``train.seed``; InputError naming ``init_from`` when its run cannot
+    be read or its modules do not fit the network."""
     from jaxanom.weights import take_modules
 
-    _, source = load_variables(experiment.init_from)
-    image = np.zeros((1, *experiment.crop, 3), np.float32)
-    fresh = jax.jit(build_network(experiment).init, static_argnames="train")(
-        jax.random.key(experiment.train.seed), image, train=False)
-    return take_modules(jax.device_get(fresh), source, experiment.init_modules)
+    with reading("init_from", experiment.init_from):
+        _, source = load_variables(experiment.init_from)
+    init = functools.partial(build_network(experiment).init, train=False)
+    key, image = jax.random.key(experiment.train.seed), np.zeros((1, *experiment.crop, 3), np.float32)
+    with reading("init_from", experiment.init_from):  # on the shapes: refused before compiling the network
+        take_modules(jax.eval_shape(init, key, image), source, experiment.init_modules)
+    return take_modules(jax.device_get(jax.jit(init)(key, image)), source, experiment.init_modules)
 
 
 def jsonable(experiment: Experiment) -> dict:

@@ -52,6 +52,9 @@ def mmf_scored_batches(folder: str, dataset: str, path: str, *, frames: int | No
         raise InputError("mmf", f": the {dataset} dataset has no disparity; use synthetic, lost-and-found or "
                          "smiyc with {depth}", mentions=("depth",))
     seg = config.segmenter
-    source = dataset_reader(dataset, path, frames=frames, depth=depth,
-                            size={"height": seg.height, "width": seg.width, "disparity": True, "roi": True})
-    return source, scored_batches(MMFPipeline.load(config, folder / "runs"), source, batch_size=1)
+    with reading("path", path):  # a folder that does not hold the dataset
+        source = dataset_reader(dataset, path, frames=frames, depth=depth,
+                                size={"height": seg.height, "width": seg.width, "disparity": True, "roi": True})
+    with reading("mmf", folder):  # a pipeline's networks missing or damaged in the folder
+        pipeline = MMFPipeline.load(config, folder / "runs")
+    return source, scored_batches(pipeline, source, batch_size=1)

@@ -11,6 +11,7 @@ from jaxanom._validate import check_count
 from jaxanom.app.offroad_pipeline import OffroadConfig
 from jaxanom.data.offroad import DOMAINS, GRANULARITIES, OffroadSequence
 from jaxanom.data.patch_annotations import annotate
+from jaxanom.errors import InputError
 from jaxanom.offroad.active import min_frames
 from jaxanom.offroad.encoder import AnnotatedFrames, EncoderConfig, stack_annotations
 
@@ -92,13 +93,30 @@ class OffroadDemoConfig:
                    segmented=1, pictures=1, anchors=6, height=48, width=64)
 
 
+def check_sources(config: OffroadDemoConfig) -> None:
+    """Before any work: each real source's folder holds its reader's layout (FileNotFoundError
+    naming what is missing) and frames from its ``start`` on (InputError naming the config's field,
+    ``train[i]``, ``active`` or ``test``)."""
+    named = [(f"train[{i}]", source) for i, source in enumerate(config.train)]
+    for field, source in [*named, ("active", config.active), ("test", config.test)]:
+        if source.reader != "synthetic":
+            _frames_from_start(source, field)
+
+
+def _frames_from_start(source: Source, field: str):
+    """The reader of the real ``source``; InputError naming ``field`` when ``start`` is past its frames."""
+    reader = source.open()
+    if source.start >= len(reader):
+        raise InputError(field, f": {source.reader} source in {source.root}: start {source.start} is past its "
+                         f"{len(reader)} frames")
+    return reader
+
+
 def source_frames(source: Source, config: OffroadDemoConfig) -> list[dict]:
     """The frames ``{"image" (H, W, 3) uint8, "label" (H, W)}`` of ``source`` at the config's size and granularity."""
     if source.reader != "synthetic":
-        reader = source.open()
+        reader = _frames_from_start(source, "source")
         picked = range(source.start, min(len(reader), source.start + source.frames * source.step), source.step)
-        if not picked:
-            raise ValueError(f"{source.reader} source: start {source.start} is past its {len(reader)} frames")
         size = (config.width, config.height)
         return [{"image": cv2.resize(f["image"], size, interpolation=cv2.INTER_AREA),
                  "label": cv2.resize(f["label"], size, interpolation=cv2.INTER_NEAREST)} for f in map(reader.__getitem__, picked)]

@@ -15,6 +15,7 @@ from jaxanom.data.cityscapes_labels import LABEL_ID_TO_TRAIN_ID, NUM_LABEL_IDS
 from jaxanom.data.disparity import read_camera, read_disparity
 from jaxanom.data.frames import FrameReader
 from jaxanom.data.image_io import check_values, require_dir, require_file
+from jaxanom.errors import InputError
 
 _IMAGE_SUFFIX = "_leftImg8bit.png"
 
@@ -63,7 +64,7 @@ class Cityscapes(FrameReader):
             disparity_path, camera_path = self._stereo[index]
             frame["disparity"] = read_disparity(disparity_path)
             if frame["disparity"].shape != frame["image"].shape[:2]:
-                raise ValueError(f"disparity: size {frame['disparity'].shape} of {disparity_path} differs from "
+                raise InputError("disparity", f": size {frame['disparity'].shape} of {disparity_path} differs from "
                                  f"its image's {frame['image'].shape[:2]}")
             frame["camera"] = read_camera(camera_path)
         return frame

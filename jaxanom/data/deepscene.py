@@ -19,6 +19,7 @@ import numpy as np
 
 from jaxanom.data.frames import FrameReader
 from jaxanom.data.image_io import require_dir, require_file
+from jaxanom.errors import InputError
 
 DEEPSCENE_CLASSES = ("trail", "grass", "vegetation", "sky", "obstacle")
 COLOURS = {(170, 170, 170): 0, (0, 255, 0): 1, (102, 102, 51): 2, (0, 60, 0): 2, (0, 120, 255): 3, (0, 0, 0): 4,
@@ -34,7 +35,7 @@ def decode_colours(rgb: np.ndarray, colours: dict, path: Path, tolerance: int) -
     far = np.take_along_axis(distance, nearest[..., None], -1)[..., 0] > tolerance
     if far.any():
         r, c = np.argwhere(far)[0]
-        raise ValueError(f"label: {int(far.sum())} pixel(s) of {path} match no class colour within {tolerance} "
+        raise InputError("label", f": {int(far.sum())} pixel(s) of {path} match no class colour within {tolerance} "
                          f"(first at row {r}, column {c}: {rgb[r, c].tolist()})")
     return ids[nearest]
 
@@ -43,7 +44,7 @@ def read_colour_label(path: Path) -> np.ndarray:
     """A colour-coded label image -> (H, W, 3) uint8 RGB."""
     image = cv2.imread(str(require_file(path, "label")), cv2.IMREAD_COLOR)
     if image is None:
-        raise ValueError(f"label: cannot decode {path} (corrupt or unsupported format)")
+        raise InputError("label", f": cannot decode {path} (corrupt or unsupported format)")
     return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
 
 
@@ -61,7 +62,7 @@ class _ColourFrames(FrameReader):
         image = self.read_image(index)
         label = decode_colours(read_colour_label(label_path), self._colours, label_path, self._tolerance)
         if label.shape != image.shape[:2]:
-            raise ValueError(f"label: size {label.shape} of {label_path} differs from its image's {image.shape[:2]}")
+            raise InputError("label", f": size {label.shape} of {label_path} differs from its image's {image.shape[:2]}")
         return {"image": image, "label": label, "name": name}
 
 

@@ -13,15 +13,16 @@ import cv2
 import numpy as np
 
 from jaxanom.data.image_io import require_file
+from jaxanom.errors import InputError
 
 
 def read_disparity(path: Path) -> np.ndarray:
     """A Cityscapes disparity PNG -> (H, W) float32 pixels, 0 where invalid."""
     raw = cv2.imread(str(require_file(path, "disparity")), cv2.IMREAD_UNCHANGED)
     if raw is None:
-        raise ValueError(f"disparity: cannot decode {path} (corrupt or unsupported format)")
+        raise InputError("disparity", f": cannot decode {path} (corrupt or unsupported format)")
     if raw.ndim != 2 or raw.dtype != np.uint16:
-        raise ValueError(f"disparity: expected a single-channel 16-bit PNG in {path}, got shape {raw.shape} "
+        raise InputError("disparity", f": expected a single-channel 16-bit PNG in {path}, got shape {raw.shape} "
                          f"dtype {raw.dtype}")
     value = raw.astype(np.float32)
     return np.where(raw > 0, (value - 1) / 256, 0).astype(np.float32)
@@ -34,5 +35,5 @@ def read_camera(path: Path) -> dict[str, float]:
         return {"baseline": float(values["extrinsic"]["baseline"]),
                 **{k: float(values["intrinsic"][k]) for k in ("fx", "fy", "u0", "v0")}}
     except (json.JSONDecodeError, KeyError, TypeError) as error:
-        raise ValueError(f"camera: expected Cityscapes camera JSON with extrinsic.baseline and intrinsic "
+        raise InputError("camera", f": expected Cityscapes camera JSON with extrinsic.baseline and intrinsic "
                          f"fx, fy, u0, v0 in {path}, got an error: {error!r}") from None

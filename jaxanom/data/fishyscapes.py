@@ -23,6 +23,7 @@ import numpy as np
 
 from jaxanom.data.frames import FrameReader
 from jaxanom.data.image_io import ANOMALY_LABEL_VALUES, check_values, read_rgb, require_dir, require_file
+from jaxanom.errors import InputError
 
 _MASK_NAME = re.compile(r"^([0-9]+)_(.+)_labels\.png$")
 _IMAGE_SUFFIX = "_leftImg8bit.png"
@@ -95,8 +96,8 @@ class FishyscapesStatic(FrameReader):
             with np.load(path, allow_pickle=False) as archive:
                 overlay = archive["rgb"]
         except (OSError, ValueError, KeyError, zipfile.BadZipFile) as error:
-            raise ValueError(f"Fishyscapes Static overlay: cannot read array 'rgb' from {path} ({error})") from None
+            raise InputError("overlay", f": cannot read array 'rgb' from {path} ({error})") from None
         if overlay.shape != base.shape:
-            raise ValueError(f"Fishyscapes Static overlay: shape {overlay.shape} of {path} "
+            raise InputError("overlay", f": shape {overlay.shape} of {path} "
                              f"differs from its image's {base.shape}")
         return np.clip(base.astype(np.int32) + overlay.astype(np.int32), 0, 255).astype(np.uint8)

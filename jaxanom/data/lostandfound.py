@@ -17,6 +17,7 @@ import numpy as np
 from jaxanom.data.disparity import read_camera, read_disparity
 from jaxanom.data.frames import FrameReader
 from jaxanom.data.image_io import require_dir, require_file
+from jaxanom.errors import InputError
 
 _IMAGE_SUFFIX = "_leftImg8bit.png"
 
@@ -53,7 +54,7 @@ class LostAndFound(FrameReader):
         disparity_path, camera_path = self._stereo[index]
         frame["disparity"] = read_disparity(disparity_path)
         if frame["disparity"].shape != frame["label"].shape:
-            raise ValueError(f"disparity: size {frame['disparity'].shape} of {disparity_path} differs from its "
+            raise InputError("disparity", f": size {frame['disparity'].shape} of {disparity_path} differs from its "
                              f"image's {frame['label'].shape}")
         if camera_path.is_file():
             frame["camera"] = read_camera(camera_path)

@@ -17,6 +17,7 @@ import numpy as np
 from jaxanom.data.disparity import read_disparity
 from jaxanom.data.frames import FrameReader
 from jaxanom.data.image_io import ANOMALY_LABEL_VALUES, check_values, require_dir
+from jaxanom.errors import InputError
 
 _LABEL_SUFFIX = "_labels_semantic.png"
 _IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".webp", ".png")
@@ -63,7 +64,7 @@ class SegmentMeIfYouCan(FrameReader):
         if self._disparity:
             frame["disparity"] = read_disparity(self._disparity[index])
             if frame["disparity"].shape != frame["label"].shape:
-                raise ValueError(f"disparity: size {frame['disparity'].shape} of {self._disparity[index]} differs "
+                raise InputError("disparity", f": size {frame['disparity'].shape} of {self._disparity[index]} differs "
                                  f"from its image's {frame['label'].shape}")
         return frame
 

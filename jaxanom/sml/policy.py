@@ -107,8 +107,8 @@ def finalize(count, mean, m2, *, policy: str, min_count: float, strength: float,
         status[degenerate] = "pooled"
         weight = np.where(degenerate, 1.0, weight)
     if not pool_ok and (policy == "shrink" or degenerate.any()):
-        raise ValueError(f"stats has only {int(n0)} counted pixel(s) with no spread in all: "
-                         "cannot pool or shrink toward the pooled statistics")
+        raise InputError("stats", f"has only {int(n0)} counted pixel(s) with no spread in all: cannot pool or "
+                         "shrink toward the pooled statistics; fit on more data")
     with np.errstate(over="ignore", invalid="ignore"):
         mean32, std32 = np.float32(mean), np.float32(np.sqrt(var))  # what is saved and scored with
     if not (np.isfinite(mean32).all() and np.isfinite(std32).all() and (std32 > 0).all()):

@@ -21,6 +21,12 @@ import orbax.checkpoint as ocp
 
 from jaxanom._validate import in_host_memory
 
+
+class DamagedCheckpointError(ValueError):
+    """A saved step that cannot be read or holds NaN/Inf: the folder's files are at fault, not the
+    code, so a command that resumes there can say so in one line."""
+
+
 # orbax splits a replicated array among its replicas (each device writes a slice), which compiles
 # one slice per array shape and device: 216 compiles on the first save of the MMF quick demo's
 # small networks on 4 CPU devices. Below this size one replica writes the whole array.
@@ -121,9 +127,9 @@ class Checkpointer:
     def restore(self, template: Any, step: int | None = None) -> tuple[Any, Any]:
         """``(state, data_state)`` of ``step`` (default: the latest), shaped and sharded like ``template``.
 
-        Raises ValueError naming the folder when there is no checkpoint, it cannot be read, or
-        its floating-point arrays hold NaN/Inf (damaged files; training never saves those, see
-        docs/decisions/reliability.md).
+        Raises ValueError naming the folder when there is no checkpoint, DamagedCheckpointError
+        when it cannot be read or its floating-point arrays hold NaN/Inf (damaged files; training
+        never saves those, see docs/decisions/reliability.md).
         """
         step = self.latest_step() if step is None else step
         if step is None:
@@ -134,14 +140,14 @@ class Checkpointer:
         try:
             restored = self._manager.restore(step, args=args)
         except Exception as error:  # orbax raises many types for damaged files; name the step instead
-            raise ValueError(self._damaged(step, f"cannot be read ({type(error).__name__}: "
+            raise DamagedCheckpointError(self._damaged(step, f"cannot be read ({type(error).__name__}: "
                                                  f"{_first_line(error)})")) from error
         leaves = [(path, leaf) for path, leaf in jax.tree_util.tree_leaves_with_path(restored["state"])
                   if jnp.issubdtype(leaf.dtype, jnp.inexact)]
         bad = [jax.tree_util.keystr(path) for (path, _), ok in zip(leaves, _finite([leaf for _, leaf in leaves]))
                if not ok]
         if bad:
-            raise ValueError(self._damaged(step, f"holds NaN/Inf in {len(bad)} array(s), e.g. {bad[0]}"))
+            raise DamagedCheckpointError(self._damaged(step, f"holds NaN/Inf in {len(bad)} array(s), e.g. {bad[0]}"))
         return restored["state"], restored["data"]["iterator"]
 
     def _damaged(self, step: int, problem: str) -> str:

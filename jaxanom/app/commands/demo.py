@@ -8,7 +8,7 @@ import dataclasses
 
 from jaxanom.app.commands.inputs import read_config, with_overrides
 from jaxanom.app.outputs import out_folder
-from jaxanom.errors import InputError
+from jaxanom.errors import InputError, reading
 
 __all__ = ["PAPERS", "demo"]
 
@@ -38,6 +38,7 @@ def demo(paper: str | None = None, *, out: str = "jaxanom-demo", quick: bool = F
         settings = dataclasses.replace(settings, experiment=dataclasses.replace(
             experiment, train=dataclasses.replace(experiment.train, steps=steps)))
     settings = with_overrides(settings, overrides)
+    _check_training(settings.experiment, "experiment")
     run_demo(out_folder(out, overwrite), settings, progress=progress)
 
 
@@ -46,6 +47,16 @@ def _settings(cls, quick: bool, config: str | None):
     if quick and config:
         raise InputError("quick", ", {config}: give one of them", mentions=("config",))
     return read_config(config, cls) if config else cls.quick() if quick else cls()
+
+
+def _check_training(experiment, field: str) -> None:
+    """The checks a training run makes when it starts, made before ``out`` is claimed: InputError
+    naming the config's ``field`` (the experiment within it) and the field that does not fit."""
+    from jaxanom.app.experiment import check_objective, check_schedule
+
+    with reading(field):
+        check_objective(experiment)
+        check_schedule(experiment)
 
 
 def _mmf(out, quick, steps, config, synthesizer, overrides, overwrite, progress) -> None:
@@ -62,18 +73,20 @@ def _mmf(out, quick, steps, config, synthesizer, overrides, overwrite, progress)
     if synthesizer:
         settings = dataclasses.replace(settings, pipeline=dataclasses.replace(settings.pipeline, synthesizer=synthesizer))
     settings = with_overrides(settings, overrides)
+    _check_training(settings.pipeline.segmenter, "pipeline.segmenter")
     run_mmf_demo(out_folder(out, overwrite), settings, progress=progress)
 
 
 def _offroad(out, quick, steps, config, overrides, overwrite, progress) -> None:
     """``jaxanom demo offroad [--quick | --config FILE] [--steps N] [--set NAME=VALUE] [--out DIR]``."""
     from jaxanom.app.demos.offroad import run_offroad_demo
-    from jaxanom.app.offroad_experiment import OffroadDemoConfig
+    from jaxanom.app.offroad_experiment import OffroadDemoConfig, check_sources
 
     settings = _settings(OffroadDemoConfig, quick, config)
     if steps is not None:
         encoder = dataclasses.replace(settings.pipeline.encoder, steps=steps)
         settings = dataclasses.replace(settings, pipeline=dataclasses.replace(settings.pipeline, encoder=encoder))
     settings = with_overrides(settings, overrides)
+    check_sources(settings)
     out = "jaxanom-demo-offroad" if out == "jaxanom-demo" else out
     run_offroad_demo(out_folder(out, overwrite), settings, progress=progress)

@@ -31,6 +31,7 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
     from jaxanom.app.evaluate import anomaly_results, dataset_reader, predictor, protocol_predictions, saved_map_batches
     from jaxanom.app.experiment import build_network, load_experiment, load_variables
     from jaxanom.app.mmf_experiment import mmf_scored_batches
+    from jaxanom.app.predict import logits_shape
     from jaxanom.app.protocols import get_protocol
     from jaxanom.app.reports import conventions_table, results_table
     from jaxanom.io import write_json_atomic
@@ -73,7 +74,12 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
             source = dataset_reader(dataset, path, base=base, frames=frames, depth=depth)
         with reading("run", run):
             experiment, variables = load_variables(run)
-        predict = predictor(build_network(experiment), variables)
+        network = build_network(experiment)
+        if mean_std is not None:  # refused before the first frame is scored
+            classes = logits_shape(network, variables, tuple(experiment.crop))[-1]
+            if len(mean_std[0]) != classes:
+                raise InputError("stats", f"{stats}: has {len(mean_std[0])} classes, the network's logits {classes}")
+        predict = predictor(network, variables)
     skipped: list[str] = []
     if run:
         batches = protocol_predictions(predict, source, protocol_, skipped)

@@ -27,8 +27,9 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
     ``distributed``: one process per host (``jax.distributed``)."""
     import jax
 
-    from jaxanom.app.experiment import (Experiment, attention_positions, check_objective, load_experiment,
-                                        run_training)
+    from jaxanom.app.experiment import (Experiment, attention_positions, check_objective, check_schedule,
+                                        load_experiment, run_training)
+    from jaxanom.train.checkpoint import DamagedCheckpointError
     from jaxanom.train.loop import NonFiniteLossError
 
     if distributed:  # before any JAX work: loading the data or the model may touch devices
@@ -48,8 +49,6 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
             claim(out_dir / CLAIM, out_dir)
     else:
         experiment = read_config(config, Experiment, "experiment") if config else _base_experiment(init_from)
-        if lead:
-            out_folder(out, overwrite=False, hint="continue the run there with {resume}")
     with reading("experiment"):  # the fields' own checks (Experiment, TrainConfig, the objective)
         experiment = _override(experiment, model=model, attention=attention, data=data, data_root=data_root,
                                steps=steps, batch_size=batch_size, seed=seed, distributed=distributed,
@@ -57,6 +56,9 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
                                cudam_gate=cudam_gate, cudam_tau=cudam_tau)
         experiment = with_overrides(experiment, overrides)
         check_objective(experiment)
+        check_schedule(experiment)
+    if lead and not resume:  # claimed once the whole experiment is checked: a refused one leaves no folder
+        out_folder(out, overwrite=False, hint="continue the run there with {resume}")
     if experiment.train.objective.name == "cudam":
         positions = attention_positions(experiment, *experiment.crop)
         print(f"CuDAM tau = {experiment.train.objective.reward_weight(positions):.6g} (position "
@@ -68,6 +70,8 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
                          f"a new run with a lower learning rate ({{overrides}} train.optim.lr=..., now "
                          f"{experiment.train.optim.lr:g}) or gradient clipping ({{overrides}} train.optim.clip_norm=...)",
                          mentions=("resume",)) from None
+    except DamagedCheckpointError as error:  # only --resume finds checkpoints in --out
+        raise InputError("out", f"{out_dir}: {error}") from None
     print(f"trained {experiment.train.steps} steps on {jax.device_count()} devices ({jax.process_count()} "
           f"processes); checkpoints in {out_dir / 'checkpoints'}")
 

@@ -1,0 +1,177 @@
+"""A user's mistake found deep in the library (a file read lazily, a config value checked when
+the run starts) reaches the command line as one line naming its flag, exit status 2, with
+nothing left in --out; a library bug keeps its traceback."""
+import json
+import shutil
+from pathlib import Path
+
+import cv2
+import h5py
+import numpy as np
+import pytest
+
+from converted_run import tiny_run  # noqa: F401  (the module fixture: a tiny converted run)
+from jaxanom.cli import main
+
+H, W = 6, 10
+TRAIN = "from jaxanom.app.demos.sml_cudam import DemoConfig\nexperiment = DemoConfig.quick().experiment\n"
+
+
+def _road_anomaly(root):
+    """Two frames in Road Anomaly's official layout."""
+    names = ["cows.jpg", "rock.jpg"]
+    for k, name in enumerate(names):
+        (root / "frames" / f"{name[:-4]}.labels").mkdir(parents=True)
+        cv2.imwrite(str(root / "frames" / name), np.full((H, W, 3), 60 + 40 * k, np.uint8))
+        cv2.imwrite(str(root / "frames" / f"{name[:-4]}.labels" / "labels_semantic.png"),
+                    np.where(np.arange(H * W).reshape(H, W) % 3 == 0, 2, 0).astype(np.uint8))
+    (root / "frame_list.json").write_text(json.dumps(names))
+    return root
+
+
+def _broken_frame_list(root):
+    _road_anomaly(root)
+    (root / "frame_list.json").write_text("[not json")
+    return root
+
+
+def _static_with_bad_overlay(root):
+    """A Fishyscapes Static frame whose overlay is 3x3 while its Cityscapes image is H x W."""
+    masks, cityscapes = root / "fs_val_v3", root / "cityscapes"
+    (cityscapes / "leftImg8bit/val/lindau").mkdir(parents=True)
+    masks.mkdir()
+    cv2.imwrite(str(cityscapes / "leftImg8bit/val/lindau/lindau_000001_000019_leftImg8bit.png"),
+                np.zeros((H, W, 3), np.uint8))
+    cv2.imwrite(str(masks / "0003_lindau_000001_000019_labels.png"), np.zeros((H, W), np.uint8))
+    np.savez(masks / "0003_lindau_000001_000019_rgb.npz", rgb=np.zeros((3, 3, 3), np.int16))
+    return masks, cityscapes
+
+
+def _maps_of_the_wrong_size(root):
+    """Score maps as ``predict --format smiyc`` writes them, 5x5 for H x W frames."""
+    for name in ("cows", "rock"):
+        file = root / "anomaly_p" / "msp" / "RoadAnomaly" / f"{name}.hdf5"
+        file.parent.mkdir(parents=True, exist_ok=True)
+        with h5py.File(file, "w") as f:
+            f["value"] = np.zeros((5, 5), np.float16)
+    return root
+
+
+def _three_class_stats(root):
+    from jaxanom import sml
+
+    sml.save_stats(root / "stats.npz", np.zeros(3), np.ones(3), np.full(3, 1e6))
+    return str(root / "stats.npz")
+
+
+def _checkpoint_of_other_keys(root):
+    import torch
+
+    torch.save({"conv.weight": torch.zeros(2, 3, 1, 1)}, root / "other.pth")
+    return str(root / "other.pth")
+
+
+def _deepscene(root):
+    """Two frames of DeepScene's train split (its colour-coded labels all 'road')."""
+    for k in range(2):
+        (root / "train" / "rgb").mkdir(parents=True, exist_ok=True)
+        (root / "train" / "GT_color").mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(root / "train" / "rgb" / f"b{k}-0{k}517_Clipped.jpg"), np.zeros((H, W, 3), np.uint8))
+        cv2.imwrite(str(root / "train" / "GT_color" / f"b{k}-0{k}517_mask.png"), np.full((H, W, 3), 170, np.uint8))
+    return str(root)
+
+
+def _mmf_folder_without_networks(root):
+    """A folder with the results.json of ``jaxanom demo mmf`` and none of its trained networks."""
+    root.mkdir()
+    shutil.copy(Path(__file__).parents[1] / "fixtures" / "configs" / "mmf_results.json", root / "results.json")
+    return str(root)
+
+
+def _train_config(root):
+    (root / "exp.py").write_text(TRAIN)
+    return str(root / "exp.py")
+
+
+OUT = "<out>"  # where a case names its output itself; the others get --out <out>
+# each case: (the command's arguments, a text the line holds (the flag or the file named))
+CASES = {
+    "evaluate: overlay of another size": lambda tmp, run: (
+        ["evaluate", "--run", str(run), "--dataset", "fishyscapes-static", "--methods", "msp",
+         "--path", str(_static_with_bad_overlay(tmp)[0]), "--base", str(tmp / "cityscapes")],
+        "overlay: shape (3, 3, 3) of "),
+    "evaluate: saved maps of another size": lambda tmp, run: (
+        ["evaluate", "--maps", str(_maps_of_the_wrong_size(tmp / "maps")), "--dataset", "road-anomaly",
+         "--path", str(_road_anomaly(tmp / "ra"))], "--maps: "),
+    "evaluate: a broken frame list": lambda tmp, run: (
+        ["evaluate", "--run", str(run), "--dataset", "road-anomaly", "--methods", "msp",
+         "--path", str(_broken_frame_list(tmp / "ra"))], "--path "),
+    "evaluate: statistics of another class count": lambda tmp, run: (
+        ["evaluate", "--run", str(run), "--dataset", "road-anomaly", "--methods", "sml",
+         "--stats", _three_class_stats(tmp), "--path", str(_road_anomaly(tmp / "ra"))], "--stats "),
+    "evaluate: an MMF folder without its networks": lambda tmp, run: (
+        ["evaluate", "--mmf", _mmf_folder_without_networks(tmp / "mmf"), "--dataset", "synthetic", "--path", "anomaly",
+         "--frames", "1"], "--mmf "),
+    "fit-stats: frames too small to pool": lambda tmp, run: (
+        ["fit-stats", "--run", str(run), "--frames", "1", "--size", "3x3", "--policy", "shrink",
+         "--out", f"{OUT}/stats.npz"],
+        "stats has only 9 counted pixel(s)"),
+    "convert-weights: a checkpoint of another network": lambda tmp, run: (
+        ["convert-weights", "--from", "erfnet-cityscapes", _checkpoint_of_other_keys(tmp), OUT],
+        "IN: state dict does not match erfnet-cityscapes"),
+    "train: warm-up longer than the run": lambda tmp, run: (
+        ["train", "--config", _train_config(tmp), "--set", "train.optim.warmup_steps=50", "--no-progress"],
+        "warmup_steps=50"),
+    "train: init-modules the network lacks": lambda tmp, run: (
+        ["train", "--config", _train_config(tmp), "--init-from", str(run), "--init-modules", "nope",
+         "--no-progress"],
+        "--init-from "),
+    "demo offroad: a source starting past its frames": lambda tmp, run: (
+        ["demo", "offroad", "--quick", "--set", "active.reader=deepscene", "--set", f"active.root={_deepscene(tmp)}",
+         "--set", "active.start=5", "--no-progress"], "active: deepscene source in "),
+    "demo: --steps within its warm-up": lambda tmp, run: (
+        ["demo", "--steps", "5", "--no-progress"], "experiment: steps: "),
+    "demo mmf: --steps within the segmenter's warm-up": lambda tmp, run: (
+        ["demo", "mmf", "--steps", "5", "--no-progress"], "pipeline.segmenter: steps: "),
+    "demo: an attention its objective does not train": lambda tmp, run: (
+        ["demo", "--quick", "--set", "experiment.attention=msaam", "--no-progress"], "experiment: attention and "),
+}
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_a_user_mistake_is_one_line_naming_it_and_writes_nothing(case, tiny_run, tmp_path, capsys):  # noqa: F811
+    argv, named = CASES[case](tmp_path, tiny_run)
+    out = tmp_path / "out"
+    out.mkdir()  # the user's empty folder stays, so what a command leaves in it shows
+    argv = [a.replace(OUT, str(out)) for a in argv] if any(OUT in a for a in argv) else [*argv, "--out", str(out)]
+    assert main(argv) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"jaxanom {argv[0]}: error: "), lines
+    assert named in lines[0], lines
+    assert list(out.iterdir()) == []
+
+
+def test_resuming_a_damaged_checkpoint_is_one_line_naming_out_and_changes_nothing(tiny_run, tmp_path,  # noqa: F811
+                                                                                   capsys):
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run, run)
+    for array_file in (run / "checkpoints").rglob("ocdbt.process_0/d/*"):
+        array_file.write_bytes(b"garbage")
+    before = {path: path.read_bytes() for path in run.rglob("*") if path.is_file()}
+    assert main(["train", "--resume", "--out", str(run), "--no-progress"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"jaxanom train: error: --out {run}: checkpoint directory "), lines
+    assert "step 0 cannot be read" in lines[0]
+    assert {path: path.read_bytes() for path in run.rglob("*") if path.is_file()} == before
+
+
+def test_a_library_bug_while_reading_a_dataset_keeps_its_traceback(tiny_run, tmp_path, monkeypatch):  # noqa: F811
+    from jaxanom.data import RoadAnomaly
+
+    def broken(self, index):
+        raise ValueError("a bug of ours")
+
+    monkeypatch.setattr(RoadAnomaly, "__getitem__", broken)
+    with pytest.raises(ValueError, match="a bug of ours"):
+        main(["evaluate", "--run", str(tiny_run), "--dataset", "road-anomaly", "--methods", "msp",
+              "--path", str(_road_anomaly(tmp_path / "ra")), "--out", str(tmp_path / "out")])
