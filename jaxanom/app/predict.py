@@ -467,7 +467,8 @@ class _Writes:
     ``2 * threads`` frames behind, and published by the calling thread in the order submitted;
     with one thread, each at once. A frame that failed is published as far as it got, then its
     exception raised; ``failed`` says so, and the frames submitted after it are never published.
-    Leaving the block waits for the writers and removes what they staged but was not published."""
+    Leaving the block by another exception publishes what was submitted before it, as one thread
+    would have written it, then stops the writers."""
 
     def __init__(self, out: Path, settings: PredictSettings, threads: int, published: Callable[[], None]):
         self.out, self.settings, self.threads, self.published = out, settings, threads, published
@@ -508,7 +509,8 @@ class _Writes:
             return
         self._pool.shutdown(wait=True)
         while self._staging:
-            _discard(self._staging.popleft().result()[0])
+            with contextlib.suppress(Exception):  # the exception leaving the block is the one to report
+                self._publish(self._staging.popleft().result())
 
 
 def _native_staged(out: Path, frame: dict, maps: dict, settings: PredictSettings) -> tuple[list, Exception | None]:

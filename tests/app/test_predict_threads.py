@@ -34,7 +34,7 @@ def write_frames(folder, corrupt=()):
     for index, shape in enumerate(SHAPES):
         paths.append(folder / f"f{index}.png")
         if index in corrupt:
-            paths[-1].write_bytes(b"\x89PNG\r\n\x1a\n not an image")
+            paths[-1].write_bytes(b"not an image")
         else:
             cv2.imwrite(str(paths[-1]), rng.integers(0, 256, (*shape, 3), dtype=np.uint8))
     return paths
@@ -67,7 +67,7 @@ def test_threads_write_the_bytes_of_one_thread_up_to_a_corrupt_frame(network, tm
 
     serial = run(paths, tmp_path / "serial", scorer(1, 1))
     threaded = run(paths, tmp_path / "threaded", scorer(threads, batch_size))
-    assert serial[0][0] is ValueError and "f3.png" in serial[0][1]
+    assert issubclass(serial[0][0], ValueError) and "f3.png" in serial[0][1]
     assert threaded[0] == serial[0]
     names = {name.rsplit("/", 1)[-1] for name in serial[1]}
     assert names == {f"f{k}.{fmt}" for k in range(3) for fmt in ("npy", "png", "hdf5")[:len(formats)]}
@@ -78,15 +78,15 @@ def test_threads_write_the_bytes_of_one_thread_up_to_a_corrupt_frame(network, tm
 class MapScorer:
     """A scorer without network: each frame's maps are its input's mean over the channels, times 1e5
     for ``energy`` of the frames named in ``huge`` (beyond float16); ``failing`` frames' dispatch
-    fails as a device out of memory does."""
+    raises ``error``."""
 
-    def __init__(self, threads, batch_size, huge=(), failing=()):
+    def __init__(self, threads, batch_size, huge=(), failing=(), error=None):
         self.settings = PredictSettings(("msp", "energy"), size=WORKING, batch_size=batch_size, threads=threads)
-        self.huge, self.failing = huge, failing
+        self.huge, self.failing, self.error = huge, failing, error
 
     def __call__(self, batch):
         if any(frame["name"] in self.failing for frame in batch):
-            raise JaxRuntimeError("RESOURCE_EXHAUSTED: out of memory while trying to allocate")
+            raise self.error
         maps = []
         for frame in batch:
             value = jnp.asarray(frame["input"], jnp.float32).mean(-1)[None]
@@ -110,9 +110,19 @@ def test_a_map_float16_cannot_hold_stops_at_its_frame_with_any_threads(tmp_path,
 @pytest.mark.parametrize("threads,batch_size", [(3, 1), (2, 2)])
 def test_device_out_of_memory_counts_the_frames_written_with_any_threads(tmp_path, threads, batch_size):
     paths = write_frames(tmp_path / "images")
-    serial = run(paths, tmp_path / "serial", MapScorer(1, batch_size, failing={"f4"}))
-    threaded = run(paths, tmp_path / "threaded", MapScorer(threads, batch_size, failing={"f4"}))
-    assert serial[0][0] is DeviceOutOfMemory and f"; {len(serial[1]) // 2} frames written" in serial[0][1]
+    error = JaxRuntimeError("RESOURCE_EXHAUSTED: out of memory while trying to allocate")
+    serial = run(paths, tmp_path / "serial", MapScorer(1, batch_size, failing={"f4"}, error=error))
+    threaded = run(paths, tmp_path / "threaded", MapScorer(threads, batch_size, failing={"f4"}, error=error))
+    assert serial[0][0] is DeviceOutOfMemory and "; 4 frames written" in serial[0][1] and len(serial[1]) == 8
+    assert threaded == serial
+
+
+def test_an_unexpected_error_keeps_the_frames_one_thread_wrote(tmp_path):
+    """A bug's exception (not caught by predict) leaves what one thread had written before it."""
+    paths = write_frames(tmp_path / "images")
+    serial = run(paths, tmp_path / "serial", MapScorer(1, 1, failing={"f5"}, error=RuntimeError("a bug")))
+    threaded = run(paths, tmp_path / "threaded", MapScorer(4, 1, failing={"f5"}, error=RuntimeError("a bug")))
+    assert serial[0] == (RuntimeError, "a bug") and len(serial[1]) == 8  # f0 .. f3: f4 was on the device
     assert threaded == serial
 
 
