@@ -152,9 +152,12 @@ def test_one_thread_starts_no_thread_and_works_in_the_calling_thread(tmp_path, m
     assert len(callers) > 1  # the spies see the pools' threads
 
 
-def test_threads_are_checked_and_not_part_of_the_record(monkeypatch):
+def test_threads_are_checked_set_by_name_and_not_part_of_the_record(monkeypatch):
+    from jaxanom.app.commands.inputs import with_overrides
+
     with pytest.raises(InputError, match=r"threads: expected >= 1 .*got 0"):
         PredictSettings(("msp",), threads=0)
+    assert with_overrides(PredictSettings(("msp",)), ["threads=2"]).threads == 2
     records = [settings_record(PredictSettings(("msp",), threads=t), network="n", statistics=None, read_from={})
                for t in (None, 1, 7)]
     assert records[0] == records[1] == records[2] and "threads" not in records[0]
