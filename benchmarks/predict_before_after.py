@@ -11,10 +11,15 @@ both; a row gives the median of the rounds and every round's figure, and the loa
 before and after the run. Not a ``bench_*`` module (``python -m benchmarks`` has one tree).
 
     PYTHONPATH=. python benchmarks/predict_before_after.py --before PATH [--frames 24] [--rounds 3] [--size H W]
+        [--threads N]
+
+``--threads`` sets ``PredictSettings.threads`` in the trees that have it (a tree before the
+knob runs its one loop); without it, each tree's default.
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import json
 import os
@@ -31,7 +36,7 @@ NETWORK, CLASSES = "espnet_p2_q8", 20
 METHODS = ("msp", "max_logit", "entropy", "energy", "softmax_distance", "sml", "void")
 
 
-def measure(frames: Path, out: Path, size: tuple[int, int] = SIZE) -> dict:
+def measure(frames: Path, out: Path, size: tuple[int, int] = SIZE, threads: int | None = None) -> dict:
     """In a process whose ``jaxanom`` is the tree's: images per second of ``predict_images`` over ``frames``."""
     import numpy as np
 
@@ -47,19 +52,21 @@ def measure(frames: Path, out: Path, size: tuple[int, int] = SIZE) -> dict:
     variables = random_variables(0, functools.partial(model.init, train=False), np.zeros((1, *size, 3), np.float32))
     rng = np.random.default_rng(0)
     stats = (rng.normal(size=CLASSES).astype(np.float32), rng.uniform(0.5, 2, CLASSES).astype(np.float32))
-    scorer = Scorer(predictor(model, variables), PredictSettings(METHODS), stats)
+    knobs = {"threads": threads} if threads and "threads" in {f.name for f in dataclasses.fields(PredictSettings)} else {}
+    scorer = Scorer(predictor(model, variables), PredictSettings(METHODS, **knobs), stats)
     paths = sorted(frames.glob("*.png"))
     predict_images(paths[:2], out / "warm", scorer, progress=False)  # compiling, not timed
     start = time.perf_counter()
     predict_images(paths, out / "timed", scorer, progress=False)
     seconds = time.perf_counter() - start
-    return {"images_per_s": len(paths) / seconds, "seconds": seconds, "jaxanom": jaxanom.__file__}
+    return {"images_per_s": len(paths) / seconds, "seconds": seconds, "jaxanom": jaxanom.__file__,
+            "threads": knobs.get("threads", "default")}
 
 
-def _child(tree: Path, frames: Path, out: Path, size: tuple[int, int]) -> dict:
+def _child(tree: Path, frames: Path, out: Path, size: tuple[int, int], threads: int | None) -> dict:
     code = (f"import sys, json; sys.path.insert(0, {str(tree)!r}); sys.path.insert(1, {str(HERE)!r}); "
             f"from predict_before_after import measure; from pathlib import Path; "
-            f"print(json.dumps(measure(Path({str(frames)!r}), Path({str(out)!r}), {tuple(size)!r})))")
+            f"print(json.dumps(measure(Path({str(frames)!r}), Path({str(out)!r}), {tuple(size)!r}, {threads!r})))")
     done = subprocess.run([sys.executable, "-c", code], cwd=tree, capture_output=True, text=True, check=False,
                           env={**os.environ, "PYTHONPATH": str(tree)})
     if done.returncode:
@@ -74,6 +81,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=24)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--size", type=int, nargs=2, default=SIZE, metavar=("H", "W"), help="frame size (default 256 512)")
+    parser.add_argument("--threads", type=int, help="PredictSettings.threads where a tree has it (default: its default)")
     args = parser.parse_args()
     import cv2
     import numpy as np
@@ -91,12 +99,14 @@ def main() -> None:
             cv2.imwrite(str(frames / f"frame{index:03d}.png"), rng.integers(0, 256, (*args.size, 3), dtype=np.uint8))
         for round_ in range(args.rounds):
             for name, tree in trees.items():
-                result = _child(tree, frames, Path(folder) / f"{name}{round_}", args.size)
+                result = _child(tree, frames, Path(folder) / f"{name}{round_}", args.size, args.threads)
                 runs[name].append(result["images_per_s"])
-                print(f"round {round_ + 1} {name}: {result['images_per_s']:.2f} images/s ({result['jaxanom']})",
+                print(f"round {round_ + 1} {name}: {result['images_per_s']:.2f} images/s, threads "
+                      f"{result['threads']} ({result['jaxanom']})",
                       file=sys.stderr)
     load_after = os.getloadavg()
-    case = f"{NETWORK} {args.size[0]}x{args.size[1]}, {args.frames} PNG frames, {len(METHODS)} methods, npy"
+    threads = "" if args.threads is None else f", threads {args.threads} where known"
+    case = f"{NETWORK} {args.size[0]}x{args.size[1]}, {args.frames} PNG frames, {len(METHODS)} methods, npy{threads}"
     rows = [{"benchmark": "predict images/s", "case": case, "impl": f"{name} ({trees[name]})",
              "images_per_s": f"{statistics.median(values):.2f}",
              "note": "rounds: " + ", ".join(f"{v:.2f}" for v in values)} for name, values in runs.items()]

@@ -17,35 +17,46 @@ from typing import Any
 
 def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> Path:
     """Write ``data`` to ``path`` atomically, creating parent folders; returns the path."""
-    path = Path(path)
-    fd, tmp = _temporary(path)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException as error:
-        Path(tmp).unlink(missing_ok=True)
-        _name_file(error, path)
-        raise
-    return path
+    return write_with_atomic(path, lambda tmp: write_synced(tmp, data))
 
 
 def write_with_atomic(path: str | os.PathLike, write) -> Path:
     """``write(temporary_path)`` fills a temporary file beside ``path`` (any writer that takes a
     file name, e.g. h5py), which is then renamed to ``path``; removed if ``write`` raises."""
     path = Path(path)
-    fd, tmp = _temporary(path)
-    os.close(fd)
+    tmp = write_temporary(path, write)
     try:
-        write(tmp)
         os.replace(tmp, path)
     except BaseException as error:
         Path(tmp).unlink(missing_ok=True)
         _name_file(error, path)
         raise
     return path
+
+
+def write_temporary(path: str | os.PathLike, write) -> str:
+    """The first half of an atomic write: ``write(temporary_path)`` fills a temporary file beside
+    ``path`` (``.<name>.*.tmp``), whose name is returned; ``os.replace(it, path)`` completes the
+    write (so several files can be prepared at once and published in a chosen order). Removed if
+    ``write`` raises."""
+    path = Path(path)
+    fd, tmp = _temporary(path)
+    os.close(fd)
+    try:
+        write(tmp)
+    except BaseException as error:
+        Path(tmp).unlink(missing_ok=True)
+        _name_file(error, path)
+        raise
+    return tmp
+
+
+def write_synced(path: str, data: bytes) -> None:
+    """Write ``data`` to the file ``path`` and wait until it is on the disk."""
+    with open(path, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
 
 
 def _name_file(error: BaseException, path: Path) -> None:
@@ -77,6 +88,11 @@ def write_json_atomic(path: str | os.PathLike, obj: Any) -> Path:
 
 def write_png_atomic(path: str | os.PathLike, rgb) -> Path:
     """Write an RGB (H, W, 3) or grey (H, W) uint8 array as PNG, atomically."""
+    return write_bytes_atomic(path, png_bytes(rgb))
+
+
+def png_bytes(rgb) -> bytes:
+    """An RGB (H, W, 3) or grey (H, W) uint8 array encoded as PNG."""
     import cv2
     import numpy as np
 
@@ -87,7 +103,7 @@ def write_png_atomic(path: str | os.PathLike, rgb) -> Path:
     ok, encoded = cv2.imencode(".png", np.ascontiguousarray(bgr))
     if not ok:
         raise ValueError(f"rgb: OpenCV could not encode an array of shape {array.shape} as PNG")
-    return write_bytes_atomic(path, encoded.tobytes())
+    return encoded.tobytes()
 
 
 class NpyWriter:

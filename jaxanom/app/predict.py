@@ -23,6 +23,13 @@ complete files only, and a rerun skips the frames whose files all exist (and rem
 temporary files a kill left). ``settings.json`` in ``out`` records the settings and the
 fingerprints of the network and statistics the maps were made with (``settings_record``); a
 rerun that would make other maps is refused (``check_resumable``).
+
+With ``threads`` > 1 the host work runs beside the device's: a pool decodes the next frames
+ahead, in order, and a pool of writers resizes, checks and writes each frame's maps under
+temporary names, which the calling thread renames in frame order. Frames are published in the
+same order as with one thread and the files hold the same bytes; the first failure (a corrupt
+image, a map float16 cannot hold, the device out of memory) leaves every frame before it
+written and none after it.
 """
 from __future__ import annotations
 
@@ -32,6 +39,8 @@ import glob
 import io
 import json
 import os
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Callable, Iterable, Iterator, Sequence
 
@@ -54,6 +63,18 @@ FLOAT16_MAX = float(np.finfo(np.float16).max)
 # the maps predict writes (``output_file``), found in a folder without knowing its settings
 MAP_PATTERNS = ("npy/*/*.npy", "png/*/*.png", "anomaly_p/*/*/*.hdf5")
 READ_FROM = "read_from"  # the record's paths of the run and statistics: where, not what (not compared)
+# settings that change how fast the maps are made, not what they hold: left out of the record
+SPEED_ONLY = ("batch_size", "threads")
+
+
+def default_threads() -> int:
+    """Host threads of ``predict`` by default: half the CPUs this process may use, at most 8.
+
+    The other half is left to the thread that dispatches to the device and to XLA, which on a
+    CPU backend computes on the same cores (so a 2-core machine gets 1: the serial loop); 8 decode
+    and write 1024x2048 frames faster than an accelerator scores them, and more only add memory."""
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    return max(1, min(8, cpus // 2))
 
 
 class DeviceOutOfMemory(Exception):
@@ -71,7 +92,9 @@ class PredictSettings:
     dataset name (format ``smiyc``); ``slic_step``: SLIC grid step of the ``*_superpixel``
     methods (None: ``superpixels.scaled_step`` of the working size); ``cudam_sigma``: Eq. 10's
     weight (None: the paper-equivalent one); ``unit_interval``: (center, scale) to write
-    ``metrics.smiyc.to_unit_interval`` of every map instead of the score (None: the score).
+    ``metrics.smiyc.to_unit_interval`` of every map instead of the score (None: the score);
+    ``threads``: host threads decoding frames ahead and as many writing maps behind (1: all in
+    the calling thread; None: ``default_threads()``); the maps do not depend on it.
     """
 
     methods: tuple[str, ...]
@@ -82,6 +105,7 @@ class PredictSettings:
     slic_step: int | None = None
     cudam_sigma: float | None = None
     unit_interval: tuple[float, float] | None = None
+    threads: int | None = None
 
     def __post_init__(self):
         from jaxanom.app.scoring import INPUTS, check
@@ -96,6 +120,9 @@ class PredictSettings:
             raise InputError("size", f": expected (height, width) >= 1, got {self.size}")
         if self.batch_size < 1:
             raise InputError("batch_size", f": expected >= 1, got {self.batch_size}")
+        if self.threads is not None and self.threads < 1:
+            raise InputError("threads", f": expected >= 1 (or None: {default_threads()} on this machine), "
+                             f"got {self.threads}")
         if "smiyc" in self.formats and self.dataset not in SMIYC_DATASETS:
             raise InputError("dataset", ": the smiyc format needs a dataset folder the benchmark's kit reads, one of "
                              f"{', '.join(SMIYC_DATASETS)} (a split such as AnomalyTrack-validation reads its full "
@@ -188,11 +215,12 @@ def fingerprint(tree) -> str:
 
 
 def settings_record(settings: PredictSettings, *, network: str, statistics: str | None, read_from: dict) -> dict:
-    """What decides the maps: ``settings`` (but the batch size, which does not change them), the
+    """What decides the maps: ``settings`` (but ``SPEED_ONLY``, which do not change them), the
     ``fingerprint`` of the network (its experiment and the variables restored) and of the
     statistics (mean and std; None without), and, for the reader only, where they were read."""
     record = encode(settings)
-    del record["batch_size"]
+    for name in SPEED_ONLY:
+        del record[name]
     return {**record, "network": network, "statistics": statistics, READ_FROM: read_from}
 
 
@@ -262,17 +290,43 @@ def remove_other_maps(out: Path, record: dict, settings: PredictSettings) -> int
     return removed
 
 
-def _frames(paths: Iterable[Path], size) -> Iterator[dict]:
-    """Decoded frames: ``{"name", "image" (native RGB uint8), "input" (at the working size)}``."""
+def _decode(path: Path, size) -> dict:
+    """A decoded frame: ``{"name", "image" (native RGB uint8), "input" (at the working size)}``."""
     import cv2
 
     from jaxanom.data.image_io import read_rgb
 
-    for path in paths:
-        image = read_rgb(path)  # ValueError naming a corrupt file
-        resized = image if size is None or image.shape[:2] == tuple(size) else \
-            cv2.resize(image, (size[1], size[0]), interpolation=cv2.INTER_LINEAR)
-        yield {"name": path.stem, "image": image, "input": resized}
+    image = read_rgb(path)  # ValueError naming a corrupt file
+    resized = image if size is None or image.shape[:2] == tuple(size) else \
+        cv2.resize(image, (size[1], size[0]), interpolation=cv2.INTER_LINEAR)
+    return {"name": path.stem, "image": image, "input": resized}
+
+
+@contextlib.contextmanager
+def _frames(paths: Sequence[Path], size, threads: int) -> Iterator[Iterator[dict]]:
+    """The decoded frames of ``paths`` in order, each decoding's exception raised at its frame;
+    with ``threads`` > 1 decoded by a pool, at most ``2 * threads`` ahead of the reader (a
+    1024x2048 frame holds 6 MB and its working-size input). Leaving the block cancels the rest."""
+    if threads == 1:
+        yield (_decode(path, size) for path in paths)
+        return
+    with ThreadPoolExecutor(threads, thread_name_prefix="predict-decode") as pool:
+        ahead: deque = deque()
+
+        def decoded() -> Iterator[dict]:
+            upcoming = iter(paths)
+            while True:
+                while len(ahead) < 2 * threads and (path := next(upcoming, None)) is not None:
+                    ahead.append(pool.submit(_decode, path, size))
+                if not ahead:
+                    return
+                yield ahead.popleft().result()
+
+        try:
+            yield decoded()
+        finally:
+            for future in ahead:
+                future.cancel()
 
 
 def _batches(frames: Iterable[dict], batch_size: int) -> Iterator[list[dict]]:
@@ -342,31 +396,63 @@ def native_map(score: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
 
 def write_frame(out: Path, frame: dict, maps: dict, settings: PredictSettings) -> None:
-    """Every output file of one frame; ``maps[method]`` (H, W) at the image's native size."""
-    from jaxanom.io import write_bytes_atomic, write_with_atomic
+    """Every output file of one frame; ``maps[method]`` (H, W) at the image's native size. When a
+    method's map cannot be written (not finite in float16), the files of the methods before it are."""
+    staged, error = stage_frame(out, frame, maps, settings)
+    _publish(staged)
+    if error is not None:
+        raise error
 
-    for method, score in maps.items():
-        half = None
-        if {"npy", "smiyc"} & set(settings.formats):
-            if not (np.isfinite(score).all() and np.abs(score).max(initial=0.0) <= FLOAT16_MAX):
-                raise InputError("method", f"{method}: scores of {frame['name']} are not finite in float16 "
-                                 f"(|score| <= {FLOAT16_MAX:g}); the npy and smiyc formats store float16")
-            half = score.astype(np.float16)
-        for fmt in settings.formats:
-            path = output_file(out, frame["name"], method, fmt, settings.dataset)
-            if fmt == "npy":
-                buffer = io.BytesIO()
-                np.save(buffer, half)
-                write_bytes_atomic(path, buffer.getvalue())
-            elif fmt == "smiyc":
-                write_with_atomic(path, lambda tmp: _write_hdf5(tmp, half))
-            else:
-                from jaxanom.viz import Panel, write_panels
 
-                panels = [Panel(frame["name"], frame["image"]),
-                          Panel(f"{method} over the image", score, base=frame["image"],
-                                label=f"{method} (higher = more anomalous)")]
-                write_panels(path, panels, columns=2, min_width=512, max_width=1024)
+def stage_frame(out: Path, frame: dict, maps: dict, settings: PredictSettings) -> tuple[list, Exception | None]:
+    """``write_frame``'s files under temporary names beside them: ``([(temporary, file), ...], error)``
+    in the order ``write_frame`` writes them; ``error``: the exception that stopped staging (the
+    files before it are staged, as ``write_frame`` would have written them), or None."""
+    from jaxanom.io import png_bytes, write_synced, write_temporary
+
+    staged: list[tuple[str, Path]] = []
+    try:
+        for method, score in maps.items():
+            half = None
+            if {"npy", "smiyc"} & set(settings.formats):
+                if not (np.isfinite(score).all() and np.abs(score).max(initial=0.0) <= FLOAT16_MAX):
+                    raise InputError("method", f"{method}: scores of {frame['name']} are not finite in float16 "
+                                     f"(|score| <= {FLOAT16_MAX:g}); the npy and smiyc formats store float16")
+                half = score.astype(np.float16)
+            for fmt in settings.formats:
+                path = output_file(out, frame["name"], method, fmt, settings.dataset)
+                if fmt == "npy":
+                    buffer = io.BytesIO()
+                    np.save(buffer, half)
+                    data = buffer.getvalue()
+                elif fmt == "smiyc":
+                    staged.append((write_temporary(path, lambda tmp: _write_hdf5(tmp, half)), path))
+                    continue
+                else:
+                    from jaxanom.viz import Panel, render_panels
+
+                    panels = [Panel(frame["name"], frame["image"]),
+                              Panel(f"{method} over the image", score, base=frame["image"],
+                                    label=f"{method} (higher = more anomalous)")]
+                    data = png_bytes(render_panels(panels, columns=2, min_width=512, max_width=1024))
+                staged.append((write_temporary(path, lambda tmp: write_synced(tmp, data)), path))
+    except Exception as error:  # noqa: BLE001  handed to the thread that publishes, which raises it
+        return staged, error
+    return staged, None
+
+
+def _publish(staged: list) -> None:
+    """Rename staged files into place, in order (the temporaries of any not renamed are removed)."""
+    try:
+        for tmp, path in staged:
+            os.replace(tmp, path)
+    finally:
+        _discard(staged)
+
+
+def _discard(staged: list) -> None:
+    for tmp, _ in staged:
+        Path(tmp).unlink(missing_ok=True)
 
 
 def _write_hdf5(path: str, value: np.ndarray) -> None:
@@ -374,6 +460,67 @@ def _write_hdf5(path: str, value: np.ndarray) -> None:
 
     with h5py.File(path, "w") as f:
         f.create_dataset("value", data=value, compression=9)  # gzip level 9, as the benchmark writes
+
+
+class _Writes:
+    """Frames' files, staged (``_native_staged``) by ``threads`` writer threads, at most
+    ``2 * threads`` frames behind, and published by the calling thread in the order submitted;
+    with one thread, each at once. A frame that failed is published as far as it got, then its
+    exception raised; ``failed`` says so, and the frames submitted after it are never published.
+    Leaving the block by another exception publishes what was submitted before it, as one thread
+    would have written it, then stops the writers."""
+
+    def __init__(self, out: Path, settings: PredictSettings, threads: int, published: Callable[[], None]):
+        self.out, self.settings, self.threads, self.published = out, settings, threads, published
+        self.failed = False
+        self._pool = ThreadPoolExecutor(threads, thread_name_prefix="predict-write") if threads > 1 else None
+        self._staging: deque = deque()
+
+    def submit(self, frame: dict, maps: dict) -> None:
+        """Write ``frame``'s ``maps`` ((h, w) host arrays at the working size)."""
+        if self._pool is None:
+            self._publish(_native_staged(self.out, frame, maps, self.settings))
+            return
+        self._staging.append(self._pool.submit(_native_staged, self.out, frame, maps, self.settings))
+        while len(self._staging) > 2 * self.threads:
+            self._publish(self._staging.popleft().result())
+
+    def flush(self) -> None:
+        """Publish every frame submitted (raising the first failure)."""
+        while self._staging:
+            self._publish(self._staging.popleft().result())
+
+    def _publish(self, result: tuple[list, Exception | None]) -> None:
+        staged, error = result
+        if self.failed:  # a frame before it failed: as if never written
+            _discard(staged)
+            return
+        self.failed = error is not None
+        _publish(staged)
+        if error is not None:
+            raise error
+        self.published()
+
+    def __enter__(self) -> "_Writes":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._pool is None:
+            return
+        self._pool.shutdown(wait=True)
+        while self._staging:
+            with contextlib.suppress(Exception):  # the exception leaving the block is the one to report
+                self._publish(self._staging.popleft().result())
+
+
+def _native_staged(out: Path, frame: dict, maps: dict, settings: PredictSettings) -> tuple[list, Exception | None]:
+    """``stage_frame`` of the ``maps`` resized to the frame's native size."""
+    shape = frame["image"].shape[:2]
+    try:
+        native = {name: native_map(score, shape) for name, score in maps.items()}
+    except Exception as error:  # noqa: BLE001  raised by the thread that publishes
+        return [], error
+    return stage_frame(out, frame, native, settings)
 
 
 def predict_images(paths: Sequence[Path], out: Path, scorer: Scorer, *, progress: bool = True,
@@ -387,6 +534,7 @@ def predict_images(paths: Sequence[Path], out: Path, scorer: Scorer, *, progress
     from tqdm import tqdm
 
     settings = scorer.settings
+    threads = default_threads() if settings.threads is None else settings.threads
     for root in {"npy": out / "npy", "png": out / "png", "smiyc": out / "anomaly_p"}.values():
         for stale in root.rglob(".*.tmp") if root.is_dir() else ():  # a killed run's unfinished files
             stale.unlink(missing_ok=True)
@@ -395,41 +543,45 @@ def predict_images(paths: Sequence[Path], out: Path, scorer: Scorer, *, progress
     pending = at = None
     written = 0
 
-    def finish(batch, scores):
+    def published():
         nonlocal written
-        for frame, frame_scores in zip(batch, scores):
-            host = {name: np.asarray(value)[0] for name, value in frame_scores.items()}
-            shape = frame["image"].shape[:2]
-            write_frame(out, frame, {name: native_map(score, shape) for name, score in host.items()}, settings)
-            written += 1
-            bar.update(1)
+        written += 1
+        bar.update(1)
 
-    try:
-        for batch in _batches(_frames(todo, settings.size), settings.batch_size):
-            at = batch
-            scores = scorer(batch)  # dispatched: the device works while the next batch is decoded
-            done, pending = pending, (batch, scores)
+    def finish(batch, scores):
+        for frame, frame_scores in zip(batch, scores):
+            writes.submit(frame, {name: np.asarray(value)[0] for name, value in frame_scores.items()})
+
+    with contextlib.ExitStack() as stack:
+        stack.callback(bar.close)
+        frames = stack.enter_context(_frames(todo, settings.size, threads))
+        writes = stack.enter_context(_Writes(out, settings, threads, published))
+        try:
+            for batch in _batches(frames, settings.batch_size):
+                at = batch
+                scores = scorer(batch)  # dispatched: the device works while the next batch is decoded
+                done, pending = pending, (batch, scores)
+                if done is not None:
+                    at = done[0]
+                    finish(*done)
+            done, pending = pending, None
             if done is not None:
                 at = done[0]
                 finish(*done)
-        done, pending = pending, None
-        if done is not None:
-            at = done[0]
-            finish(*done)
-    except (ValueError, JaxRuntimeError) as error:
-        out_of_memory = isinstance(error, JaxRuntimeError) and "RESOURCE_EXHAUSTED" in str(error)
-        if pending is not None and (out_of_memory or isinstance(error, ValueError)):
-            # the batch before the failure (e.g. a corrupt image in the next one) was computed: keep it
-            with contextlib.suppress(JaxRuntimeError):  # unless the device failed it too
-                finish(*pending)
-        if out_of_memory:
-            frames = at[0]["name"] if len(at) == 1 else f"{at[0]['name']} .. {at[-1]['name']}"
-            height, width = max((f["input"].shape[:2] for f in at), key=lambda shape: shape[0] * shape[1])
-            raise DeviceOutOfMemory(f"the device ran out of memory scoring {frames} ({len(at)} in flight, working "
-                                    f"size up to {height}x{width}); {written} frames written") from None
-        raise
-    finally:
-        bar.close()
+            writes.flush()
+        except (ValueError, JaxRuntimeError) as error:
+            out_of_memory = isinstance(error, JaxRuntimeError) and "RESOURCE_EXHAUSTED" in str(error)
+            if pending is not None and not writes.failed and (out_of_memory or isinstance(error, ValueError)):
+                # the batch before the failure (e.g. a corrupt image in the next one) was computed: keep it
+                with contextlib.suppress(JaxRuntimeError):  # unless the device failed it too
+                    finish(*pending)
+            writes.flush()
+            if out_of_memory:
+                names = at[0]["name"] if len(at) == 1 else f"{at[0]['name']} .. {at[-1]['name']}"
+                height, width = max((f["input"].shape[:2] for f in at), key=lambda shape: shape[0] * shape[1])
+                raise DeviceOutOfMemory(f"the device ran out of memory scoring {names} ({len(at)} in flight, "
+                                        f"working size up to {height}x{width}); {written} frames written") from None
+            raise
     return {"frames": len(paths), "written": len(todo), "skipped": len(paths) - len(todo)}
 
 
@@ -461,6 +613,7 @@ def size_check(model, variables) -> Callable[[tuple[int, int], str], None]:
     return check
 
 
-__all__ = ["DeviceOutOfMemory", "FORMATS", "PredictSettings", "Scorer", "check_resumable", "existing_maps",
+__all__ = ["DeviceOutOfMemory", "FORMATS", "PredictSettings", "Scorer", "check_resumable", "default_threads",
+           "existing_maps",
            "fingerprint", "inside", "list_images", "native_map", "logits_shape", "output_file", "output_files",
-           "predict_images", "remove_other_maps", "settings_record", "size_check", "write_frame"]
+           "predict_images", "remove_other_maps", "settings_record", "size_check", "stage_frame", "write_frame"]

@@ -29,6 +29,9 @@ def add_parser(commands) -> None:
     parser.add_argument("--batch-size", type=positive_int, default=1,
                         help="images sent to the device before the first is read back; each is scored alone, so "
                         "the maps do not depend on it (default: 1)")
+    parser.add_argument("--threads", type=positive_int,
+                        help="host threads decoding the next images and as many writing maps, beside the device; "
+                        "1 does all in one thread; the maps do not depend on it (default: half the CPUs, at most 8)")
     parser.add_argument("--dataset", help=f"SegmentMeIfYouCan dataset name for --format smiyc, e.g. "
                         f"{', '.join(SMIYC_DATASETS)}")
     parser.add_argument("--slic-step", type=positive_int,
@@ -48,7 +51,7 @@ def run(args) -> None:
     predict(args.images, run=args.run, out=args.out, methods=args.methods, plugins=args.plugin, stats=args.stats,
             formats=args.format, size=size_hw(args.size), batch_size=args.batch_size, dataset=args.dataset,
             slic_step=args.slic_step, cudam_sigma=args.cudam_sigma, unit_interval=_pair(args.unit_interval),
-            overrides=args.set, overwrite=args.overwrite, progress=not args.no_progress)
+            threads=args.threads, overrides=args.set, overwrite=args.overwrite, progress=not args.no_progress)
 
 
 def _pair(text: str | None) -> tuple[float, float] | None:

@@ -15,11 +15,13 @@ __all__ = ["FORMATS", "SMIYC_DATASETS", "predict"]
 def predict(images, *, run: str, out: str, methods: str | None = None, plugins=(), stats: str | None = None,
             formats: str = "npy", size: tuple[int, int] | None = None, batch_size: int = 1,
             dataset: str | None = None, slic_step: int | None = None, cudam_sigma: float | None = None,
-            unit_interval: tuple[float, float] | None = None, overrides=(), overwrite: bool = False,
+            unit_interval: tuple[float, float] | None = None, threads: int | None = None, overrides=(),
+            overwrite: bool = False,
             progress: bool = True) -> dict:
     """Score the image files, folders or glob patterns ``images`` with ``run``'s network into
     ``out`` (comma-separated ``methods`` and ``formats``, see ``jaxanom.app.predict``; then each
-    ``"dotted.name=VALUE"`` of ``overrides`` sets a field of the ``PredictSettings``). A rerun
+    ``"dotted.name=VALUE"`` of ``overrides`` sets a field of the ``PredictSettings``; ``threads``:
+    host threads decoding and writing, None for ``default_threads()``). A rerun
     with the same settings, network and statistics skips the frames already written; one with
     others is refused unless ``overwrite`` (which recomputes every frame). Returns the summary
     of ``predict_images``."""
@@ -34,7 +36,7 @@ def predict(images, *, run: str, out: str, methods: str | None = None, plugins=(
     load_plugins(plugins)
     settings = PredictSettings(methods=method_names(methods, DEFAULT_METHODS), formats=tuple(formats.split(",")),
                                size=size, batch_size=batch_size, dataset=dataset, slic_step=slic_step,
-                               cudam_sigma=cudam_sigma, unit_interval=unit_interval)
+                               cudam_sigma=cudam_sigma, unit_interval=unit_interval, threads=threads)
     settings = with_overrides(settings, overrides)
     if "smiyc" in settings.formats:
         try:
