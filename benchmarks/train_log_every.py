@@ -51,7 +51,8 @@ def _child(args: argparse.Namespace, log_every: int, run_dir: str) -> dict:
             f"print(json.dumps(measure({args.network!r}, {tuple(args.size)!r}, {args.batch}, {args.steps}, "
             f"{log_every}, {run_dir!r}, {args.log_every})))")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False,
-                          env={**os.environ, "PYTHONPATH": str(HERE.parent)})
+                          env={**os.environ, "PYTHONPATH": os.pathsep.join(
+                              filter(None, (str(HERE.parent), os.environ.get("PYTHONPATH"))))})
     if done.returncode:
         raise RuntimeError(f"log_every={log_every} failed:\n{done.stderr[-3000:]}")
     return json.loads(done.stdout.strip().splitlines()[-1])
