@@ -2,7 +2,8 @@
 pipeline's folder or score maps written by ``jaxanom predict --format smiyc``."""
 from __future__ import annotations
 
-from jaxanom.app.commands.inputs import DEFAULT_METHODS, load_plugins, method_names, read_stats
+from jaxanom.app.commands.inputs import (DEFAULT_METHODS, check_stats_classes, load_plugins, method_names,
+                                         read_stats)
 from jaxanom.app.outputs import check_out_outside, out_folder
 from jaxanom.app.protocols import PROTOCOLS
 from jaxanom.errors import InputError, reading
@@ -31,7 +32,6 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
     from jaxanom.app.evaluate import anomaly_results, dataset_reader, predictor, protocol_predictions, saved_map_batches
     from jaxanom.app.experiment import build_network, load_experiment, load_variables
     from jaxanom.app.mmf_experiment import mmf_scored_batches
-    from jaxanom.app.predict import logits_shape
     from jaxanom.app.protocols import get_protocol
     from jaxanom.app.reports import conventions_table, results_table
     from jaxanom.io import write_json_atomic
@@ -76,9 +76,7 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
             experiment, variables = load_variables(run)
         network = build_network(experiment)
         if mean_std is not None:  # refused before the first frame is scored
-            classes = logits_shape(network, variables, tuple(experiment.crop))[-1]
-            if len(mean_std[0]) != classes:
-                raise InputError("stats", f"{stats}: has {len(mean_std[0])} classes, the network's logits {classes}")
+            check_stats_classes(mean_std, stats, network, variables, experiment.crop)
         predict = predictor(network, variables)
     skipped: list[str] = []
     if run:

@@ -56,3 +56,13 @@ def with_overrides(config, overrides=()):
         return override(config, overrides)
     except ConfigError as error:
         raise InputError("overrides", str(error)) from None
+
+
+def check_stats_classes(mean_std, stats: str, network, variables, size) -> None:
+    """InputError naming ``stats`` unless its statistics have one class per logit of ``network``
+    (``size``: an (h, w) the network takes; shapes only), before the first frame is scored."""
+    from jaxanom.app.predict import logits_shape
+
+    classes = logits_shape(network, variables, tuple(size))[-1]
+    if len(mean_std[0]) != classes:
+        raise InputError("stats", f"{stats}: has {len(mean_std[0])} classes, the network's logits {classes}")

@@ -4,7 +4,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from jaxanom.app.commands.inputs import DEFAULT_METHODS, load_plugins, method_names, read_stats, with_overrides
+from jaxanom.app.commands.inputs import (DEFAULT_METHODS, check_stats_classes, load_plugins, method_names,
+                                         read_stats, with_overrides)
 from jaxanom.app.outputs import inside, out_folder
 from jaxanom.app.predict import FORMATS, SMIYC_DATASETS
 from jaxanom.errors import InputError, reading
@@ -29,7 +30,7 @@ def predict(images, *, run: str, out: str, methods: str | None = None, plugins=(
     from jaxanom.app.evaluate import predictor
     from jaxanom.app.experiment import build_network, jsonable, load_experiment, load_variables
     from jaxanom.app.predict import (DeviceOutOfMemory, PredictSettings, Scorer, check_resumable, fingerprint,
-                                     list_images, logits_shape, predict_images, remove_other_maps, settings_record,
+                                     list_images, predict_images, remove_other_maps, settings_record,
                                      size_check)
     from jaxanom.io import write_json_atomic
 
@@ -61,9 +62,7 @@ def predict(images, *, run: str, out: str, methods: str | None = None, plugins=(
     if settings.size is not None:
         check(settings.size, "the working size")
     if mean_std is not None:
-        classes = logits_shape(model, variables, tuple(experiment.crop))[-1]
-        if len(mean_std[0]) != classes:
-            raise InputError("stats", f"{stats}: has {len(mean_std[0])} classes, the network's logits {classes}")
+        check_stats_classes(mean_std, stats, model, variables, experiment.crop)
     # the maps depend on what the files hold, not where they are: a moved run resumes, a re-fitted one does not
     network = fingerprint({"experiment": json.dumps(jsonable(experiment), sort_keys=True), "variables": variables})
     record = settings_record(settings, network=network,
