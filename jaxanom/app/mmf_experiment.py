@@ -42,7 +42,8 @@ def evaluation_frames(config: MMFDemoConfig) -> SyntheticScenes:
 
 def mmf_scored_batches(folder: str, dataset: str, path: str, *, frames: int | None = None, depth: str | None = None):
     """``(source, batches)``: ``dataset`` scored by the MMF pipeline of ``folder`` (written by
-    ``jaxanom demo mmf``), read-only; a dataset without disparity is refused."""
+    ``jaxanom demo mmf``), read-only, in batches of the pipeline's ``batch_size``; a dataset without
+    disparity is refused."""
     folder = Path(folder)
     if not (folder / "results.json").is_file():
         raise InputError("mmf", f"{folder}: expected a folder written by `jaxanom demo mmf` (with results.json)")
@@ -57,4 +58,5 @@ def mmf_scored_batches(folder: str, dataset: str, path: str, *, frames: int | No
                                 size={"height": seg.height, "width": seg.width, "disparity": True, "roi": True})
     with reading("mmf", folder):  # a pipeline's networks missing or damaged in the folder
         pipeline = MMFPipeline.load(config, folder / "runs")
-    return source, scored_batches(pipeline, source, batch_size=1)
+    # the pipeline's own batch size, as the demo scores: the same shapes reuse its compiled functions
+    return source, scored_batches(pipeline, source, batch_size=config.batch_size)

@@ -64,7 +64,7 @@ def test_evaluate_scores_a_dataset_with_the_trained_pipeline_without_changing_it
     # the same as scoring those frames with the library
     pipe = MMFPipeline.load(MMFDemoConfig.quick().pipeline, demo_dir / "runs")
     frames = SyntheticScenes("anomaly", 2, seed=1, height=32, width=64, disparity=True, roi=True)
-    metrics, _ = anomaly_results(scored_batches(pipe, frames, 1), [row[0] for row in ROWS])
+    metrics, _ = anomaly_results(scored_batches(pipe, frames, pipe.config.batch_size), [row[0] for row in ROWS])
     for name, values in metrics.items():
         assert record["metrics"][name]["ap"] == pytest.approx(values["ap"], abs=1e-12)
 
