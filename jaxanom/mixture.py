@@ -14,7 +14,8 @@ lower bound and iteration count:
 ``em``, ``fit_gmm`` and ``bic`` run in float64 under a local ``jax.enable_x64`` (inputs are
 cast; results are float64 arrays). ``log_gaussian``, ``log_responsibilities`` and
 ``score_samples`` are pure and keep their inputs' dtype, so they work inside a caller's jit.
-The choice of the component count (``select_components``) is host-side: one compile per m.
+The choice of the component count (``select_components``) is host-side: ``fit_gmm`` compiles once per m
+and per size of its zero-weight padded points (``shapes.padded_size``: four sizes per doubling of N).
 """
 from __future__ import annotations
 
@@ -26,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxanom._validate import check_count, check_finite, check_rank
+from jaxanom.shapes import padded_size
 
 
 class GaussianMixture(NamedTuple):
@@ -96,12 +98,16 @@ def _m_step(z: jax.Array, resp: jax.Array, reg_covar) -> GaussianMixture:
     return GaussianMixture(nk / jnp.sum(nk), means, covariances)
 
 
-def _em_loop(z, mixture: GaussianMixture, reg_covar, tol, max_iter) -> EMResult:
+def _em_loop(z, weight, mixture: GaussianMixture, reg_covar, tol, max_iter) -> EMResult:
+    """EM over the points of weight 1 (``weight (N,)`` 1 or 0: 0 for the padding ``fit_gmm`` adds)."""
+    count = jnp.sum(weight)
+
     def body(state):
         mixture, bound, n_iter, _ = state
         norm, log_resp = log_responsibilities(z, mixture)
-        new_bound = jnp.mean(norm)
-        return _m_step(z, jnp.exp(log_resp), reg_covar), new_bound, n_iter + 1, jnp.abs(new_bound - bound) < tol
+        new_bound = jnp.sum(norm * weight) / count
+        resp = jnp.exp(log_resp) * weight[:, None]
+        return _m_step(z, resp, reg_covar), new_bound, n_iter + 1, jnp.abs(new_bound - bound) < tol
 
     def cond(state):
         return (state[2] < max_iter) & ~state[3]
@@ -113,18 +119,21 @@ def _em_loop(z, mixture: GaussianMixture, reg_covar, tol, max_iter) -> EMResult:
 _em_jit = jax.jit(_em_loop)
 
 
-def _kmeans(key, z: jax.Array, m: int, steps: int) -> jax.Array:
-    """k-means++ seeding (D^2 sampling) then ``steps`` Lloyd steps: labels ``(N,)``."""
+def _kmeans(key, z: jax.Array, weight: jax.Array, m: int, steps: int) -> jax.Array:
+    """k-means++ seeding (D^2 sampling) then ``steps`` Lloyd steps over the points of weight 1
+    (``weight (N,)`` 1 or 0; a point of weight 0 is never a centre and moves none): labels ``(N,)``."""
     first, rest = jax.random.split(key)
-    centres = jnp.zeros((m, z.shape[-1]), z.dtype).at[0].set(z[jax.random.randint(first, (), 0, z.shape[0])])
-    dist = jnp.sum((z - centres[0]) ** 2, axis=-1)
+    count = jnp.sum(weight.astype(jnp.int32))
+    centres = jnp.zeros((m, z.shape[-1]), z.dtype).at[0].set(z[jax.random.randint(first, (), 0, count)])
+    dist = weight * jnp.sum((z - centres[0]) ** 2, axis=-1)
 
     def seed(k, carry):
         centres, dist = carry
-        p = jnp.where(jnp.sum(dist) > 0, dist / jnp.sum(dist), 1.0 / z.shape[0])  # all points equal: uniform
-        pick = jax.random.choice(jax.random.fold_in(rest, k), z.shape[0], p=p)
+        p = jnp.where(jnp.sum(dist) > 0, dist / jnp.sum(dist), weight / count)  # all points equal: uniform
+        # at most the last point of weight 1: the padding's running sum may round an ulp above the points'
+        pick = jnp.minimum(jax.random.choice(jax.random.fold_in(rest, k), z.shape[0], p=p), count - 1)
         centres = centres.at[k].set(z[pick])
-        return centres, jnp.minimum(dist, jnp.sum((z - z[pick]) ** 2, axis=-1))
+        return centres, jnp.minimum(dist, weight * jnp.sum((z - z[pick]) ** 2, axis=-1))
 
     centres, _ = jax.lax.fori_loop(1, m, seed, (centres, dist))
 
@@ -132,7 +141,7 @@ def _kmeans(key, z: jax.Array, m: int, steps: int) -> jax.Array:
         return jnp.argmin(jnp.sum(centres**2, axis=-1)[None] - 2 * z @ centres.T, axis=-1)
 
     def lloyd(_, centres):
-        onehot = jax.nn.one_hot(assign(centres), m, dtype=z.dtype)
+        onehot = jax.nn.one_hot(assign(centres), m, dtype=z.dtype) * weight[:, None]
         count = jnp.sum(onehot, axis=0)
         mean = onehot.T @ z / jnp.maximum(count, 1)[:, None]
         return jnp.where(count[:, None] > 0, mean, centres)  # an empty cluster keeps its centre
@@ -140,12 +149,12 @@ def _kmeans(key, z: jax.Array, m: int, steps: int) -> jax.Array:
     return assign(jax.lax.fori_loop(0, steps, lloyd, centres))
 
 
-def _fit_one(key, z, m: int, lloyd_steps: int, reg_covar, tol, max_iter) -> EMResult:
-    resp = jax.nn.one_hot(_kmeans(key, z, m, lloyd_steps), m, dtype=z.dtype)
-    return _em_loop(z, _m_step(z, resp, reg_covar), reg_covar, tol, max_iter)
+def _fit_one(key, z, weight, m: int, lloyd_steps: int, reg_covar, tol, max_iter) -> EMResult:
+    resp = jax.nn.one_hot(_kmeans(key, z, weight, m, lloyd_steps), m, dtype=z.dtype) * weight[:, None]
+    return _em_loop(z, weight, _m_step(z, resp, reg_covar), reg_covar, tol, max_iter)
 
 
-_fit_many = jax.jit(jax.vmap(_fit_one, in_axes=(0, None, None, None, None, None, None)), static_argnums=(2, 3))
+_fit_many = jax.jit(jax.vmap(_fit_one, in_axes=(0, None, None, None, None, None, None, None)), static_argnums=(3, 4))
 
 
 # ---- public, validated, float64 --------------------------------------------------------------
@@ -203,7 +212,7 @@ def em(z, weights, means, covariances, *, reg_covar: float = 1e-6, tol: float = 
     start = _check_mixture(weights, means, covariances, x.shape[1])
     _check_fit_options(reg_covar, tol, max_iter)
     with jax.enable_x64(True):
-        result = _em_jit(jnp.asarray(x), GaussianMixture(*map(jnp.asarray, start)),
+        result = _em_jit(jnp.asarray(x), jnp.ones(len(x)), GaussianMixture(*map(jnp.asarray, start)),
                          jnp.float64(reg_covar), jnp.float64(tol), jnp.int32(max_iter))
     return _checked_result(result)
 
@@ -221,12 +230,23 @@ def fit_gmm(key, z, m: int, *, n_init: int = 3, lloyd_steps: int = 10, reg_covar
     check_count("lloyd_steps", lloyd_steps, minimum=0)
     _check_fit_options(reg_covar, tol, max_iter)
     keys = jax.random.split(key, int(n_init))
+    # the points padded with zero-weight rows to one of a few sizes per doubling (``padded_size``):
+    # one compile serves every N of a bucket (a BIC scan's data sets, each frame set of a run)
+    padded = np.zeros((padded_size(len(x)), x.shape[1]))
+    padded[:len(x)] = x
     with jax.enable_x64(True):
-        results = _fit_many(keys, jnp.asarray(x), int(m), int(lloyd_steps), jnp.float64(reg_covar),
-                            jnp.float64(tol), jnp.int32(max_iter))
-    bounds = np.asarray(results.lower_bound)
-    best = int(np.argmax(np.where(np.isnan(bounds), -np.inf, bounds)))
+        results = _fit_many(keys, jnp.asarray(padded), jnp.asarray(np.arange(len(padded)) < len(x), jnp.float64),
+                            int(m), int(lloyd_steps), jnp.float64(reg_covar), jnp.float64(tol), jnp.int32(max_iter))
+    best = best_init(np.asarray(results.lower_bound))
     return _checked_result(jax.tree_util.tree_map(lambda a: a[best], results))
+
+
+def best_init(bounds: np.ndarray) -> int:
+    """The index of the highest lower bound ``bounds (n_init,)``, the first on ties (as sklearn); NaN
+    loses. Bounds within 1e-9 (relative) are ties: which of two equally good fits wins must not hang on
+    the last bit, which another CPU or another order of summation can change."""
+    bounds = np.where(np.isnan(bounds), -np.inf, bounds)
+    return int(np.argmax(bounds >= bounds.max() - 1e-9 * max(1.0, abs(bounds.max()))))
 
 
 def n_parameters(m: int, dim: int) -> int:

@@ -153,6 +153,40 @@ def test_kmeans_plus_plus_seeds_one_centre_in_each_far_apart_cluster():
     truth = np.repeat(np.arange(4), [5, 9, 7, 11])
     z = jnp.asarray(corners[truth] + rng.normal(size=(truth.size, 2)) * 0.01, jnp.float32)
     for seed in range(8):
-        labels = np.asarray(mx._kmeans(jax.random.key(seed), z, 4, 0))
+        labels = np.asarray(mx._kmeans(jax.random.key(seed), z, jnp.ones(len(z), z.dtype), 4, 0))
         assert [len(set(labels[truth == t])) for t in range(4)] == [1] * 4, (seed, labels)
         assert len(set(labels)) == 4, (seed, labels)
+
+
+def test_fit_gmm_compiles_once_for_the_point_counts_of_one_padded_size():
+    rng = np.random.default_rng(8)
+    z = blobs(rng, 3, 5, 40)  # 120 points in 5-D (no other test fits 5-D); 100..112 all pad to 112
+    before = mx._fit_many._cache_size()
+    fits = [mx.fit_gmm(jax.random.key(1), z[:n], 3) for n in (100, 105, 112)]
+    assert mx._fit_many._cache_size() - before == 1
+    assert all(bool(f.converged) for f in fits)
+
+
+@pytest.mark.parametrize("n", [97, 100, 112, 113])
+def test_zero_weight_padding_leaves_the_fit_as_on_the_points_alone(n):
+    """``fit_gmm`` pads the points with zero-weight rows; the same keys on the points alone (every
+    weight 1, no padding) give the same fit within rounding (the sums' order differs)."""
+    rng = np.random.default_rng(n)
+    z = blobs(rng, 4, 3, 30, spread=3.0)[:n]
+    fit = mx.fit_gmm(jax.random.key(2), z, 4, n_init=2)
+    with jax.enable_x64(True):
+        alone = mx._fit_many(jax.random.split(jax.random.key(2), 2), jnp.asarray(z), jnp.ones(n), 4, 10,
+                             jnp.float64(1e-6), jnp.float64(1e-3), jnp.int32(100))
+    best = mx.best_init(np.asarray(alone.lower_bound))
+    assert int(fit.n_iter) == int(alone.n_iter[best])
+    np.testing.assert_allclose(fit.lower_bound, alone.lower_bound[best], rtol=1e-12)
+    for a, b in zip(fit.mixture, alone.mixture):
+        np.testing.assert_allclose(a, b[best], rtol=1e-9, atol=1e-12)
+
+
+def test_best_init_is_the_first_of_the_highest_bounds_within_rounding():
+    assert mx.best_init(np.array([-3.0, -1.0, -2.0])) == 1
+    assert mx.best_init(np.array([-4.1373, -4.1373 * (1 - 1e-15), -5.0])) == 0  # an ulp better: a tie
+    assert mx.best_init(np.array([-4.1373, -4.1373 * (1 - 1e-6)])) == 1  # clearly better
+    assert mx.best_init(np.array([np.nan, -7.0, np.nan])) == 1
+    assert mx.best_init(np.array([2e-12, 1e-12])) == 0  # near 0: an absolute 1e-9

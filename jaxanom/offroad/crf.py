@@ -41,6 +41,7 @@ import numpy as np
 
 from jaxanom._batching import over_images
 from jaxanom._validate import check_finite, check_range, check_rank
+from jaxanom.shapes import padded_size
 
 _BLOCK = 512  # rows of the exact kernel computed at once
 _TILE = 64  # outputs per block of the banded positional filter
@@ -390,10 +391,9 @@ def _dense_crf(probs, image, keys, sxy_b, srgb, w_b, sxy_g, w_g, iters: int, sym
 
 
 def _room(count: int) -> int:
-    """Lattice size for ``count`` vertices: rounded up to a quarter of its octave (4 compiled sizes
-    per doubling; the blur, walks and searches cost O(size), at most 1.25x the count)."""
-    quarter = max(16, 1 << max(0, (int(count) - 1).bit_length() - 3))
-    return -(-int(count) // quarter) * quarter
+    """Lattice size for ``count`` vertices: ``padded_size`` (4 compiled sizes per doubling; the
+    blur, walks and searches cost O(size), at most 1.25x the count)."""
+    return padded_size(count)
 
 
 def _dense_crf_frames(probs, image, keys, sxy_b, srgb, w_b, sxy_g, w_g, iters: int, symmetric: bool, size: int | None):
