@@ -7,6 +7,7 @@ from scipy.stats import multivariate_normal
 from sklearn.mixture import GaussianMixture as SklearnGMM
 
 from jaxanom import mixture as mx
+from compiles import compiled_during
 
 
 def random_spd(rng, m, d, scale=1.0):
@@ -161,9 +162,8 @@ def test_kmeans_plus_plus_seeds_one_centre_in_each_far_apart_cluster():
 def test_fit_gmm_compiles_once_for_the_point_counts_of_one_padded_size():
     rng = np.random.default_rng(8)
     z = blobs(rng, 3, 5, 40)  # 120 points in 5-D (no other test fits 5-D); 100..112 all pad to 112
-    before = mx._fit_many._cache_size()
-    fits = [mx.fit_gmm(jax.random.key(1), z[:n], 3) for n in (100, 105, 112)]
-    assert mx._fit_many._cache_size() - before == 1
+    fits, compiled = compiled_during(lambda: [mx.fit_gmm(jax.random.key(1), z[:n], 3) for n in (100, 105, 112)])
+    assert compiled.count("jit(_fit_one)") == 1, compiled
     assert all(bool(f.converged) for f in fits)
 
 
