@@ -25,6 +25,7 @@ from jaxanom.metrics.anomaly import (check_conventions, check_scores_labels, req
                                      summary_to_metrics)
 from jaxanom.metrics.curve import curve_summary
 from jaxanom.metrics.ranking import POSITIVE, VOID, sort_pixels
+from jaxanom.shapes import padded_size
 
 MODES = ("exact", "binned")
 
@@ -190,9 +191,7 @@ def _pad_to_few_sizes(keys, positives, negatives, count_dtype):
     """Pad with empty entries under the largest key (no score has it) so that few array sizes,
     hence few compilations, occur: 16 sizes per power of two, so at most 1/16 more entries
     (``curve_summary`` holds ~100 bytes per entry: a power of two would cost up to 2x memory)."""
-    size = max(int(keys.size), 1024)
-    step = 1 << max(size.bit_length() - 5, 0)
-    pad = -(-size // step) * step - keys.size
+    pad = padded_size(max(int(keys.size), 1024), per_doubling=16, min_step=1) - keys.size
     keys = np.concatenate([keys, np.full(pad, np.iinfo(keys.dtype).max, keys.dtype)])
     zeros = np.zeros(pad, count_dtype)
     return (jnp.asarray(keys), jnp.asarray(np.concatenate([positives.astype(count_dtype), zeros])),

@@ -15,6 +15,7 @@ import numpy as np
 from jaxanom.metrics.curve import curve_points, curve_summary
 from jaxanom.metrics.placement import on_one_device
 from jaxanom.metrics.ranking import NEGATIVE, POSITIVE, keys_to_scores, sort_pixels
+from jaxanom.shapes import padded_size
 
 FPR_CONVENTIONS = ("first", "interp", "nearest", "strict")
 AP_CONVENTIONS = ("step", "trapz", "envelope")
@@ -53,8 +54,7 @@ def check_scores_labels(scores, labels) -> tuple[jnp.ndarray, jnp.ndarray, dict]
 
 def _pad_with_void(scores, labels):
     size = scores.shape[0]
-    step = 1 << max(size.bit_length() - 4, 0)
-    padding = max(1024, -(-size // step) * step) - size
+    padding = padded_size(max(size, 1024), per_doubling=8, min_step=1) - size
     if padding == 0:
         return scores, labels
     return jnp.pad(scores, (0, padding)), jnp.pad(labels, (0, padding), constant_values=255)

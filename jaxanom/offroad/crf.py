@@ -390,12 +390,6 @@ def _dense_crf(probs, image, keys, sxy_b, srgb, w_b, sxy_g, w_g, iters: int, sym
     return _mean_field(unary, terms, iters, symmetric).reshape(h, w, num_labels), fits
 
 
-def _room(count: int) -> int:
-    """Lattice size for ``count`` vertices: ``padded_size`` (4 compiled sizes per doubling; the
-    blur, walks and searches cost O(size), at most 1.25x the count)."""
-    return padded_size(count)
-
-
 def _dense_crf_frames(probs, image, keys, sxy_b, srgb, w_b, sxy_g, w_g, iters: int, symmetric: bool, size: int | None):
     return over_images(lambda p, i, k: _dense_crf(p, i, k, sxy_b, srgb, w_b, sxy_g, w_g, iters, symmetric, size),
                        probs, image, keys)
@@ -456,7 +450,8 @@ def _run(fn, probs, image, batched, sxy_b, srgb, w_b, sxy_g, w_g, iters, normali
         keys, size = None, None
         if method == "permutohedral":  # the bilateral lattice is built once: sorted keys, then tables of its size
             keys = (_keys_batch if batched else _keys_jit)(image, sigmas[0], sigmas[1])
-            size = _room(int(jnp.max(keys.count)))
+            # 4 compiled lattice sizes per doubling; the blur, walks and searches cost O(size), at most 1.25x the count
+            size = padded_size(int(jnp.max(keys.count)))
         q, fits = fn(jnp.asarray(probs, jnp.float32), image, keys, sigmas[0], sigmas[1], jnp.float32(w_b), sigmas[2],
                      jnp.float32(w_g), int(iters), normalization == "symmetric", size)
         if not bool(jnp.all(fits)):

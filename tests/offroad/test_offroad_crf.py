@@ -234,14 +234,15 @@ def test_batch_twin_equals_single_images():
     import jax
     import jax.numpy as jnp
 
-    from jaxanom.offroad.crf import _room, crf_features, vertex_count
+    from jaxanom.offroad.crf import crf_features, vertex_count
+    from jaxanom.shapes import padded_size
 
     rng = np.random.default_rng(4)
     scenes = [noisy_scene(rng, 12, 20, 3, noise) for noise in (0.0, 0.3)]
     probs, images = np.stack([p for p, _ in scenes]), np.stack([i for _, i in scenes])
     with jax.enable_x64(True):
         counts = [int(vertex_count(crf_features(jnp.asarray(i), 10.0, 13.0, 1.0)[0])) for i in images]
-    assert _room(counts[0]) < _room(counts[1]), counts  # frame 0 is padded in the batch
+    assert padded_size(counts[0]) < padded_size(counts[1]), counts  # frame 0 is padded in the batch
     batch = dense_crf_batch(probs, images, sxy_b=10.0)
     for k in range(2):
         np.testing.assert_allclose(batch[k], dense_crf(probs[k], images[k], sxy_b=10.0), atol=1e-6)
