@@ -183,20 +183,25 @@ def test_fit_stats_policy_table_warning_and_evaluate_records_it(demo_dir, tmp_pa
     assert json.loads((out2 / "metrics.json").read_text())["cudam_sigma"] == {"values": [3.0], "source": "given"}
 
 
-def test_train_uses_the_paper_equivalent_tau_for_its_map(tmp_path, capsys):
+def test_train_uses_the_paper_equivalent_tau_for_its_map(tmp_path, capsys, monkeypatch):
+    """What ``train`` hands the trainer and prints; the training itself is the other tests' (its step
+    would only repeat theirs at another map size)."""
+    import jaxanom.app.experiment as experiment_module
+
+    trained = []
+    monkeypatch.setattr(experiment_module, "run_training", lambda experiment, *_, **__: trained.append(experiment))
     config = tmp_path / "exp.py"
     config.write_text("import dataclasses\nfrom jaxanom.app.demos.sml_cudam import DemoConfig\n"
                       "from jaxanom.cudam_objective import CuDAM\n"
                       "e = DemoConfig.quick().experiment\n"
-                      "experiment = dataclasses.replace(e, train=dataclasses.replace(e.train, steps=2, save_every=2, "
-                      "eval_every=2, objective=CuDAM()))\n")
-    run = tmp_path / "run"
-    assert main(["train", "--config", str(config), "--out", str(run), "--cudam-position", "output",
+                      "experiment = dataclasses.replace(e, train=dataclasses.replace(e.train, objective=CuDAM()))\n")
+    assert main(["train", "--config", str(config), "--out", str(tmp_path / "run"), "--cudam-position", "output",
                  "--no-progress"]) == 0
-    saved = json.loads((run / "experiment.json").read_text())
-    assert saved["cudam_position"] == "output" and saved["train"]["objective"]["tau"] is None
-    # "output": the map covers the 64 x 96 crop itself; the paper's tau 5e4 is for 180 x 180 maps
-    assert f"CuDAM tau = {5e4 * 64 * 96 / (180 * 180):.6g} (position output" in capsys.readouterr().out
+    [experiment] = trained
+    assert experiment.cudam_position == "output" and experiment.train.objective.tau is None
+    # "output": the network's map covers the 64 x 96 crop itself; the paper's tau 5e4 is for 180 x 180 maps
+    tau = 5e4 * 64 * 96 / (180 * 180)
+    assert f"CuDAM tau = {tau:.6g} (position output" in capsys.readouterr().out
 
 
 def test_fit_stats_refuses_non_finite_statistics_and_names_its_flags(demo_dir, tmp_path, capsys):
