@@ -30,6 +30,7 @@ import numpy as np
 from jaxanom._validate import (check_finite, check_integer, check_labels, check_number, check_rank, is_concrete,
                                values_checked)
 from jaxanom.mixture import GaussianMixture, log_gaussian
+from jaxanom.shapes import padded_size
 
 VOID = 255  # label of pixels that no window covers
 RISKS = ("calibrated", "literal")  # classify's risk: calibrated on the training patches, or Eq. 9 as printed
@@ -53,29 +54,32 @@ def raw_risk(z: jax.Array, means: jax.Array, covariances: jax.Array) -> tuple[ja
     return best.astype(jnp.int32), -jnp.take_along_axis(log_density, best[:, None], axis=-1)[:, 0]
 
 
-def calibrate(raw: jax.Array, train_raw: jax.Array) -> jax.Array:
-    """Empirical CDF of the training raw risks at ``raw``: ``|{train_raw <= raw}| / N_train``."""
-    ranks = jnp.searchsorted(jnp.sort(train_raw), raw, side="right")
-    return ranks.astype(raw.dtype) / train_raw.shape[0]
+def calibrate(raw: jax.Array, train_raw: jax.Array, count=None) -> jax.Array:
+    """Empirical CDF of the training raw risks at ``raw``: ``|{train_raw <= raw}| / N_train``.
+    ``count``: N_train when ``train_raw`` holds the training risks followed by +inf padding (default:
+    all of it); the padding sorts last, and a raw risk of +inf still gets 1."""
+    count = train_raw.shape[0] if count is None else count
+    ranks = jnp.minimum(jnp.searchsorted(jnp.sort(train_raw), raw, side="right"), count)
+    return ranks.astype(raw.dtype) / jnp.asarray(count, raw.dtype)
 
 
-def _classify(z, means, covariances, r_sigma, train_raw, literal: bool) -> Classification:
+def _classify(z, means, covariances, r_sigma, train_raw, train_count, literal: bool) -> Classification:
     cluster, raw = raw_risk(z, means, covariances)
     if literal:
         risk = -jnp.expm1(-raw)  # 1 - gamma
         known = risk <= r_sigma
     else:
-        risk = calibrate(raw, train_raw)  # F_train, reported
+        risk = calibrate(raw, train_raw, train_count)  # F_train, reported; train_raw ends in +inf padding
         # Eq. 10 on the raw risks: raw <= r_(j) with j = r_sigma N (r_sigma = j / N from risk_bound), i.e. fewer
         # than j training risks lie strictly below; F_train <= r_sigma would also admit (r_(j), r_(j+1))
-        below = jnp.searchsorted(jnp.sort(train_raw), raw, side="left")
-        known = below < jnp.floor(r_sigma * train_raw.shape[0] + 1e-6)
+        below = jnp.searchsorted(jnp.sort(train_raw), raw, side="left")  # the padding is above every raw risk
+        known = below < jnp.floor(r_sigma * train_count + 1e-6)
     labels = jnp.where(known, cluster, means.shape[0])
     return Classification(labels.astype(jnp.int32), risk.astype(jnp.float32), cluster)
 
 
-_classify_jit = jax.jit(_classify, static_argnums=5)
-_classify_batch = jax.jit(jax.vmap(_classify, in_axes=(0, None, None, None, None, None)), static_argnums=5)
+_classify_jit = jax.jit(_classify, static_argnums=6)
+_classify_batch = jax.jit(jax.vmap(_classify, in_axes=(0, None, None, None, None, None, None)), static_argnums=6)
 
 
 def window_weights(patch_size: int, sigma: float) -> np.ndarray:
@@ -164,12 +168,22 @@ def _check_classify_args(z, mixture, r_sigma, train_raw, risk, batched):
 
 
 def _run_classify(fn, z, mixture, r_sigma, train_raw, risk):
-    args = (z, mixture.means, mixture.covariances, r_sigma, jnp.zeros((1,)) if train_raw is None else train_raw)
+    args = (z, mixture.means, mixture.covariances, r_sigma, np.zeros(1) if train_raw is None else train_raw)
+    count = np.shape(args[4])[0]
     if all(is_concrete(a) for a in args):  # eager: float64 densities, float32 risks
         with jax.enable_x64(True):
-            out = fn(*(jnp.asarray(np.asarray(a, np.float64)) for a in args), risk == "literal")
+            *args, train_raw = (np.asarray(a, np.float64) for a in args)
+            out = fn(*map(jnp.asarray, args), jnp.asarray(_padded(train_raw, np)), jnp.asarray(count), risk == "literal")
             return Classification(*(jnp.asarray(np.asarray(o)) for o in out))
-    return fn(*(jnp.asarray(a) for a in args), risk == "literal")
+    *args, train_raw = map(jnp.asarray, args)
+    return fn(*args, _padded(train_raw, jnp), jnp.asarray(count), risk == "literal")
+
+
+def _padded(train_raw, xp):
+    """``train_raw`` with +inf appended up to ``shapes.padded_size``: one compile of ``_classify``
+    serves every training set of a bucket of sizes."""
+    count = train_raw.shape[0]
+    return xp.concatenate([train_raw, xp.full(padded_size(count) - count, xp.inf, train_raw.dtype)])
 
 
 def classify(z, mixture: GaussianMixture, r_sigma, train_raw=None, *, risk: str = "calibrated") -> Classification:

@@ -54,6 +54,26 @@ def test_classify_matches_numpy(m, d):
     np.testing.assert_array_equal(batch.labels[1], got.labels[::-1])
 
 
+def test_training_sets_of_one_size_bucket_share_one_compile_and_keep_their_own_calibration():
+    from compiles import compiled_during
+
+    rng = np.random.default_rng(5)
+    mixture = random_mixture(rng, 3, 2)
+    z = rng.normal(size=(40, 2)) * 4
+    z[0] = 1e200  # its density underflows: raw risk +inf, F_train = 1 (the padding sorts with it)
+    with np.errstate(over="ignore"):
+        raw = -numpy_log_density(z, mixture).max(axis=1)
+    for n_train in (100, 105, 112):  # one bucket of shapes.padded_size
+        train_raw, train_r = rk.training_risks(rng.normal(size=(n_train, 2)) * 3, mixture)
+        r_sigma = rk.risk_bound(train_r, 0.9)
+        got, compiled = compiled_during(lambda: rk.classify(z, mixture, r_sigma, train_raw))
+        assert n_train == 100 or "jit(_classify)" not in compiled, (n_train, compiled)  # (100's may be cached)
+        np.testing.assert_allclose(got.risk, [np.mean(train_raw <= v) for v in raw], rtol=1e-6)
+        known = raw <= np.sort(train_raw)[math.ceil(0.9 * n_train) - 1]
+        np.testing.assert_array_equal(got.labels, np.where(known, got.cluster, 3))
+        assert got.risk[0] == 1 and got.labels[0] == 3
+
+
 @pytest.mark.parametrize("n_train", [7, 20, 61])
 def test_calibrated_labels_are_eq10_on_the_raw_order_statistic(n_train):
     # F_train is flat between order statistics, so F_train <= r_sigma called points in
