@@ -168,15 +168,15 @@ def _check_classify_args(z, mixture, r_sigma, train_raw, risk, batched):
 
 
 def _run_classify(fn, z, mixture, r_sigma, train_raw, risk):
-    args = (z, mixture.means, mixture.covariances, r_sigma, np.zeros(1) if train_raw is None else train_raw)
-    count = np.shape(args[4])[0]
-    if all(is_concrete(a) for a in args):  # eager: float64 densities, float32 risks
+    train_raw = np.zeros(1) if train_raw is None else train_raw
+    count, literal = np.shape(train_raw)[0], risk == "literal"
+    args = (z, mixture.means, mixture.covariances, r_sigma)
+    if all(is_concrete(a) for a in (*args, train_raw)):  # eager: float64 densities, float32 risks
         with jax.enable_x64(True):
-            *args, train_raw = (np.asarray(a, np.float64) for a in args)
-            out = fn(*map(jnp.asarray, args), jnp.asarray(_padded(train_raw, np)), jnp.asarray(count), risk == "literal")
+            x64 = [jnp.asarray(np.asarray(a, np.float64)) for a in args]
+            out = fn(*x64, jnp.asarray(_padded(np.asarray(train_raw, np.float64), np)), jnp.asarray(count), literal)
             return Classification(*(jnp.asarray(np.asarray(o)) for o in out))
-    *args, train_raw = map(jnp.asarray, args)
-    return fn(*args, _padded(train_raw, jnp), jnp.asarray(count), risk == "literal")
+    return fn(*map(jnp.asarray, args), _padded(jnp.asarray(train_raw), jnp), jnp.asarray(count), literal)
 
 
 def _padded(train_raw, xp):
