@@ -15,7 +15,9 @@ lower bound and iteration count:
 cast; results are float64 arrays). ``log_gaussian``, ``log_responsibilities`` and
 ``score_samples`` are pure and keep their inputs' dtype, so they work inside a caller's jit.
 The choice of the component count (``select_components``) is host-side: ``fit_gmm`` compiles once per m
-and per size of its zero-weight padded points (``shapes.padded_size``: four sizes per doubling of N).
+and per size of its zero-weight padded points (``shapes.padded_size``: four sizes per doubling of N); a
+scan fits every count it tries in the room of its largest one (unused components take no weight and no
+point), so it compiles once per size of points.
 """
 from __future__ import annotations
 
@@ -86,7 +88,9 @@ def score_samples(z: jax.Array, mixture: GaussianMixture) -> jax.Array:
     return log_responsibilities(z, mixture)[0]
 
 
-def _m_step(z: jax.Array, resp: jax.Array, reg_covar) -> GaussianMixture:
+def _m_step(z: jax.Array, resp: jax.Array, reg_covar, active: jax.Array) -> GaussianMixture:
+    """``active (room,)``: the components in use; the others get weight 0 (so no point in the next
+    E-step) and the identity covariance (so their densities stay finite and add exp(-inf) = 0)."""
     nk = jnp.sum(resp, axis=0) + 10 * jnp.finfo(resp.dtype).eps
     means = resp.T @ z / nk[:, None]
 
@@ -94,12 +98,14 @@ def _m_step(z: jax.Array, resp: jax.Array, reg_covar) -> GaussianMixture:
         diff = z - mu
         return (r[:, None] * diff).T @ diff / n + reg_covar * jnp.eye(z.shape[-1], dtype=z.dtype)
 
-    covariances = jax.vmap(covariance)(resp.T, means, nk)
+    covariances = jnp.where(active[:, None, None], jax.vmap(covariance)(resp.T, means, nk), jnp.eye(z.shape[-1], dtype=z.dtype))
+    nk = jnp.where(active, nk, 0.0)
     return GaussianMixture(nk / jnp.sum(nk), means, covariances)
 
 
-def _em_loop(z, weight, mixture: GaussianMixture, reg_covar, tol, max_iter) -> EMResult:
-    """EM over the points of weight 1 (``weight (N,)`` 1 or 0: 0 for the padding ``fit_gmm`` adds)."""
+def _em_loop(z, weight, mixture: GaussianMixture, reg_covar, tol, max_iter, active) -> EMResult:
+    """EM over the points of weight 1 (``weight (N,)`` 1 or 0: 0 for the padding ``fit_gmm`` adds) and the
+    ``active (room,)`` components (the others have weight 0)."""
     count = jnp.sum(weight)
 
     def body(state):
@@ -107,7 +113,7 @@ def _em_loop(z, weight, mixture: GaussianMixture, reg_covar, tol, max_iter) -> E
         norm, log_resp = log_responsibilities(z, mixture)
         new_bound = jnp.sum(norm * weight) / count
         resp = jnp.exp(log_resp) * weight[:, None]
-        return _m_step(z, resp, reg_covar), new_bound, n_iter + 1, jnp.abs(new_bound - bound) < tol
+        return _m_step(z, resp, reg_covar, active), new_bound, n_iter + 1, jnp.abs(new_bound - bound) < tol
 
     def cond(state):
         return (state[2] < max_iter) & ~state[3]
@@ -119,12 +125,13 @@ def _em_loop(z, weight, mixture: GaussianMixture, reg_covar, tol, max_iter) -> E
 _em_jit = jax.jit(_em_loop)
 
 
-def _kmeans(key, z: jax.Array, weight: jax.Array, m: int, steps: int) -> jax.Array:
+def _kmeans(key, z: jax.Array, weight: jax.Array, m, room: int, steps: int) -> jax.Array:
     """k-means++ seeding (D^2 sampling) then ``steps`` Lloyd steps over the points of weight 1
-    (``weight (N,)`` 1 or 0; a point of weight 0 is never a centre and moves none): labels ``(N,)``."""
+    (``weight (N,)`` 1 or 0; a point of weight 0 is never a centre and moves none): labels ``(N,)``
+    in ``0 .. m - 1``. ``m`` may be traced; ``room >= m`` (static) sizes the centres."""
     first, rest = jax.random.split(key)
     count = jnp.sum(weight.astype(jnp.int32))
-    centres = jnp.zeros((m, z.shape[-1]), z.dtype).at[0].set(z[jax.random.randint(first, (), 0, count)])
+    centres = jnp.zeros((room, z.shape[-1]), z.dtype).at[0].set(z[jax.random.randint(first, (), 0, count)])
     dist = weight * jnp.sum((z - centres[0]) ** 2, axis=-1)
 
     def seed(k, carry):
@@ -138,10 +145,11 @@ def _kmeans(key, z: jax.Array, weight: jax.Array, m: int, steps: int) -> jax.Arr
     centres, _ = jax.lax.fori_loop(1, m, seed, (centres, dist))
 
     def assign(centres):  # nearest centre by |c|^2 - 2 z.c (|z|^2 is the same for every centre)
-        return jnp.argmin(jnp.sum(centres**2, axis=-1)[None] - 2 * z @ centres.T, axis=-1)
+        distance = jnp.sum(centres**2, axis=-1)[None] - 2 * z @ centres.T
+        return jnp.argmin(jnp.where(jnp.arange(room) < m, distance, jnp.inf), axis=-1)
 
     def lloyd(_, centres):
-        onehot = jax.nn.one_hot(assign(centres), m, dtype=z.dtype) * weight[:, None]
+        onehot = jax.nn.one_hot(assign(centres), room, dtype=z.dtype) * weight[:, None]
         count = jnp.sum(onehot, axis=0)
         mean = onehot.T @ z / jnp.maximum(count, 1)[:, None]
         return jnp.where(count[:, None] > 0, mean, centres)  # an empty cluster keeps its centre
@@ -149,12 +157,14 @@ def _kmeans(key, z: jax.Array, weight: jax.Array, m: int, steps: int) -> jax.Arr
     return assign(jax.lax.fori_loop(0, steps, lloyd, centres))
 
 
-def _fit_one(key, z, weight, m: int, lloyd_steps: int, reg_covar, tol, max_iter) -> EMResult:
-    resp = jax.nn.one_hot(_kmeans(key, z, weight, m, lloyd_steps), m, dtype=z.dtype) * weight[:, None]
-    return _em_loop(z, weight, _m_step(z, resp, reg_covar), reg_covar, tol, max_iter)
+def _fit_one(key, z, weight, m, room: int, lloyd_steps: int, reg_covar, tol, max_iter) -> EMResult:
+    """One init of ``m`` (traced) components in a mixture of ``room`` (static); the rest stay unused."""
+    active = jnp.arange(room) < m
+    resp = jax.nn.one_hot(_kmeans(key, z, weight, m, room, lloyd_steps), room, dtype=z.dtype) * weight[:, None]
+    return _em_loop(z, weight, _m_step(z, resp, reg_covar, active), reg_covar, tol, max_iter, active)
 
 
-_fit_many = jax.jit(jax.vmap(_fit_one, in_axes=(0, None, None, None, None, None, None, None)), static_argnums=(3, 4))
+_fit_many = jax.jit(jax.vmap(_fit_one, in_axes=(0,) + (None,) * 8), static_argnums=(4, 5))
 
 
 # ---- public, validated, float64 --------------------------------------------------------------
@@ -213,18 +223,21 @@ def em(z, weights, means, covariances, *, reg_covar: float = 1e-6, tol: float = 
     _check_fit_options(reg_covar, tol, max_iter)
     with jax.enable_x64(True):
         result = _em_jit(jnp.asarray(x), jnp.ones(len(x)), GaussianMixture(*map(jnp.asarray, start)),
-                         jnp.float64(reg_covar), jnp.float64(tol), jnp.int32(max_iter))
+                         jnp.float64(reg_covar), jnp.float64(tol), jnp.int32(max_iter), jnp.ones(len(start[0]), bool))
     return _checked_result(result)
 
 
 def fit_gmm(key, z, m: int, *, n_init: int = 3, lloyd_steps: int = 10, reg_covar: float = 1e-6,
-            tol: float = 1e-3, max_iter: int = 100) -> EMResult:
+            tol: float = 1e-3, max_iter: int = 100, room: int | None = None) -> EMResult:
     """Fit ``m`` components: per init, k-means++ seeding + ``lloyd_steps`` Lloyd steps, then EM.
 
     The ``n_init`` initialisations (keys split from ``key``) run vmapped; the one with the
     highest lower bound is kept (the first on ties), as in sklearn. ``z (N, D)`` with N >= m.
+    ``room`` (>= m, default m): the components compiled for; fits of any m up to one room share a
+    compile, and give the fit of room m within rounding (the unused components' sums add zeros).
     """
     check_count("m", m)
+    room = int(m) if room is None else check_count("room", room, minimum=int(m))
     x = _check_points(z, min_points=int(m))
     check_count("n_init", n_init)
     check_count("lloyd_steps", lloyd_steps, minimum=0)
@@ -236,9 +249,11 @@ def fit_gmm(key, z, m: int, *, n_init: int = 3, lloyd_steps: int = 10, reg_covar
     padded[:len(x)] = x
     with jax.enable_x64(True):
         results = _fit_many(keys, jnp.asarray(padded), jnp.asarray(np.arange(len(padded)) < len(x), jnp.float64),
-                            int(m), int(lloyd_steps), jnp.float64(reg_covar), jnp.float64(tol), jnp.int32(max_iter))
+                            jnp.int32(m), room, int(lloyd_steps), jnp.float64(reg_covar), jnp.float64(tol),
+                            jnp.int32(max_iter))
     best = best_init(np.asarray(results.lower_bound))
-    return _checked_result(jax.tree_util.tree_map(lambda a: a[best], results))
+    result = jax.tree_util.tree_map(lambda a: a[best], results)
+    return _checked_result(result._replace(mixture=GaussianMixture(*(a[:m] for a in result.mixture))))
 
 
 def best_init(bounds: np.ndarray) -> int:
@@ -290,7 +305,8 @@ def select_components(key, z, counts: Sequence[int] = tuple(range(2, 13)), *, th
     While the pick is the last count scanned (the curve still falls at the top), the scan goes on
     one count at a time up to ``max_count`` (default: no extension) and while m <= N, so a
     minimum found is interior. Returns ``(m, {m: EMResult}, {m: BIC})``; ``fit_options`` go to
-    ``fit_gmm``. Host-side.
+    ``fit_gmm``. Host-side. The counts given are fitted in the room of the largest, the extension in
+    the room of the last it may reach: one compile for each, and every fit runs at the cost of its room.
     """
     counts = [int(c) for c in counts]
     if len(counts) < 2 or min(counts) < 1:
@@ -298,12 +314,14 @@ def select_components(key, z, counts: Sequence[int] = tuple(range(2, 13)), *, th
     x = _check_points(z, min_points=max(counts))
     top = max(counts) if max_count is None else max(int(max_count), max(counts))
     fits, bics = {}, {}
+    room = max(counts)
     while True:
         for m in counts:
             if m not in fits:
-                fits[m] = fit_gmm(jax.random.fold_in(key, m), x, m, **fit_options)
+                fits[m] = fit_gmm(jax.random.fold_in(key, m), x, m, room=max(room, m), **fit_options)
                 bics[m] = bic(x, fits[m].mixture)
         chosen = decisive_minimum(counts, [bics[m] for m in counts], threshold)
         if chosen < counts[-1] or counts[-1] >= min(top, x.shape[0]):
             return chosen, fits, bics
         counts.append(counts[-1] + 1)
+        room = min(top, x.shape[0])

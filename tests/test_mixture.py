@@ -154,7 +154,7 @@ def test_kmeans_plus_plus_seeds_one_centre_in_each_far_apart_cluster():
     truth = np.repeat(np.arange(4), [5, 9, 7, 11])
     z = jnp.asarray(corners[truth] + rng.normal(size=(truth.size, 2)) * 0.01, jnp.float32)
     for seed in range(8):
-        labels = np.asarray(mx._kmeans(jax.random.key(seed), z, jnp.ones(len(z), z.dtype), 4, 0))
+        labels = np.asarray(mx._kmeans(jax.random.key(seed), z, jnp.ones(len(z), z.dtype), 4, 4, 0))
         assert [len(set(labels[truth == t])) for t in range(4)] == [1] * 4, (seed, labels)
         assert len(set(labels)) == 4, (seed, labels)
 
@@ -175,13 +175,41 @@ def test_zero_weight_padding_leaves_the_fit_as_on_the_points_alone(n):
     z = blobs(rng, 4, 3, 30, spread=3.0)[:n]
     fit = mx.fit_gmm(jax.random.key(2), z, 4, n_init=2)
     with jax.enable_x64(True):
-        alone = mx._fit_many(jax.random.split(jax.random.key(2), 2), jnp.asarray(z), jnp.ones(n), 4, 10,
+        alone = mx._fit_many(jax.random.split(jax.random.key(2), 2), jnp.asarray(z), jnp.ones(n), jnp.int32(4), 4, 10,
                              jnp.float64(1e-6), jnp.float64(1e-3), jnp.int32(100))
     best = mx.best_init(np.asarray(alone.lower_bound))
     assert int(fit.n_iter) == int(alone.n_iter[best])
     np.testing.assert_allclose(fit.lower_bound, alone.lower_bound[best], rtol=1e-12)
     for a, b in zip(fit.mixture, alone.mixture):
         np.testing.assert_allclose(a, b[best], rtol=1e-9, atol=1e-12)
+
+
+def _assert_same_fit(a, b):
+    assert int(a.n_iter) == int(b.n_iter) and bool(a.converged) == bool(b.converged)
+    np.testing.assert_allclose(a.lower_bound, b.lower_bound, rtol=1e-12)
+    for x, y in zip(a.mixture, b.mixture):
+        assert x.shape == y.shape
+        np.testing.assert_allclose(x, y, rtol=1e-9, atol=1e-12)
+
+
+def test_a_scan_compiles_once_and_each_fit_equals_the_fit_in_a_room_of_its_own_size():
+    """``select_components`` fits 1..5 in a room of 5 components: the unused ones take no weight and no
+    point, so each fit is ``fit_gmm``'s of that m alone (room m) within rounding."""
+    rng = np.random.default_rng(11)
+    z = blobs(rng, 3, 2, 21, spread=5.0)  # 63 points: no other test fits this size bucket in 2-D
+    (_, fits, _), compiled = compiled_during(lambda: mx.select_components(jax.random.key(4), z, range(1, 6), n_init=2))
+    assert compiled.count("jit(_fit_one)") == 1, compiled
+    for m, fit in fits.items():
+        _assert_same_fit(fit, mx.fit_gmm(jax.random.fold_in(jax.random.key(4), m), z, m, n_init=2))
+        np.testing.assert_allclose(np.asarray(fit.mixture.weights).sum(), 1.0, rtol=1e-12)
+    # without regularisation the unused components' covariances would be singular: they must stay out of it
+    _assert_same_fit(mx.fit_gmm(jax.random.key(5), z, 2, reg_covar=0.0, room=5),
+                     mx.fit_gmm(jax.random.key(5), z, 2, reg_covar=0.0))
+    # a point far from every cluster but at the unused components' mean (the origin) stays out of them too
+    far = np.concatenate([z + 40.0, np.zeros((1, 2))])
+    _assert_same_fit(mx.fit_gmm(jax.random.key(6), far, 2, room=5), mx.fit_gmm(jax.random.key(6), far, 2))
+    with pytest.raises(ValueError, match="room must be >= 3"):
+        mx.fit_gmm(jax.random.key(0), z, 3, room=2)
 
 
 def test_best_init_is_the_first_of_the_highest_bounds_within_rounding():
