@@ -192,24 +192,28 @@ def _assert_same_fit(a, b):
         np.testing.assert_allclose(x, y, rtol=1e-9, atol=1e-12)
 
 
-def test_a_scan_compiles_once_and_each_fit_equals_the_fit_in_a_room_of_its_own_size():
-    """``select_components`` fits 1..5 in a room of 5 components: the unused ones take no weight and no
-    point, so each fit is ``fit_gmm``'s of that m alone (room m) within rounding."""
-    rng = np.random.default_rng(11)
-    z = blobs(rng, 3, 2, 21, spread=5.0)  # 63 points: no other test fits this size bucket in 2-D
-    (_, fits, _), compiled = compiled_during(lambda: mx.select_components(jax.random.key(4), z, range(1, 6), n_init=2))
-    assert compiled.count("jit(_fit_one)") == 1, compiled
-    for m, fit in fits.items():
-        _assert_same_fit(fit, mx.fit_gmm(jax.random.fold_in(jax.random.key(4), m), z, m, n_init=2))
-        np.testing.assert_allclose(np.asarray(fit.mixture.weights).sum(), 1.0, rtol=1e-12)
+def test_a_scan_fits_in_one_room_and_each_fit_equals_the_fit_in_a_room_of_its_own_size(monkeypatch):
+    """``select_components`` fits 2..5 in a room of 5 components (one compile): the unused ones take no
+    weight and no point, so each fit is ``fit_gmm``'s of that m alone (room m) within rounding."""
+    z = blobs(np.random.default_rng(5), 3, 2, 120, spread=8.0)  # the data of the scan above: its compile is reused
+    key, fit_gmm, rooms = jax.random.key(0), mx.fit_gmm, []
+    monkeypatch.setattr(mx, "fit_gmm", lambda *args, **options: rooms.append(options["room"]) or fit_gmm(*args, **options))
+    _, fits, _ = mx.select_components(key, z, range(2, 6))
+    monkeypatch.undo()
+    assert rooms == [5, 5, 5, 5]
+    _, compiled = compiled_during(lambda: [mx.fit_gmm(key, z, m, room=5) for m in (1, 4)])
+    assert "jit(_fit_one)" not in compiled, compiled  # any m in that room reuses the scan's compile
+    for m in (2, 3):
+        _assert_same_fit(fits[m], mx.fit_gmm(jax.random.fold_in(key, m), z, m))
+        np.testing.assert_allclose(np.asarray(fits[m].mixture.weights).sum(), 1.0, rtol=1e-12)
+    _assert_same_fit(mx.fit_gmm(key, z, 1, room=5), mx.fit_gmm(key, z, 1))  # no seeding step at all
     # without regularisation the unused components' covariances would be singular: they must stay out of it
-    _assert_same_fit(mx.fit_gmm(jax.random.key(5), z, 2, reg_covar=0.0, room=5),
-                     mx.fit_gmm(jax.random.key(5), z, 2, reg_covar=0.0))
+    _assert_same_fit(mx.fit_gmm(key, z, 3, reg_covar=0.0, room=5), mx.fit_gmm(key, z, 3, reg_covar=0.0))
     # a point far from every cluster but at the unused components' mean (the origin) stays out of them too
-    far = np.concatenate([z + 40.0, np.zeros((1, 2))])
-    _assert_same_fit(mx.fit_gmm(jax.random.key(6), far, 2, room=5), mx.fit_gmm(jax.random.key(6), far, 2))
+    far = np.concatenate([z + 60.0, np.zeros((1, 2))])
+    _assert_same_fit(mx.fit_gmm(key, far, 3, room=5), mx.fit_gmm(key, far, 3))
     with pytest.raises(ValueError, match="room must be >= 3"):
-        mx.fit_gmm(jax.random.key(0), z, 3, room=2)
+        mx.fit_gmm(key, z, 3, room=2)
 
 
 def test_best_init_is_the_first_of_the_highest_bounds_within_rounding():
