@@ -343,18 +343,18 @@ def mass_scale(lattice: Lattice, features: jax.Array, rows: int = 64) -> jax.Arr
     return jnp.where(exact > 0, approx / jnp.where(exact > 0, exact, 1.0), 1.0)
 
 
-def _mean_field(unary, terms, iters: int, symmetric: bool):
+def _mean_field(unary, terms, iters, symmetric: bool):
     """``terms``: (``v -> K~ v``, w_m) with ``K~`` the kernel without its diagonal; symmetric:
-    ``D = K~ 1 + 1`` (the exact kernel's row sums, self weight 1)."""
+    ``D = K~ 1 + 1`` (the exact kernel's row sums, self weight 1). ``iters`` may be traced: every
+    iteration count of one shape shares a compile."""
     ones = jnp.ones((unary.shape[0], 1), unary.dtype)
     norms = [jax.lax.rsqrt(k(ones) + 1.0) if symmetric else ones for k, _ in terms]
 
-    def step(q, _):
+    def step(_, q):
         message = sum(w * nm * k(nm * q) for (k, w), nm in zip(terms, norms))
-        return _softmax(-unary + message), None
+        return _softmax(-unary + message)
 
-    q, _ = jax.lax.scan(step, _softmax(-unary), None, length=iters)
-    return q
+    return jax.lax.fori_loop(0, iters, step, _softmax(-unary))
 
 
 def _softmax(x: jax.Array) -> jax.Array:
@@ -372,33 +372,31 @@ def _bilateral_keys(image, sxy_b, srgb):
     return lattice_keys(crf_features(image, sxy_b, srgb, 1.0)[0])
 
 
-def _dense_crf(probs, image, keys, sxy_b, srgb, w_b, sxy_g, w_g, iters: int, symmetric: bool, size: int | None):
-    """One frame; ``keys``: the bilateral lattice's (permutohedral) or None (exact)."""
+def _dense_crf(probs, image, keys, sxy_b, srgb, w_b, sxy_g, w_g, iters, symmetric: bool, size: int | None):
+    """One frame; ``keys``: the bilateral lattice's (permutohedral, each fitting the packing) or None (exact)."""
     h, w, num_labels = probs.shape
     unary = -jnp.log(jnp.clip(probs.reshape(-1, num_labels).astype(jnp.float32), 1e-8, None))
     f_b, f_g = crf_features(image, sxy_b, srgb, sxy_g)
     if keys is None:
         terms = [(lambda v: exact_filter(f_b, v) - v, w_b), (lambda v: exact_filter(f_g, v) - v, w_g)]
-        fits = jnp.asarray(True)
     else:
         lat = lattice_tables(keys, size)
         scale = mass_scale(lat, f_b)
         positional = positional_filter(h, w, sxy_g)
         terms = [(lambda v: (lattice_filter(lat, v) - lat.self_weight[:, None] * v) / scale, w_b),
                  (lambda v: positional(v) - v, w_g)]
-        fits = lat.fits
-    return _mean_field(unary, terms, iters, symmetric).reshape(h, w, num_labels), fits
+    return _mean_field(unary, terms, iters, symmetric).reshape(h, w, num_labels)
 
 
-def _dense_crf_frames(probs, image, keys, sxy_b, srgb, w_b, sxy_g, w_g, iters: int, symmetric: bool, size: int | None):
+def _dense_crf_frames(probs, image, keys, sxy_b, srgb, w_b, sxy_g, w_g, iters, symmetric: bool, size: int | None):
     return over_images(lambda p, i, k: _dense_crf(p, i, k, sxy_b, srgb, w_b, sxy_g, w_g, iters, symmetric, size),
                        probs, image, keys)
 
 
 _keys_jit = jax.jit(_bilateral_keys)
 _keys_batch = jax.jit(lambda images, sxy_b, srgb: over_images(lambda i: _bilateral_keys(i, sxy_b, srgb), images))
-_dense_crf_jit = jax.jit(_dense_crf, static_argnums=(6, 8, 9, 10))
-_dense_crf_batch = jax.jit(_dense_crf_frames, static_argnums=(6, 8, 9, 10))
+_dense_crf_jit = jax.jit(_dense_crf, static_argnums=(6, 9, 10))
+_dense_crf_batch = jax.jit(_dense_crf_frames, static_argnums=(6, 9, 10))
 
 
 def dense_crf(probs, image, *, sxy_b: float = 80.0, srgb: float = 13.0, w_b: float = 10.0, sxy_g: float = 3.0,
@@ -450,10 +448,12 @@ def _run(fn, probs, image, batched, sxy_b, srgb, w_b, sxy_g, w_g, iters, normali
         keys, size = None, None
         if method == "permutohedral":  # the bilateral lattice is built once: sorted keys, then tables of its size
             keys = (_keys_batch if batched else _keys_jit)(image, sigmas[0], sigmas[1])
+            count, fits = jax.device_get((jnp.max(keys.count), jnp.all(keys.fits)))  # one read, before the CRF's work
+            if not fits:
+                raise ValueError("features too far apart for the lattice's key packing: increase sxy_b / srgb or use "
+                                 "method='exact'")
             # 4 compiled lattice sizes per doubling; the blur, walks and searches cost O(size), at most 1.25x the count
-            size = padded_size(int(jnp.max(keys.count)))
-        q, fits = fn(jnp.asarray(probs, jnp.float32), image, keys, sigmas[0], sigmas[1], jnp.float32(w_b), sigmas[2],
-                     jnp.float32(w_g), int(iters), normalization == "symmetric", size)
-        if not bool(jnp.all(fits)):
-            raise ValueError("features too far apart for the lattice's key packing: increase sxy_b / srgb or use method='exact'")
+            size = padded_size(int(count))
+        q = fn(jnp.asarray(probs, jnp.float32), image, keys, sigmas[0], sigmas[1], jnp.float32(w_b), sigmas[2],
+               jnp.float32(w_g), jnp.int32(iters), normalization == "symmetric", size)
         return jnp.asarray(np.asarray(q))

@@ -70,6 +70,22 @@ def test_zero_weights_or_iterations_return_the_input(method):
     np.testing.assert_allclose(single, 1.0)
 
 
+def test_iteration_counts_share_one_compile_and_an_unpackable_lattice_is_refused_before_the_crf_compiles():
+    from compiles import compiled_during
+
+    rng = np.random.default_rng(1)
+    probs, image, _ = two_region_scene(rng, 10, 12, 3)
+    _, compiled = compiled_during(lambda: [dense_crf(probs, image, iters=n) for n in (1, 2, 3)])
+    assert compiled.count("jit(_dense_crf)") <= 1, compiled  # 0 where another test compiled this shape first
+
+    def refused():
+        with pytest.raises(ValueError, match="features too far apart"):
+            dense_crf(probs, image, sxy_b=0.001, srgb=1.0)
+
+    _, compiled = compiled_during(refused)
+    assert "jit(_dense_crf)" not in compiled, compiled
+
+
 def test_permutohedral_close_to_exact():
     # measured here: 100 % equal labels, |Q_lattice - Q_exact| / |Q_exact| = 4e-4 (and 99.98 %, 0.8 %
     # on a 64x96 five-label scene); the bounds leave margin for other BLAS / XLA builds
