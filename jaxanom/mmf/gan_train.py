@@ -97,14 +97,16 @@ def init_gan_state(config: GANConfig, generator, discriminator, batch: dict) -> 
     """A step-0 state: both networks initialised from ``config.seed`` on the first example of ``batch``.
 
     The key is JAX's ``rbg`` generator: XLA:CPU compiles the default threefry draws of a few
-    hundred small parameter arrays several times more slowly."""
+    hundred small parameter arrays several times more slowly. The state is committed to the first
+    device, as a restored one is: a resumed run then reuses the step compiled for a fresh one."""
     image, semantic = _inputs(batch)
     g_vars, d_vars = _jitted_init(generator, discriminator)(jax.random.key(config.seed, impl="rbg"),
                                                             image[:1], semantic[:1])
     g_tx, d_tx = _optimizers(config)
-    return GANState(g_params=g_vars["params"], g_batch_stats=g_vars["batch_stats"], d_params=d_vars["params"],
-                    g_opt=g_tx.init(g_vars["params"]), d_opt=d_tx.init(d_vars["params"]),
-                    step=jnp.zeros((), jnp.int32))
+    state = GANState(g_params=g_vars["params"], g_batch_stats=g_vars["batch_stats"], d_params=d_vars["params"],
+                     g_opt=g_tx.init(g_vars["params"]), d_opt=d_tx.init(d_vars["params"]),
+                     step=jnp.zeros((), jnp.int32))
+    return jax.device_put(state, jax.local_devices()[0])
 
 
 def make_gan_step(config: GANConfig, generator, discriminator):
@@ -149,6 +151,13 @@ def make_gan_step(config: GANConfig, generator, discriminator):
     return step
 
 
+def compiled_step(config: GANConfig, generator, discriminator):
+    """``make_gan_step`` jitted, donating its state: one per losses and optimisers, whatever else
+    of ``config`` (run folder, steps, seed, ...) differs."""
+    return _jitted_step(dataclasses.replace(config, run_dir="", steps=1, seed=0, save_every=1, keep=1,
+                                            progress=False, log_every=1), generator, discriminator)
+
+
 @functools.lru_cache(maxsize=4)
 def _jitted_step(config: GANConfig, generator, discriminator):
     return jax.jit(make_gan_step(config, generator, discriminator), donate_argnums=0)
@@ -169,9 +178,7 @@ def train_gan(config: GANConfig, generator, discriminator, batches: Iterable[dic
     first = next(source)
     check_batch(first, generator.num_classes, UNKNOWN)
     generator.check(np.asarray(first["label"]))
-    # the step depends on the losses and optimisers only: runs that differ elsewhere share it
-    step_fn = _jitted_step(dataclasses.replace(config, run_dir="", steps=1, seed=0, save_every=1, keep=1,
-                                               progress=False, log_every=1), generator, discriminator)
+    step_fn = compiled_step(config, generator, discriminator)
     log = RunLog(config.run_dir)
 
     def log_steps(logged: list, images_per_s: float) -> dict:
