@@ -318,7 +318,7 @@ def select_components(key, z, counts: Sequence[int] = tuple(range(2, 13)), *, th
     while True:
         for m in counts:
             if m not in fits:
-                fits[m] = fit_gmm(jax.random.fold_in(key, m), x, m, room=max(room, m), **fit_options)
+                fits[m] = fit_gmm(jax.random.fold_in(key, m), x, m, room=room, **fit_options)
                 bics[m] = bic(x, fits[m].mixture)
         chosen = decisive_minimum(counts, [bics[m] for m in counts], threshold)
         if chosen < counts[-1] or counts[-1] >= min(top, x.shape[0]):
