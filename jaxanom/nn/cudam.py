@@ -64,7 +64,7 @@ class CuDAMAttention(nn.Module):
         b, h, w, channels = f_a.shape
         # Eq. 1, in float32.
         f32 = f_a.astype(jnp.float32)
-        pooled = jnp.stack([f32.mean(-1), f32.max(-1)], axis=-1)
+        pooled = jnp.stack([f32.mean(-1), channel_max(f32)], axis=-1)
         pad = self.kernel_size // 2
         scores = nn.Conv(
             1,
@@ -97,3 +97,17 @@ class CuDAMAttention(nn.Module):
         gate = (alpha * scale * attention)[..., None].astype(self.dtype)
         features = gate * (f_a.astype(self.dtype) + f_sc) + f_a.astype(self.dtype)
         return features, attention
+
+
+def channel_max(x: jax.Array) -> jax.Array:
+    """Max over the last axis, (..., C) -> (...), whose gradient goes to the first maximal channel.
+
+    The value is ``x.max(-1)``. JAX differentiates a max by comparing the operand with the result
+    and dividing by the number of equal elements; when a compiler recomputes the operand inside
+    a fused program with another rounding (XLA:CPU at optimisation level 0 does), no element is
+    equal, and the gradient is 0 / 0 = NaN. Picking the argmax's element has no such comparison.
+    Without ties both rules give the same gradient; with ties (ReLU features that are all 0 at a
+    position), JAX shares it among the tied channels and this rule gives it to the first.
+    """
+    return jnp.take_along_axis(x, jnp.argmax(x, axis=-1)[..., None], axis=-1)[..., 0]
+

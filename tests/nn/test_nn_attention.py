@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from jaxanom.nn import MSAAM, CuDAMAttention, best_rectangle
+from jaxanom.nn.cudam import channel_max
 from jaxanom.nn.msaam import adaptive_pool_matrix
 from attention_reference import as_np, conv_same, cudam_reference, resize, sigmoid, softmax
 
@@ -50,6 +51,20 @@ def test_cudam_attention_sums_to_one_with_huge_features(cudam_case):
     _, att = jax.jit(module.apply)({"params": params}, f_a * 1e4, f_low, f_mid)
     assert np.isfinite(att).all()
     np.testing.assert_allclose(np.asarray(att).sum((1, 2)), 1.0, rtol=1e-6)
+
+
+@pytest.mark.parametrize("scale", [1.0, 1e30], ids=["unit", "huge"])
+def test_channel_max_is_the_max_and_its_gradient_goes_to_the_first_maximal_channel(scale):
+    x = (RNG.integers(-2, 3, size=(3, 5, 7, 4)) * scale).astype(np.float32)  # many ties
+    weight = RNG.normal(size=x.shape[:-1]).astype(np.float32)
+    value, grad = jax.jit(jax.value_and_grad(lambda x: jnp.sum(weight * channel_max(x))))(x)
+    np.testing.assert_array_equal(jax.jit(channel_max)(x), x.max(-1))
+    first = np.argmax(x, axis=-1)  # NumPy's argmax: the first of the tied maxima
+    want = np.zeros_like(x)
+    np.put_along_axis(want, first[..., None], weight[..., None], axis=-1)
+    np.testing.assert_array_equal(grad, want)
+    np.testing.assert_allclose(value, np.sum(weight.astype(np.float64) * x.max(-1)), rtol=1e-5)
+    assert (np.sum(x == x.max(-1, keepdims=True), -1) > 1).any()  # the case has ties
 
 
 # ----------------------------------------------------------------------------- MSAAM
