@@ -99,15 +99,23 @@ class CuDAMAttention(nn.Module):
         return features, attention
 
 
+@jax.custom_jvp
 def channel_max(x: jax.Array) -> jax.Array:
-    """Max over the last axis, (..., C) -> (...), whose gradient goes to the first maximal channel.
+    """Max over the last axis, (..., C) -> (...), differentiated as JAX differentiates a max.
 
-    The value is ``x.max(-1)``. JAX differentiates a max by comparing the operand with the result
-    and dividing by the number of equal elements; when a compiler recomputes the operand inside
-    a fused program with another rounding (XLA:CPU at optimisation level 0 does), no element is
-    equal, and the gradient is 0 / 0 = NaN. Picking the argmax's element has no such comparison.
-    Without ties both rules give the same gradient; with ties (ReLU features that are all 0 at a
-    position), JAX shares it among the tied channels and this rule gives it to the first.
+    The derivative is JAX's: the tangent averaged over the channels equal to the max (ties
+    share it), and at XLA's default optimisation level the gradients are bitwise those of
+    ``x.max(-1)``. The rule is written out to count the tied channels in integers: JAX's own
+    sums the comparison as float32, and XLA:CPU (jaxlib 0.10.2) at optimisation level 0
+    miscompiles that fused comparison and sum in the tiny DeepLab's train step: a third of
+    the positions counted 0 though one channel equalled the max, and the gradient was 0 / 0.
     """
-    return jnp.take_along_axis(x, jnp.argmax(x, axis=-1)[..., None], axis=-1)[..., 0]
+    return x.max(-1)
 
+
+@channel_max.defjvp
+def _channel_max_jvp(primals, tangents):
+    (x,), (dx,) = primals, tangents
+    top = x.max(-1)
+    is_top = x == top[..., None]
+    return top, jnp.sum(dx * is_top, -1) / jnp.sum(is_top, -1)
