@@ -8,6 +8,8 @@ Labels: 0 normal, 1 anomaly, 255 void (ignored). Higher score = more anomalous.
 """
 from __future__ import annotations
 
+from functools import partial
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -30,7 +32,7 @@ def check_scores_labels(scores, labels) -> tuple[jnp.ndarray, jnp.ndarray, dict]
     Raises ValueError on: non-float scores, non-integer labels, shape mismatch, labels outside
     {0, 1, 255}, NaN scores on non-void pixels. Call inside ``jax.enable_x64(True)``.
     """
-    scores, labels = on_one_device(jnp.asarray(scores)), on_one_device(jnp.asarray(labels))
+    scores, labels = _one_device_or_host(scores), _one_device_or_host(labels)
     if not jnp.issubdtype(scores.dtype, jnp.floating):
         raise ValueError(f"scores: expected a floating dtype, got {scores.dtype}")
     if not jnp.issubdtype(labels.dtype, jnp.integer):
@@ -44,19 +46,25 @@ def check_scores_labels(scores, labels) -> tuple[jnp.ndarray, jnp.ndarray, dict]
         raise ValueError(f"labels: expected values in {{0, 1, 255}}, got {bad_labels} other pixels")
     if nan_scores:
         raise ValueError(f"scores: {nan_scores} NaN values on non-void pixels")
-    if scores.dtype != jnp.float64:
-        scores = scores.astype(jnp.float32)  # exact for float16 / bfloat16; one compiled version
-    labels = labels.astype(jnp.uint8)  # values checked to be 0, 1 or 255
-    counts = {"num_positives": positives, "num_negatives": negatives,
-              "num_void": int(scores.size) - positives - negatives}
-    return (*_pad_with_void(scores.ravel(), labels.ravel()), counts)
+    size = int(np.prod(scores.shape))
+    counts = {"num_positives": positives, "num_negatives": negatives, "num_void": size - positives - negatives}
+    # float32 is exact for float16 / bfloat16 and gives one compiled version for them all.
+    work = jnp.float64 if jax.dtypes.canonicalize_dtype(scores.dtype) == jnp.float64 else jnp.float32
+    return (*_flat_padded(scores, labels, padded_size(max(size, 1024), per_doubling=8, min_step=1), work), counts)
 
 
-def _pad_with_void(scores, labels):
-    size = scores.shape[0]
-    padding = padded_size(max(size, 1024), per_doubling=8, min_step=1) - size
-    if padding == 0:
-        return scores, labels
+def _one_device_or_host(array):
+    """A JAX array on one device (``on_one_device``), anything else as a NumPy array: host data
+    goes to the compiled checks as it is (``jnp.asarray`` would compile a copy per shape)."""
+    return on_one_device(array) if isinstance(array, jax.Array) else np.asarray(array)
+
+
+@partial(jax.jit, static_argnums=(2, 3))
+def _flat_padded(scores, labels, size: int, dtype):
+    """Scores as ``dtype`` and labels as uint8 (values already checked), flat, padded with void
+    pixels to ``size``."""
+    scores, labels = scores.astype(dtype).ravel(), labels.astype(jnp.uint8).ravel()
+    padding = size - scores.shape[0]
     return jnp.pad(scores, (0, padding)), jnp.pad(labels, (0, padding), constant_values=255)
 
 

@@ -161,6 +161,25 @@ def test_input_dtypes_and_leading_shapes():
     np.testing.assert_allclose(got, expected, rtol=1e-9)
 
 
+def test_a_new_host_frame_size_compiles_the_audit_and_the_flattening_only():
+    import jax
+
+    from compiles import compiled_during
+    from jaxanom.metrics.anomaly import check_scores_labels
+
+    rng = np.random.default_rng(8)
+    scores, labels = random_case(rng, 1003, 30)  # a size no other test uses
+    scores, labels = scores.astype(np.float32).reshape(17, 59), labels.reshape(17, 59)
+    with jax.enable_x64(True):
+        (flat_scores, flat_labels, counts), names = compiled_during(lambda: check_scores_labels(scores, labels))
+    assert sorted(names) == ["jit(_audit)", "jit(_flat_padded)"]  # no eager copy or pad per shape
+    assert flat_scores.shape == flat_labels.shape == (1024,) and flat_scores.dtype == np.float32
+    np.testing.assert_array_equal(flat_scores[:1003], scores.ravel())
+    np.testing.assert_array_equal(flat_labels, np.concatenate([labels.ravel(), np.full(21, 255, np.uint8)]))
+    assert counts == {"num_positives": int((labels == 1).sum()), "num_negatives": int((labels == 0).sum()),
+                      "num_void": int((labels == 255).sum())}
+
+
 def test_float64_scores_keep_distinctions_float32_would_lose():
     scores = np.array([1.0, 1.0 + 1e-12, 0.5])
     labels = np.array([0, 1, 0], np.uint8)
