@@ -38,12 +38,12 @@ def test_cudam_score_is_eq10_in_float32():
     attention_up = ref_bilinear(attention, 9, 11).astype(np.float32)
     for got, sigma in ((cudam_score(score, attention_up), 2e4),
                        (cudam_score(score[0], attention_up[0], sigma=3.0)[None], 3.0)):
-        s, term = score[:len(got)].astype(np.float64), sigma * attention_up[:len(got)].astype(np.float64)
+        k, term = score[:len(got)].astype(np.float64), sigma * attention_up[:len(got)].astype(np.float64)
         # Float32 bound: the product and the sum rounded once each (no fused multiply-add
         # assumed), relative to the terms, since the sum may nearly cancel.
-        bound = np.finfo(np.float32).eps * (np.abs(s) + np.abs(term))
+        bound = np.finfo(np.float32).eps * (np.abs(k) + np.abs(term))
         assert got.dtype == np.float32
-        assert (np.abs(np.asarray(got, np.float64) - (s + term)) <= bound).all()
+        assert (np.abs(np.asarray(got, np.float64) - (k + term)) <= bound).all()
 
 
 def test_bad_shapes_raise_value_error():
