@@ -36,9 +36,9 @@ def test_cudam_score_is_eq10_in_float32():
     z = rng.normal(size=(2, 3, 4))
     attention = np.exp(z) / np.exp(z).sum(axis=(1, 2), keepdims=True)  # sums to 1 per image
     attention_up = ref_bilinear(attention, 9, 11).astype(np.float32)
-    for got, sigma in ((cudam_score(score, attention_up), 2e4),
-                       (cudam_score(score[0], attention_up[0], sigma=3.0)[None], 3.0)):
-        k, term = score[:len(got)].astype(np.float64), sigma * attention_up[:len(got)].astype(np.float64)
+    for got, k, up, sigma in ((cudam_score(score, attention_up), score, attention_up, 2e4),
+                              (cudam_score(score[0], attention_up[0], sigma=3.0), score[0], attention_up[0], 3.0)):
+        k, term = k.astype(np.float64), sigma * up.astype(np.float64)
         # Float32 bound: the product and the sum rounded once each (no fused multiply-add
         # assumed), relative to the terms, since the sum may nearly cancel.
         bound = np.finfo(np.float32).eps * (np.abs(k) + np.abs(term))

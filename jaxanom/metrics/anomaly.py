@@ -46,7 +46,7 @@ def check_scores_labels(scores, labels) -> tuple[jnp.ndarray, jnp.ndarray, dict]
         raise ValueError(f"labels: expected values in {{0, 1, 255}}, got {bad_labels} other pixels")
     if nan_scores:
         raise ValueError(f"scores: {nan_scores} NaN values on non-void pixels")
-    size = int(np.prod(scores.shape))
+    size = int(scores.size)
     counts = {"num_positives": positives, "num_negatives": negatives, "num_void": size - positives - negatives}
     # float32 is exact for float16 / bfloat16 and gives one compiled version for them all.
     work = jnp.float64 if jax.dtypes.canonicalize_dtype(scores.dtype) == jnp.float64 else jnp.float32

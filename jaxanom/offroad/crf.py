@@ -448,12 +448,12 @@ def _run(fn, probs, image, batched, sxy_b, srgb, w_b, sxy_g, w_g, iters, normali
         keys, size = None, None
         if method == "permutohedral":  # the bilateral lattice is built once: sorted keys, then tables of its size
             keys = (_keys_batch if batched else _keys_jit)(image, sigmas[0], sigmas[1])
-            count, fits = jax.device_get((jnp.max(keys.count), jnp.all(keys.fits)))  # one read, before the CRF's work
-            if not fits:
+            count, fits = jax.device_get((keys.count, keys.fits))  # one read, before the CRF's work
+            if not np.all(fits):
                 raise ValueError("features too far apart for the lattice's key packing: increase sxy_b / srgb or use "
                                  "method='exact'")
             # 4 compiled lattice sizes per doubling; the blur, walks and searches cost O(size), at most 1.25x the count
-            size = padded_size(int(count))
+            size = padded_size(int(np.max(count)))
         q = fn(jnp.asarray(probs, jnp.float32), image, keys, sigmas[0], sigmas[1], jnp.float32(w_b), sigmas[2],
                jnp.float32(w_g), jnp.int32(iters), normalization == "symmetric", size)
         return jnp.asarray(np.asarray(q))
