@@ -47,13 +47,16 @@ def road_anomaly_sample() -> Path:
     return root
 
 
-# The files that take longest (most of it compiling), longest first. pytest-xdist's loadfile hands
-# each worker a whole file at a time in collection order (``--no-loadscope-reorder`` in pyproject
-# keeps this order instead of sorting by test count), so these start first and the short files
-# fill in around them; a long file left to the end would keep one worker busy while the other idles.
-LONGEST_FIRST = ("test_offroad_crf.py", "test_mmf_demo.py", "test_experiments_offroad.py", "test_cli.py",
-                 "test_mmf_table2.py", "test_offroad_pipeline.py", "test_nn_spade_dissimilarity.py", "test_weights.py",
-                 "test_mmf_spade.py", "test_nn_afc_rgbd.py", "test_superpixels.py", "test_mmf_postprocess.py")
+# The files that take longest (most of it compiling), longest first: the end-to-end tier's four
+# (`-m end_to_end`), then the default suite's. pytest-xdist's loadfile hands each worker a whole
+# file at a time in collection order (``--no-loadscope-reorder`` in pyproject keeps this order
+# instead of sorting by test count), so these start first and the short files fill in around them;
+# a long file left to the end would keep one worker busy while the other idles.
+LONGEST_FIRST = ("test_mmf_demo.py", "test_experiments_offroad.py", "test_mmf_table2.py", "test_experiments.py",
+                 "test_offroad_crf.py", "test_cli.py", "test_weights.py", "test_distributed.py", "test_predict.py",
+                 "test_offroad_pipeline.py", "test_train_loop.py", "test_mmf_spade.py", "test_nn_afc_rgbd.py",
+                 "test_mixture.py", "test_nn_spade_dissimilarity.py", "test_weights_cli.py", "test_superpixels.py",
+                 "test_mmf_postprocess.py")
 
 
 def pytest_collection_modifyitems(items):

@@ -56,6 +56,7 @@ def test_scale_rejects_an_unknown_anomaly_reader():
         Scale(anomaly="fishyscapes:/data")
 
 
+@pytest.mark.end_to_end
 def test_table_trains_once_evaluates_and_writes_results(tmp_path):
     scale = Scale.smoke()
     net = cudam(scale)

@@ -11,6 +11,7 @@ from experiments.common import Scale
 from experiments.offroad_common import OffroadSizes, offroad_sizes, paired_replicates, per_seed
 
 
+@pytest.mark.end_to_end
 def test_smoke_run_writes_tables_that_the_summary_includes(tmp_path):
     out, runs, quiet = tmp_path / "out", tmp_path / "runs", (lambda *_: None)
     results = [module.run(Scale.smoke(), 1, out, runs, log=quiet, description=f"{module.NAME} text.")

@@ -218,6 +218,7 @@ def untrained_parts(monkeypatch):
     monkeypatch.setattr(pipeline, "train_gan", train_gan)
 
 
+@pytest.mark.end_to_end
 def test_table_over_two_seeds_is_written_and_summarised(tmp_path, untrained_parts):
     out, runs = tmp_path / "out", tmp_path / "runs"
     exp.run(Scale.smoke(), 2, out, runs, log=lambda *_: None, description="MMF smoke.")
@@ -280,6 +281,7 @@ def result_values(saved: dict) -> dict:
     return {row["label"]: row for row in saved["table"]}
 
 
+@pytest.mark.end_to_end
 def test_timed_modules_compute_the_pipelines_maps(tmp_path, untrained_parts):
     """``module_calls`` (Table 3's timings) times the computations ``MMFPipeline.maps`` makes."""
     from jaxanom.method_registry import score
