@@ -393,3 +393,13 @@ def test_every_command_refuses_a_bad_set_before_any_work(tmp_path, started, caps
     assert main([*argv, "--out", str(out), "--no-progress"]) == 2
     assert message in capsys.readouterr().err
     assert not started and not out.exists()
+
+
+def test_mmf_demo_config_round_trips_and_rejects_unknown_fields():
+    config = MMFDemoConfig.quick()
+    assert decode(MMFDemoConfig, json.loads(json.dumps(encode(config)))) == config
+    assert decode(MMFDemoConfig, {"anomaly_frames": 5}) == MMFDemoConfig(anomaly_frames=5)
+    with pytest.raises(ValueError, match="pipeline.dissim_stepz: unknown field of MMFConfig"):
+        decode(MMFDemoConfig, {"pipeline": {"dissim_stepz": 3}})
+    with pytest.raises(ValueError, match="expected an object of MMFDemoConfig fields, got"):
+        decode(MMFDemoConfig, [1, 2])

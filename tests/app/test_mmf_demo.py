@@ -13,7 +13,8 @@ from jaxanom.app.demos.mmf import ROWS, MMFDemoConfig
 from jaxanom.app.mmf_pipeline import scored_batches
 from jaxanom.app.configs import load_config
 from jaxanom.app.mmf_pipeline import MMFPipeline
-from jaxanom.config_codec import decode, encode
+
+pytestmark = pytest.mark.end_to_end  # every test reads the trained demo
 
 
 @pytest.fixture(scope="module")
@@ -23,7 +24,6 @@ def demo_dir(tmp_path_factory):
     return out
 
 
-@pytest.mark.end_to_end
 def test_quick_mmf_demo_writes_the_ablation_and_pictures(demo_dir):
     results = json.loads((demo_dir / "results.json").read_text())
     assert set(results["metrics"]) == {row[0] for row in ROWS}
@@ -42,7 +42,6 @@ def _tree(folder):
     return {p: (p.stat().st_size, p.stat().st_mtime_ns) for p in folder.rglob("*")}
 
 
-@pytest.mark.end_to_end
 def test_a_second_run_from_its_config_file_reuses_every_trained_part(demo_dir, capsys):
     before = {p: sorted(q.name for q in (p / "checkpoints").iterdir())
               for p in (demo_dir / "runs").iterdir() if p.is_dir()}
@@ -55,7 +54,6 @@ def test_a_second_run_from_its_config_file_reuses_every_trained_part(demo_dir, c
     assert np.isfinite(first["mmf"]["ap"])
 
 
-@pytest.mark.end_to_end
 def test_evaluate_scores_a_dataset_with_the_trained_pipeline_without_changing_it(demo_dir, tmp_path, capsys):
     runs = _tree(demo_dir / "runs")
     out = tmp_path / "eval"
@@ -72,7 +70,6 @@ def test_evaluate_scores_a_dataset_with_the_trained_pipeline_without_changing_it
         assert record["metrics"][name]["ap"] == pytest.approx(values["ap"], abs=1e-12)
 
 
-@pytest.mark.end_to_end
 def test_evaluate_mmf_refuses_what_it_cannot_score(demo_dir, tmp_path, capsys):
     (tmp_path / "not_a_demo").mkdir()
     assert main(["evaluate", "--mmf", str(tmp_path / "not_a_demo"), "--dataset", "synthetic", "--path", "anomaly",
@@ -86,7 +83,6 @@ def test_evaluate_mmf_refuses_what_it_cannot_score(demo_dir, tmp_path, capsys):
               "--path", "anomaly", "--out", str(tmp_path / "c")])
 
 
-@pytest.mark.end_to_end
 def test_pipeline_load_names_a_missing_part(demo_dir, tmp_path):
     config = MMFDemoConfig.quick().pipeline
     for part in (demo_dir / "runs").iterdir():
@@ -95,12 +91,3 @@ def test_pipeline_load_names_a_missing_part(demo_dir, tmp_path):
     with pytest.raises(ValueError, match="synthesizer"):
         MMFPipeline.load(config, tmp_path)
 
-
-def test_config_round_trips_and_rejects_unknown_fields():
-    config = MMFDemoConfig.quick()
-    assert decode(MMFDemoConfig, json.loads(json.dumps(encode(config)))) == config
-    assert decode(MMFDemoConfig, {"anomaly_frames": 5}) == MMFDemoConfig(anomaly_frames=5)
-    with pytest.raises(ValueError, match="pipeline.dissim_stepz: unknown field of MMFConfig"):
-        decode(MMFDemoConfig, {"pipeline": {"dissim_stepz": 3}})
-    with pytest.raises(ValueError, match="expected an object of MMFDemoConfig fields, got"):
-        decode(MMFDemoConfig, [1, 2])
