@@ -7,9 +7,8 @@ needs and calls it; ``check(names, provided)`` validates a whole list before any
 
 Where methods come from, loaded once on first use:
 
-- jaxanom's own: every library module whose file name ends in ``methods.py`` (``score_methods``
-  beside ``scores``, ``sml/methods``, ``cudam_methods``, ``mmf/methods``, ...), so a paper's rows
-  sit beside its code and adding one is a single file;
+- jaxanom's own: the modules ``jaxanom.builtins`` lists (``score_methods`` beside ``scores``,
+  ``sml/methods``, ``cudam/methods``, ``mmf/methods``, ...), so a paper's rows sit beside its code;
 - installed packages: the modules (or objects) named by the ``jaxanom.methods`` entry-point group;
 - any module imported by the caller (``load_plugin``, the commands' ``--plugin MODULE``).
 
@@ -20,7 +19,6 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import types
-from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
 
 from jaxanom.errors import InputError
@@ -163,8 +161,9 @@ def _load() -> None:
     global _loaded
     if _loaded:
         return
-    for module in _own_modules():
-        importlib.import_module(module)
+    from jaxanom import builtins
+
+    builtins.load()
     from importlib.metadata import entry_points
 
     for entry in entry_points(group=ENTRY_POINTS):
@@ -175,15 +174,3 @@ def _load() -> None:
                               f"({entry.dist.name if entry.dist else 'unknown distribution'}) failed to load: "
                               f"{type(error).__name__}: {error}") from error
     _loaded = True
-
-
-def _own_modules() -> list[str]:
-    """Dotted names of jaxanom's library modules whose file name ends in ``methods.py``; the
-    application and command-line layers are above the library and never searched."""
-    root = Path(__file__).parent
-    found = []
-    for path in sorted(root.rglob("*methods.py")):
-        parts = path.relative_to(root).with_suffix("").parts
-        if parts[0] not in ("app", "cli") and all(p.isidentifier() for p in parts):
-            found.append(".".join((root.name, *parts)))
-    return found

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxanom.app.scoring import inputs_of, score_all
-from jaxanom.cudam_score import upsample_attention
+from jaxanom.cudam.score import upsample_attention
 from jaxanom.metrics import anomaly_metrics, pr_curve, restrict_to_roi, roc_curve
 from jaxanom.metrics.evaluator import (Components, PixelAnomaly, Segmentation, SmiycPixels, run_evaluators,
                                        update_keyed)

@@ -1,0 +1,135 @@
+"""Attention modules by name: add-ons a segmenter runs on one of its feature maps.
+
+A paper's package registers its module (``register(AttentionModule(...))``, done when jaxanom's
+built-in modules load, ``jaxanom.builtins``); a segmenter (``DeepLabV3Plus``, ``ERFNet``,
+``ESPNet``) names the positions it offers and, built with ``attention=NAME``, runs the module at
+one of them::
+
+    model = build_model("erfnet", num_classes=20, attention="cudam")      # at ERFNet's "deep" position
+    model = build_model("deeplabv3plus_tiny", attention="cudam", attention_position="output",
+                        attention_options=(("gate", "scale_free"),))
+
+At its position the segmenter calls ``spec.attend(module, features, taps)`` with ``features``
+(B, h, w, C) and ``taps``, its earlier feature maps by name (``"low"``: the stage at stride 4,
+``"mid"``: the next one; see each segmenter), and carries on with the features returned (same
+shape). The module's extra outputs (float32, e.g. CuDAM's ``"attention"`` map, MSAAM's
+``"branch_weights"``) join the network's output dict, where objectives and scoring methods read
+them. The module's parameters sit under its registered name (``params[name]``).
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable, Mapping
+
+import flax.linen as nn
+
+# one application of a module at a position: (module, features, taps) -> (features, outputs)
+Attend = Callable[[nn.Module, Any, Mapping[str, Any]], tuple[Any, dict]]
+
+_REGISTRY: dict[str, "AttentionModule"] = {}
+
+
+@dataclasses.dataclass(frozen=True)
+class AttentionModule:
+    """One registered attention module.
+
+    ``name``: its registry name (also its parameters' module name). ``build(dtype=..., name=...,
+    **options)``: the Flax module. ``attend(module, features, taps) -> (features, outputs)``: one
+    application at a position (module docstring). ``positions``: the segmenter positions where it
+    may sit, preferred first: a segmenter runs it at the first of them it offers unless told a
+    position. ``options``: the defaults of ``build``'s keyword options. ``objective``: the
+    registered name of the training objective of its paper (``jaxanom.objectives``), which reads
+    its outputs. ``method_inputs``: the scoring-method inputs (``jaxanom.method_registry.INPUTS``)
+    its outputs give (``"attention"`` for a map the ``cudam`` method reads). ``recorded_as``:
+    ``{option or "position": Experiment field}``, the run fields that record its position and
+    options (named as earlier versions wrote them, so old runs read back unchanged).
+    """
+
+    name: str
+    build: Callable[..., nn.Module]
+    attend: Attend
+    positions: tuple[str, ...]
+    options: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    objective: str = "cross_entropy"
+    method_inputs: frozenset[str] = frozenset()
+    recorded_as: Mapping[str, str] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self):
+        if not self.positions:
+            raise ValueError(f"attention module {self.name!r}: expected at least one position, got none")
+
+
+def register(module: AttentionModule) -> AttentionModule:
+    """Make ``module`` known by its name; ValueError when another module holds the name."""
+    if _REGISTRY.get(module.name, module) != module:
+        raise ValueError(f"attention module name {module.name!r}: already registered")
+    _REGISTRY[module.name] = module
+    return module
+
+
+def attention_names() -> tuple[str, ...]:
+    """The names of every registered attention module, jaxanom's own first."""
+    from jaxanom import builtins
+
+    builtins.load()
+    return tuple(_REGISTRY)
+
+
+def get(name: str) -> AttentionModule:
+    """The attention module registered as ``name``; ValueError naming ``attention`` otherwise."""
+    if name not in attention_names():
+        raise ValueError(f"attention: expected None or one of {attention_names()}, got {name!r}")
+    return _REGISTRY[name]
+
+
+def resolve_position(attention: str | None, position: str | None, offered: tuple[str, ...]) -> str | None:
+    """Where ``attention`` sits on a segmenter offering the positions ``offered``: ``position``, or
+    (None) the first of the module's positions the segmenter offers; None without a module.
+    ValueError naming ``attention`` or ``attention_position`` when they do not fit."""
+    if attention is None:
+        if position is not None:
+            raise ValueError(f"attention_position: expected None without an attention module, got {position!r}")
+        return None
+    spec = get(attention)
+    fitting = tuple(p for p in spec.positions if p in offered)
+    if not fitting:
+        raise ValueError(f"attention: {attention!r} sits at {spec.positions}, this segmenter offers {offered}")
+    if position is None:
+        return fitting[0]
+    if position not in fitting:
+        raise ValueError(f"attention_position: expected one of {fitting} for {attention!r} on this segmenter, "
+                         f"got {position!r}")
+    return position
+
+
+def check_attachment(segmenter) -> None:
+    """ValueError unless ``segmenter``'s ``attention``, ``attention_position`` and
+    ``attention_options`` fit its ``ATTENTION_POSITIONS`` (its ``__post_init__`` calls this)."""
+    resolve_position(segmenter.attention, segmenter.attention_position, segmenter.ATTENTION_POSITIONS)
+    options = set(dict(segmenter.attention_options))
+    known = set(get(segmenter.attention).options) if segmenter.attention is not None else set()
+    if options - known:
+        raise ValueError(f"attention_options: {segmenter.attention!r} has the options {tuple(sorted(known))}, "
+                         f"got {sorted(options - known)}")
+
+
+class Attachment:
+    """The attention module of a segmenter inside its ``nn.compact`` ``__call__``:
+    ``at(position, features, taps, out)`` runs it there (adding its outputs to ``out``) and
+    returns the features, unchanged at any other position. Made once per call, so one module
+    (one set of parameters) serves the position it sits at."""
+
+    def __init__(self, segmenter):
+        self.position = resolve_position(segmenter.attention, segmenter.attention_position,
+                                         segmenter.ATTENTION_POSITIONS)
+        if self.position is not None:
+            self.spec = get(segmenter.attention)
+            options = {**self.spec.options, **dict(segmenter.attention_options)}
+            self.module = self.spec.build(dtype=segmenter.dtype, name=self.spec.name, **options)
+
+    def at(self, position: str, features, taps: Mapping[str, Any], out: dict):
+        if position != self.position:
+            return features
+        features, outputs = self.spec.attend(self.module, features, taps)
+        out.update(outputs)
+        return features

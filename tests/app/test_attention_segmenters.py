@@ -1,0 +1,29 @@
+"""An attention module on a segmenter other than DeepLabV3+, through the commands: CuDAM on ERFNet
+(its tiny preset, tiny frames, a batch per test device) trains a step, and ``fit-stats`` and ``evaluate`` read the run,
+scoring with the ``cudam`` method that reads its attention map."""
+import json
+
+from jaxanom.app.experiment import load_experiment, load_variables
+from jaxanom.cli import main
+
+
+def test_cudam_on_erfnet_trains_and_evaluates_with_the_cudam_method(tmp_path, capsys):
+    run, stats = tmp_path / "run", tmp_path / "stats.npz"
+    assert main(["train", "--out", str(run), "--model", "erfnet_tiny", "--attention", "cudam", "--steps", "1",
+                 "--batch-size", "4", "--set", "crop=16,32", "--set", "height=16", "--set", "width=32",
+                 "--set", "train_frames=4", "--no-progress"]) == 0
+    # the reward weight at the map ERFNet's encoder gives a 16 x 32 crop: 2 x 4 positions
+    assert f"CuDAM tau = {5e4 * 2 * 4 / (180 * 180):.6g} (position deep, gate paper)" in capsys.readouterr().out
+    experiment, variables = load_variables(run)
+    assert (experiment.model, experiment.attention, experiment.train.objective.name) == ("erfnet_tiny", "cudam", "cudam")
+    assert float(variables["params"]["cudam"]["alpha"]) != 0  # the step trained the module
+    assert json.loads((run / "experiment.json").read_text())["attention"] == "cudam"  # recorded as before
+    assert main(["fit-stats", "--run", str(run), "--frames", "2", "--out", str(stats)]) == 0
+    out = tmp_path / "eval"
+    assert main(["evaluate", "--run", str(run), "--dataset", "synthetic", "--path", "anomaly", "--frames", "1",
+                 "--stats", str(stats), "--methods", "cudam,sml_post", "--out", str(out)]) == 0
+    record = json.loads((out / "metrics.json").read_text())
+    assert 0 < record["metrics"]["cudam"]["ap"] <= 1
+    # evaluate's synthetic frames are 256 x 512; ERFNet's map is at stride 8: 32 x 64
+    assert record["cudam_sigma"] == {"values": [2e4 * 32 * 64 / (256 * 512)], "source": "default"}
+    assert load_experiment(run) == experiment
