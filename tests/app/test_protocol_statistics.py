@@ -119,3 +119,12 @@ def test_fit_stats_refuses_a_size_beside_a_protocol_that_has_one(run20, tmp_path
     error = capsys.readouterr().err.strip()
     assert len(error.splitlines()) == 1 and "--size and --protocol erfnet-community" in error
     assert not list(tmp_path.iterdir())
+
+
+def test_predict_refuses_statistics_without_the_void_output(run20, stats_files, smiyc, tmp_path, capsys):
+    """``predict`` scores every output: statistics fitted without the void one are refused, with the way out."""
+    assert main(["predict", str(smiyc / "images" / "0.png"), "--run", str(run20), "--methods", "sml",
+                 "--stats", str(stats_files[0]), "--out", str(tmp_path / "p")]) == 2
+    error = capsys.readouterr().err.strip()
+    assert len(error.splitlines()) == 1 and "--stats" in error
+    assert "use them with evaluate --protocol erfnet-community" in error

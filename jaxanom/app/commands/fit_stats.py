@@ -82,7 +82,8 @@ def fit_stats(*, run: str, out: str, frames: int = 200, cityscapes: str | None =
               file=sys.stderr)
     selection = (f" (the network's {experiment.num_classes} outputs less its void output, as protocol "
                  f"{protocol_.name} scores them)" if channels["void_dropped"] else "")
-    print(f"statistics of {len(final.mean)} classes{selection} from {record['frames']} frames, policy {policy} -> {path}")
+    print(f"statistics of {len(final.mean)} classes{selection} from {record['frames']} frames, policy {policy} "
+          f"-> {path}")
     return path
 
 
