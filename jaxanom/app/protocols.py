@@ -47,8 +47,8 @@ class Protocol:
         return source if self.size is None else _Resized(source, self.size)
 
     def images(self, source: Sequence[Mapping]) -> Sequence[dict]:
-        """``source``'s frames as ``{"image", "name"?}`` resized as ``source`` resizes them: what
-        fitting statistics reads (a training frame's label, depth and ROI left out)."""
+        """``source``'s frames as ``{"image", "name"?}``, resized as ``Protocol.source`` resizes them:
+        what fitting statistics reads (a training frame's label, depth and ROI left out)."""
         return source if self.size is None else _Resized(source, self.size, images_only=True)
 
     def classes(self, outputs: int) -> int:
@@ -67,8 +67,9 @@ class Protocol:
 
         def call(images):
             out = predict(images)
-            classes = self.classes(out["logits"].shape[-1])
-            return out if classes == out["logits"].shape[-1] else {**out, "logits": without_channel(out["logits"])}
+            if self.classes(out["logits"].shape[-1]) == out["logits"].shape[-1]:
+                return out
+            return {**out, "logits": without_channel(out["logits"])}
 
         return call
 
@@ -104,9 +105,8 @@ class _Resized:
 
 def resize_frame(record: Mapping, size: tuple[int, int]) -> dict:
     """``record`` with its image resized antialiased and its label (if any) by nearest neighbour to
-    ``size`` (H, W), both as PIL does
-    (``jaxanom.data.resize``); ValueError for a record with other pixel maps (depth, ROI), which
-    these protocols do not define."""
+    ``size`` (H, W), both by PIL (``jaxanom.data.resize``); ValueError for a record with other
+    pixel maps (depth, ROI), which these protocols do not define."""
     if extra := sorted(set(record) & {"depth", "disparity", "roi"}):
         raise ValueError(f"record: a resizing protocol reads image and label only, got {extra} too")
     resized = {**record, "image": resize_image_antialiased(record["image"], size)}
@@ -119,7 +119,7 @@ PROTOCOLS: dict[str, Protocol] = {
     "native": Protocol("native", "each image at its own size, every channel, every frame, FPR at the first "
                        "point with TPR >= 95 percent (jaxanom's default)"),
     "erfnet-community": Protocol(
-        "erfnet-community", "512x1024 PIL-style resize of images (antialiased) and labels (nearest), void channel "
+        "erfnet-community", "512x1024 PIL resize of images (antialiased bilinear) and labels (nearest), void channel "
         "dropped, frames without anomalies skipped, interpolated FPR95 (the public ERFNet evaluations)",
         size=(512, 1024), drop_void=True, skip_frames_without_anomaly=True, fpr_convention="interp"),
 }

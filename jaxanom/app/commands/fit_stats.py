@@ -26,9 +26,9 @@ def fit_stats(*, run: str, out: str, frames: int = 200, cityscapes: str | None =
     from jaxanom import sml
     from jaxanom.app.evaluate import class_statistics, predictor
     from jaxanom.app.experiment import build_network, frames as run_frames, load_variables
+    from jaxanom.app.protocols import get_protocol
     from jaxanom.data import Cityscapes
     from jaxanom.data.frames import FirstFrames, Resized
-    from jaxanom.app.protocols import get_protocol
     from jaxanom.data.pipeline import evaluation_batches
     from jaxanom.sml.policy import check_policy
 
