@@ -12,7 +12,13 @@ SIZE = (48, 96)  # the network's working size in these tests
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
     """A DeepLabV3+ tiny run folder (19 classes) written as convert-weights writes one."""
-    model = build_model("deeplabv3plus_tiny", num_classes=19, attention=None, output_stride=16)
+    return write_tiny_run(tmp_path_factory.mktemp("tiny") / "run", 19)
+
+
+def write_tiny_run(folder, classes: int):
+    """``folder``: a DeepLabV3+ tiny run of ``classes`` outputs written as convert-weights writes one
+    (20: the 19 trainIds and a void output, as the ESPNet and ERFNet authors' weights)."""
+    model = build_model("deeplabv3plus_tiny", num_classes=classes, attention=None, output_stride=16)
     shapes = jax.eval_shape(lambda x: model.init(jax.random.key(0), x, train=False), np.zeros((1, 32, 32, 3)))
     rng = np.random.default_rng(0)
 
@@ -24,6 +30,5 @@ def tiny_run(tmp_path_factory):
             return np.zeros(leaf.shape, np.float32)
         return (rng.normal(size=leaf.shape) * np.sqrt(2 / np.prod(leaf.shape[:-1]))).astype(np.float32)
 
-    folder = tmp_path_factory.mktemp("tiny") / "run"
     write_run(folder, "deeplabv3plus_tiny", model, jax.tree_util.tree_map_with_path(fill, shapes))
     return folder

@@ -87,11 +87,14 @@ def protocol_predictions(predict: Callable, source, protocol, skipped: list | No
             skipped.extend(str(name) for name in batch.get("name", ["?"]))
 
 
-def class_statistics(predict: Callable, batches: Iterable[dict]):
-    """SML class statistics (Eqs. 3-4, a ``sml.ClassStats``) of the network's logits over ``batches``."""
+def class_statistics(predict: Callable, batches: Iterable[dict], drop_void: bool = False):
+    """SML class statistics (Eqs. 3-4, a ``sml.ClassStats``) of the network's logits over ``batches``;
+    ``drop_void``: of the logits without the void output (as a protocol that drops it scores them)."""
     from jaxanom import sml
+    from jaxanom.app.scoring import without_channel
 
-    return sml.fit_stats(out["logits"] for out in predictions(predict, batches))
+    return sml.fit_stats(without_channel(out["logits"]) if drop_void else out["logits"]
+                         for out in predictions(predict, batches))
 
 
 def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, options: dict | None = None,

@@ -15,7 +15,7 @@ from jaxanom.data.cityscapes_labels import NUM_CLASSES
 from jaxanom.method_registry import INPUTS, check, get, given, load_plugin, names
 
 __all__ = ["INPUTS", "check", "describe", "get", "inputs_of", "load_plugin", "names", "provided", "run_inputs",
-           "score_all"]
+           "score_all", "without_channel"]
 
 
 # A network with one output more than Cityscapes' 19 trainIds carries a void class there (the ESPNet
@@ -76,12 +76,16 @@ def score_all(method_names: Iterable[str], inputs: Mapping, options: Mapping | N
 
 def _without_void(inputs: Mapping) -> dict:
     """``inputs`` whose logits lack the void channel (and so no ``void_channel``)."""
+    return {**{k: v for k, v in inputs.items() if k != "void_channel"},
+            "logits": without_channel(inputs["logits"], int(inputs["void_channel"]))}
+
+
+def without_channel(logits, channel: int = VOID_CHANNEL):
+    """``logits`` (..., C) -> (..., C - 1) without ``channel`` (default: the void output)."""
     import jax.numpy as jnp
 
-    channel = int(inputs["void_channel"])
-    logits = jnp.asarray(inputs["logits"])
-    kept = jnp.concatenate([logits[..., :channel], logits[..., channel + 1:]], axis=-1)
-    return {**{k: v for k, v in inputs.items() if k != "void_channel"}, "logits": kept}
+    logits = jnp.asarray(logits)
+    return jnp.concatenate([logits[..., :channel], logits[..., channel + 1:]], axis=-1)
 
 
 def describe(unavailable: Iterable[str] = ()) -> str:

@@ -76,7 +76,7 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
             experiment, variables = load_variables(run)
         network = build_network(experiment)
         if mean_std is not None:  # refused before the first frame is scored
-            check_stats_classes(mean_std, stats, network, variables, experiment.crop)
+            check_stats_classes(mean_std, stats, network, variables, experiment.crop, protocol_)
         predict = predictor(network, variables)
     skipped: list[str] = []
     if run:
@@ -103,7 +103,8 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
     if pictures and run:  # MMF's pictures: jaxanom demo mmf; maps': jaxanom predict --format png
         from jaxanom.app.reports import write_pictures
 
-        write_pictures(out_dir, predict, source, mean_std, pictures)
+        # the frames and logits as the protocol scores them (the statistics describe those logits)
+        write_pictures(out_dir, protocol_.outputs(predict), protocol_.source(source), mean_std, pictures)
     if convention == "smiyc":
         print("The official SegmentMeIfYouCan kit's numbers (binned; the exact ones: metrics.json, \"exact\"):")
     print(results_table(metrics))
@@ -113,11 +114,13 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
 
 
 def statistics_record(path: str) -> dict:
-    """What ``metrics.json`` says about the SML statistics: file, policy, counts, pooled and shrunk classes."""
+    """What ``metrics.json`` says about the SML statistics: file, policy, the outputs they describe,
+    counts, pooled and shrunk classes."""
     from jaxanom.sml import load_stats, load_stats_info
 
     info = load_stats_info(path)
-    record = {"file": path, "policy": info["policy"], "counts": load_stats(path)[2].tolist()}
+    record = {"file": path, "policy": info["policy"], "channels": info["channels"],
+              "counts": load_stats(path)[2].tolist()}
     if info["status"] is None:
         record["classes"] = "unknown: the file has no per-class status (written without a policy)"
     else:

@@ -58,11 +58,24 @@ def with_overrides(config, overrides=()):
         raise InputError("overrides", str(error)) from None
 
 
-def check_stats_classes(mean_std, stats: str, network, variables, size) -> None:
-    """InputError naming ``stats`` unless its statistics have one class per logit of ``network``
-    (``size``: an (h, w) the network takes; shapes only), before the first frame is scored."""
+def check_stats_classes(mean_std, stats: str, network, variables, size, protocol=None) -> None:
+    """InputError naming ``stats`` unless its statistics have one class per logit the methods see:
+    every output of ``network`` (``size``: an (h, w) it takes; shapes only), or those ``protocol``
+    (a ``jaxanom.app.protocols.Protocol``) keeps; before the first frame is scored."""
     from jaxanom.app.predict import logits_shape
+    from jaxanom.sml import load_stats_info
 
-    classes = logits_shape(network, variables, tuple(size))[-1]
-    if len(mean_std[0]) != classes:
-        raise InputError("stats", f"{stats}: has {len(mean_std[0])} classes, the network's logits {classes}")
+    outputs = logits_shape(network, variables, tuple(size))[-1]
+    seen, have = protocol.classes(outputs) if protocol else outputs, len(mean_std[0])
+    if have == seen:
+        return
+    fitted = load_stats_info(stats)["channels"] or {}
+    if seen < outputs:
+        raise InputError("stats", f"{stats}: has {have} classes, the methods see {seen} (the network's {outputs} "
+                         f"outputs less the void output, which protocol {protocol.name} drops); fit them with "
+                         f"fit-stats --protocol {protocol.name}")
+    if fitted.get("void_dropped"):
+        raise InputError("stats", f"{stats}: has {have} classes, fitted without the void output (fit-stats "
+                         f"--protocol {fitted['protocol']}), the methods see all {outputs} outputs here; use them with "
+                         f"evaluate --protocol {fitted['protocol']}, or fit them without --protocol")
+    raise InputError("stats", f"{stats}: has {have} classes, the network's logits {outputs}")
