@@ -239,7 +239,7 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
         val = list(evaluation_batches(frames(experiment, "val", max(experiment.batch_size, 8)),
                                       batch_size=experiment.batch_size))
     network = build_network(experiment)
-    write_json_atomic(config_file, jsonable(experiment))
+    write_json_atomic(config_file, jsonable(experiment), allow_nan=False)
     config = dataclasses.replace(experiment.train, run_dir=str(run_dir), progress=progress)
     state = train(config, network, batches, val, variables)
     return jax.device_get(state.variables)
