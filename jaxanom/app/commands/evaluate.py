@@ -113,11 +113,13 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
 
 
 def statistics_record(path: str) -> dict:
-    """What ``metrics.json`` says about the SML statistics: file, policy, counts, pooled and shrunk classes."""
+    """What ``metrics.json`` says about the SML statistics: file, the frames they were fitted on (or
+    "not recorded"), policy, counts, pooled and shrunk classes."""
     from jaxanom.sml import load_stats, load_stats_info
 
     info = load_stats_info(path)
-    record = {"file": path, "policy": info["policy"], "counts": load_stats(path)[2].tolist()}
+    record = {"file": path, "frames": info["frames"] or "not recorded", "policy": info["policy"],
+              "counts": load_stats(path)[2].tolist()}
     if info["status"] is None:
         record["classes"] = "unknown: the file has no per-class status (written without a policy)"
     else:
