@@ -94,6 +94,11 @@ def class_statistics(predict: Callable, batches: Iterable[dict]):
     return sml.fit_stats(out["logits"] for out in predictions(predict, batches))
 
 
+# what --convention smiyc moves from a method's metrics to its "exact": the exact curve's numbers and labels
+EXACT_KEYS = ("ap", "auroc", "fpr_at_tpr", "best_f1", "best_f1_threshold", "ap_convention", "fpr_convention",
+              "ap_conventions", "fpr_conventions")
+
+
 def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, options: dict | None = None,
                     mode: str = "exact", fpr_convention: str = "first", ap_convention: str = "step",
                     keep_curves: bool = False, track: str | None = None,
@@ -119,8 +124,10 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
     ROI 255]}`` when ``keep_curves`` (it keeps every score on the host: small sets only).
     ``mode="binned"`` is not offered here because score ranges differ per method.
     ``convention="smiyc"``: AP / AUROC / FPR / best F1 and the component threshold and mask as
-    the official SegmentMeIfYouCan kit computes them (``jaxanom.metrics.smiyc``); the exact
-    values move to ``metrics[name]["exact"]``. Batches may carry finished score maps
+    the official SegmentMeIfYouCan kit computes them (``jaxanom.metrics.smiyc``), labelled
+    ``"convention": "smiyc"``; the exact values move to ``metrics[name]["exact"]`` with the
+    labels of the conventions that made them (``ap_convention``, ``fpr_convention`` and every
+    convention's value, ``ap_conventions`` / ``fpr_conventions``), so each number carries its own. Batches may carry finished score maps
     ``"maps": {name: (B, H, W)}`` instead of ``"logits"`` (``saved_map_batches``). ``drop_void``:
     the methods but ``void`` score the logits without a void channel (``app.scoring.score_all``).
     """
@@ -175,9 +182,9 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
     for name, values in used.items():
         if values:
             metrics[name]["options"] = values
-    for name, (evaluator, state) in binned.items():
-        values = metrics[name]
-        values["exact"] = {key: values[key] for key in ("ap", "auroc", "fpr_at_tpr", "best_f1", "best_f1_threshold")}
+    for name, (evaluator, state) in binned.items():  # the kit's numbers on top, "convention": "smiyc"; the
+        values = metrics[name]  # exact ones move with the conventions that made them
+        values["exact"] = {key: values.pop(key) for key in EXACT_KEYS}
         values.update(evaluator.finalize(state))
     if spill is not None:
         with spill:

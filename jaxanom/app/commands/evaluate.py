@@ -105,7 +105,8 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
 
         write_pictures(out_dir, predict, source, mean_std, pictures)
     if convention == "smiyc":
-        print("The official SegmentMeIfYouCan kit's numbers (binned; the exact ones: metrics.json, \"exact\"):")
+        print("The official SegmentMeIfYouCan kit's numbers (binned; the exact ones, AP "
+              f"{ap_convention} and FPR@95 {fpr_convention or protocol_.fpr_convention}: metrics.json, \"exact\"):")
     print(results_table(metrics))
     if all_conventions:
         print("\n" + conventions_table(metrics))
