@@ -265,14 +265,23 @@ def dataset_reader(dataset: str, path: str, *, base: str | None = None, frames: 
     return reader(path, base)
 
 
-def saved_map_batches(folder: str | Path, source,
-                      methods: list[str] | None = None) -> tuple[list[str], Iterator[dict]]:
+# the SegmentMeIfYouCan dataset folders (``app.predict.SMIYC_DATASETS``) whose track is theirs alone;
+# the Lost and Found ones are scored with either track's rules (Fishyscapes: anomaly; the kit: obstacle)
+MAP_TRACKS = {"AnomalyTrack-all": "anomaly", "ObstacleTrack-all": "obstacle", "RoadObstacleWeather-v1": "obstacle",
+              "RoadObstacleExtra-v1": "obstacle", "SmallObstacleDataset-train": "obstacle",
+              "SmallObstacleDataset-val": "obstacle", "SmallObstacleDataset-test": "obstacle"}
+
+
+def saved_map_batches(folder: str | Path, source, methods: list[str] | None = None,
+                      track: str | None = None) -> tuple[list[str], Iterator[dict]]:
     """``(methods, batches)``: the score maps ``jaxanom predict --format smiyc`` wrote into ``folder``
     (``anomaly_p/<method>/<dataset>/<frame>.hdf5``, float16 HDF5 dataset ``value``: the official
     SegmentMeIfYouCan submission tree) as one-frame batches ``{"maps": {method: (1, H, W)},
     "label", "name"}`` for ``anomaly_results``, in the order of ``source`` (a ``FrameReader``
     whose frame names are the files' stems). ``methods``: default every method folder. Every file is
-    looked for before the first is read: FileNotFoundError naming what is missing."""
+    looked for before the first is read: FileNotFoundError naming what is missing. ``track``
+    (``"anomaly"`` / ``"obstacle"``: the component rules they will be scored with): InputError
+    naming ``maps`` and ``track`` when a dataset folder is the other track's (``MAP_TRACKS``)."""
     from jaxanom.app.predict import output_file
 
     root = Path(folder) / "anomaly_p"
@@ -287,6 +296,10 @@ def saved_map_batches(folder: str | Path, source,
         datasets = sorted(p.name for p in (root / method).iterdir() if p.is_dir()) if (root / method).is_dir() else []
         if len(datasets) != 1:
             raise FileNotFoundError(f"expected one dataset folder in {root / method}, found {datasets or 'none'}")
+        if track in ("anomaly", "obstacle") and MAP_TRACKS.get(datasets[0], track) != track:
+            raise InputError("maps", f": {root / method / datasets[0]} holds the {MAP_TRACKS[datasets[0]]} track's "
+                             f"maps, which {{track}} {track} would score with the {track} track's component rules; "
+                             f"pass {{track}} {MAP_TRACKS[datasets[0]]} (or none)", mentions=("track",))
         files[method] = [output_file(Path(folder), name, method, "smiyc", datasets[0]) for name in names]
         missing = [f.name for f in files[method] if not f.is_file()]
         if missing:

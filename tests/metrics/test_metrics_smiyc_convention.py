@@ -339,3 +339,28 @@ def test_predict_writes_the_unit_interval_map():
     for bad in ((0.0, 0.0), (0.0,), (np.nan, 1.0)):
         with pytest.raises(ValueError, match="unit_interval: expected"):
             PredictSettings(methods=("msp",), unit_interval=bad)
+
+
+def test_evaluate_maps_refuses_the_other_tracks_maps_and_statistics(tmp_path, capsys):
+    """One track's maps scored with the other's component rules, or statistics that cannot change
+    finished maps, are one line each, before anything is written."""
+    from jaxanom.cli import main
+
+    root = _obstacle_track_and_maps(tmp_path)
+    common = ["evaluate", "--maps", str(tmp_path / "pred"), "--dataset", "smiyc", "--path", str(root)]
+    stats = tmp_path / "stats.npz"
+    stats.write_bytes(b"")  # never read: refused first
+    for extra, named in ((["--track", "anomaly"], ["--maps: ", "ObstacleTrack-all holds the obstacle track's maps",
+                                                   "--track anomaly would score", "pass --track obstacle"]),
+                         (["--track", "obstacle", "--stats", str(stats)],
+                          [f"--stats {stats}: --maps reads finished score maps"])):
+        out = tmp_path / "o"
+        assert main([*common, *extra, "--out", str(out)]) == 2
+        error = capsys.readouterr().err.strip()
+        assert len(error.splitlines()) == 1 and all(part in error for part in named), error
+        assert not out.exists()
+    (tmp_path / "pred" / "anomaly_p" / "synthetic" / "ObstacleTrack-all").rename(
+        tmp_path / "pred" / "anomaly_p" / "synthetic" / "AnomalyTrack-all")
+    assert main([*common, "--track", "obstacle", "--out", str(tmp_path / "o")]) == 2
+    assert "AnomalyTrack-all holds the anomaly track's maps" in capsys.readouterr().err
+    assert main([*common, "--track", "none", "--out", str(tmp_path / "o")]) == 0  # pixel metrics only: no rules

@@ -49,6 +49,9 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
     if protocol_.name != "native" and not run:
         raise InputError("protocol", f" {protocol_.name}: resizes the frames the network sees, so it needs {{run}}",
                          mentions=("run",))
+    if maps and stats:  # the maps are finished scores: statistics would change nothing, silently
+        raise InputError("stats", f" {stats}: {{maps}} reads finished score maps, which no statistics change; "
+                         "leave it out", mentions=("maps",))
     load_plugins(plugins)
     mean_std = read_stats(stats)
     if cudam_sigma is not None:
@@ -62,7 +65,7 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
         with reading("path", path):  # a folder that does not hold the dataset
             source = dataset_reader(dataset, path, base=base, frames=frames, depth=depth)
         try:
-            names, batches = saved_map_batches(maps, source, methods.split(",") if methods else None)
+            names, batches = saved_map_batches(maps, source, methods.split(",") if methods else None, track)
         except FileNotFoundError as error:
             raise InputError("maps", f": {error}") from None
     else:  # the frames' images come with every batch (evaluation_batches)
