@@ -4,7 +4,8 @@
 object of all its fields, a tuple a list, an Enum its value. ``decode(cls, values)`` is its strict
 inverse, driven by the declared field types (``int``, ``float``, ``bool``, ``str``, ``Literal``,
 Enums, nested dataclasses, ``tuple[X, ...]`` and fixed tuples, ``X | None``, unions): an unknown
-key, a value of the wrong type or a missing field without a default raises ``ConfigError`` naming
+key, a value of the wrong type (NaN and infinity are no ``float``'s: no config field takes them) or a
+missing field without a default raises ``ConfigError`` naming
 the dotted path (``train.optim.lr``), what was expected and what came, and the dataclasses' own
 checks run as they are built. A field left out keeps its default; the default of a nested config
 is the enclosing config's (``{"experiment": {"train_frames": 8}}`` changes one field of a demo's
@@ -24,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import json
+import math
 import types
 import typing
 from typing import Any, Sequence
@@ -86,6 +88,8 @@ def decode(kind: Any, values: Any, path: str = "", base: Any = _MISSING) -> Any:
                 else isinstance(values, (int, float) if kind is float else int) and not isinstance(values, bool))
         if not fits:
             raise ConfigError(path, f"expected {describe(kind)}, got {values!r}")
+        if kind is float and not math.isfinite(values):  # no config field takes NaN or infinity
+            raise ConfigError(path, f"expected a finite number, got {values!r}")
         return float(values) if kind is float else values
     if kind is Any:
         return values
@@ -204,6 +208,16 @@ def _decode_dataclass(kind, values, path, base):
         return cls(**arguments)
     except ValueError as error:  # the dataclass's own checks, which name the field inside it
         raise ConfigError(path, str(error)) from None
+
+
+def check_finite(values: Any, path: str = "") -> None:
+    """ConfigError naming the first number of the JSON values ``values`` (``encode``'s) that is NaN or
+    infinite: what ``decode`` refuses, for a config built in Python."""
+    if isinstance(values, float) and not math.isfinite(values):
+        raise ConfigError(path, f"expected a finite number, got {values!r}")
+    items = values.items() if isinstance(values, dict) else enumerate(values) if isinstance(values, list) else ()
+    for key, value in items:
+        check_finite(value, _join(path, str(key)))
 
 
 def _field_default(field: dataclasses.Field) -> Any:

@@ -97,6 +97,11 @@ def class_statistics(predict: Callable, batches: Iterable[dict], drop_void: bool
                          for out in predictions(predict, batches))
 
 
+# what --convention smiyc moves from a method's metrics to its "exact": the exact curve's numbers and labels
+EXACT_KEYS = ("ap", "auroc", "fpr_at_tpr", "best_f1", "best_f1_threshold", "ap_convention", "fpr_convention",
+              "ap_conventions", "fpr_conventions")
+
+
 def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, options: dict | None = None,
                     mode: str = "exact", fpr_convention: str = "first", ap_convention: str = "step",
                     keep_curves: bool = False, track: str | None = None,
@@ -122,8 +127,10 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
     ROI 255]}`` when ``keep_curves`` (it keeps every score on the host: small sets only).
     ``mode="binned"`` is not offered here because score ranges differ per method.
     ``convention="smiyc"``: AP / AUROC / FPR / best F1 and the component threshold and mask as
-    the official SegmentMeIfYouCan kit computes them (``jaxanom.metrics.smiyc``); the exact
-    values move to ``metrics[name]["exact"]``. Batches may carry finished score maps
+    the official SegmentMeIfYouCan kit computes them (``jaxanom.metrics.smiyc``), labelled
+    ``"convention": "smiyc"``; the exact values move to ``metrics[name]["exact"]`` with the
+    labels of the conventions that made them (``ap_convention``, ``fpr_convention`` and every
+    convention's value, ``ap_conventions`` / ``fpr_conventions``), so each number carries its own. Batches may carry finished score maps
     ``"maps": {name: (B, H, W)}`` instead of ``"logits"`` (``saved_map_batches``). ``drop_void``:
     the methods but ``void`` score the logits without a void channel (``app.scoring.score_all``).
     """
@@ -178,9 +185,9 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
     for name, values in used.items():
         if values:
             metrics[name]["options"] = values
-    for name, (evaluator, state) in binned.items():
-        values = metrics[name]
-        values["exact"] = {key: values[key] for key in ("ap", "auroc", "fpr_at_tpr", "best_f1", "best_f1_threshold")}
+    for name, (evaluator, state) in binned.items():  # the kit's numbers on top, "convention": "smiyc"; the
+        values = metrics[name]  # exact ones move with the conventions that made them
+        values["exact"] = {key: values.pop(key) for key in EXACT_KEYS}
         values.update(evaluator.finalize(state))
     if spill is not None:
         with spill:
@@ -261,14 +268,23 @@ def dataset_reader(dataset: str, path: str, *, base: str | None = None, frames: 
     return reader(path, base)
 
 
-def saved_map_batches(folder: str | Path, source,
-                      methods: list[str] | None = None) -> tuple[list[str], Iterator[dict]]:
+# the SegmentMeIfYouCan dataset folders (``app.predict.SMIYC_DATASETS``) whose track is theirs alone;
+# the Lost and Found ones are scored with either track's rules (Fishyscapes: anomaly; the kit: obstacle)
+MAP_TRACKS = {"AnomalyTrack-all": "anomaly", "ObstacleTrack-all": "obstacle", "RoadObstacleWeather-v1": "obstacle",
+              "RoadObstacleExtra-v1": "obstacle", "SmallObstacleDataset-train": "obstacle",
+              "SmallObstacleDataset-val": "obstacle", "SmallObstacleDataset-test": "obstacle"}
+
+
+def saved_map_batches(folder: str | Path, source, methods: list[str] | None = None,
+                      track: str | None = None) -> tuple[list[str], Iterator[dict]]:
     """``(methods, batches)``: the score maps ``jaxanom predict --format smiyc`` wrote into ``folder``
     (``anomaly_p/<method>/<dataset>/<frame>.hdf5``, float16 HDF5 dataset ``value``: the official
     SegmentMeIfYouCan submission tree) as one-frame batches ``{"maps": {method: (1, H, W)},
     "label", "name"}`` for ``anomaly_results``, in the order of ``source`` (a ``FrameReader``
     whose frame names are the files' stems). ``methods``: default every method folder. Every file is
-    looked for before the first is read: FileNotFoundError naming what is missing."""
+    looked for before the first is read: FileNotFoundError naming what is missing. ``track``
+    (``"anomaly"`` / ``"obstacle"``: the component rules they will be scored with): InputError
+    naming ``maps`` and ``track`` when a dataset folder is the other track's (``MAP_TRACKS``)."""
     from jaxanom.app.predict import output_file
 
     root = Path(folder) / "anomaly_p"
@@ -283,6 +299,10 @@ def saved_map_batches(folder: str | Path, source,
         datasets = sorted(p.name for p in (root / method).iterdir() if p.is_dir()) if (root / method).is_dir() else []
         if len(datasets) != 1:
             raise FileNotFoundError(f"expected one dataset folder in {root / method}, found {datasets or 'none'}")
+        if track in ("anomaly", "obstacle") and MAP_TRACKS.get(datasets[0], track) != track:
+            raise InputError("maps", f": {root / method / datasets[0]} holds the {MAP_TRACKS[datasets[0]]} track's "
+                             f"maps, which {{track}} {track} would score with the {track} track's component rules; "
+                             f"pass {{track}} {MAP_TRACKS[datasets[0]]} (or none)", mentions=("track",))
         files[method] = [output_file(Path(folder), name, method, "smiyc", datasets[0]) for name in names]
         missing = [f.name for f in files[method] if not f.is_file()]
         if missing:

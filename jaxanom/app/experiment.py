@@ -211,6 +211,14 @@ def frames(experiment: Experiment, split: str, num_frames: int | None = None) ->
     return split_frames if num_frames is None else FirstFrames(split_frames, num_frames)
 
 
+def frames_record(experiment: Experiment, split: str) -> dict:
+    """Which frames ``frames(experiment, split, ...)`` reads, for a record of what was computed on
+    them: ``{"set": name, "folder": the Cityscapes root or None}``."""
+    if experiment.data == "synthetic":
+        return {"set": f"synthetic {split} scenes (seed {experiment.train.seed})", "folder": None}
+    return {"set": f"{experiment.data} {split}", "folder": experiment.data_root}
+
+
 def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress: bool = True,
                  validate: bool = True) -> dict:
     """Train (or resume, if ``run_dir`` holds checkpoints) and return the final variables.
@@ -239,7 +247,7 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
         val = list(evaluation_batches(frames(experiment, "val", max(experiment.batch_size, 8)),
                                       batch_size=experiment.batch_size))
     network = build_network(experiment)
-    write_json_atomic(config_file, jsonable(experiment))
+    write_json_atomic(config_file, jsonable(experiment), allow_nan=False)
     config = dataclasses.replace(experiment.train, run_dir=str(run_dir), progress=progress)
     state = train(config, network, batches, val, variables)
     return jax.device_get(state.variables)

@@ -171,13 +171,15 @@ def stats_finalize_report(stats: ClassStats, *, missing: str = "error", policy: 
 
 
 def save_stats(path, mean, std, counts, *, status=None, policy: dict | None = None,
-               channels: dict | None = None) -> None:
+               channels: dict | None = None, frames: dict | None = None) -> None:
     """Write ``mean``, ``std``, ``counts`` (each ``(C,)``) to an ``.npz`` file, atomically.
 
     Optional: ``status`` ``(C,)`` strings (``FinalizedStats.status``), ``policy`` (a JSON-able
-    dict, e.g. ``{"policy": "shrink", "strength": 1e4}``) and ``channels`` (a JSON-able dict: which
+    dict, e.g. ``{"policy": "shrink", "strength": 1e4}``), ``channels`` (a JSON-able dict: which
     of the network's outputs the C classes are, e.g. ``{"network_outputs": 20, "void_dropped":
-    true}``); ``load_stats_info`` reads them back.
+    true}``) and ``frames`` (a JSON-able dict: the frames the statistics were fitted on, e.g.
+    ``{"set": "cityscapes train", "folder": ..., "count": 200, "size": [512, 1024]}``);
+    ``load_stats_info`` reads them back.
     """
     arrays = {"mean": np.asarray(mean, np.float32), "std": np.asarray(std, np.float32),
               "counts": np.rint(np.asarray(counts, np.float64)).astype(np.int64)}
@@ -189,7 +191,7 @@ def save_stats(path, mean, std, counts, *, status=None, policy: dict | None = No
     if not os.path.isdir(os.path.dirname(os.path.abspath(path))):
         raise ValueError(f"path must be in an existing folder, got {str(path)!r}")
     _check_saved_stats(f"statistics for {str(path)!r}", arrays["mean"], arrays["std"], arrays["counts"])
-    for name, record in (("policy", policy), ("channels", channels)):
+    for name, record in (("policy", policy), ("channels", channels), ("frames", frames)):
         if record is not None:
             arrays[name] = np.asarray(json.dumps(record))
     buffer = io.BytesIO()
@@ -225,15 +227,17 @@ def load_stats(path) -> tuple[jax.Array, jax.Array, np.ndarray]:
 
 
 def load_stats_info(path) -> dict:
-    """How the statistics in ``path`` were finalised and of which outputs: ``{"status": [C strings]
-    | None, "policy": dict | None, "channels": dict | None}`` (``save_stats``).
+    """How, of which outputs and on what frames the statistics in ``path`` were fitted:
+    ``{"status": [C strings] | None, "policy": dict | None, "channels": dict | None, "frames":
+    dict | None}`` (``save_stats``).
 
     Files written without that information (older ones, or ``save_stats`` without it) give None.
     """
     load_stats(path)  # the same checks
     with np.load(path, allow_pickle=False) as data:
         status = data["status"].tolist() if "status" in data.files else None
-        records = {name: json.loads(str(data[name])) if name in data.files else None for name in ("policy", "channels")}
+        records = {name: json.loads(str(data[name])) if name in data.files else None
+                   for name in ("policy", "channels", "frames")}
     return {"status": status, **records}
 
 

@@ -106,3 +106,39 @@ def test_fit_stats_on_cityscapes_needs_no_labels(tiny_run, tmp_path):
     assert main(["fit-stats", "--run", str(tiny_run), "--cityscapes", str(images), "--size", "32x64",
                  "--missing", "pooled", "--out", str(tmp_path / "b.npz")]) == 0
     assert (tmp_path / "b.npz").is_file()
+
+
+def test_fit_stats_refuses_a_converted_run_without_frames(tiny_run, tmp_path, capsys):
+    """A converted run's experiment.json says ``data: synthetic`` (jaxanom's default), yet its network
+    never saw synthetic scenes: fitting on them would be silently wrong."""
+    out = tmp_path / "s.npz"
+    _one_line(capsys, main(["fit-stats", "--run", str(tiny_run), "--frames", "2", "--missing", "pooled",
+                            "--out", str(out)]), "error: --cityscapes DIR needed", "step 0", "convert-weights")
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_statistics_name_their_frames_in_every_command_that_reads_them(tiny_run, tmp_path, capsys):
+    import json
+
+    from jaxanom import sml
+
+    images = _cityscapes(tmp_path / "cs", [(40, 72), (40, 72)], labels=False)
+    stats = tmp_path / "s.npz"
+    assert main(["fit-stats", "--run", str(tiny_run), "--cityscapes", str(images), "--size", "32x64",
+                 "--missing", "pooled", "--out", str(stats)]) == 0
+    record = {"set": "cityscapes train", "folder": str(images.resolve()), "count": 2, "size": [32, 64]}
+    assert sml.load_stats_info(stats)["frames"] == record
+    line = f"fitted on 2 frames of cityscapes train in {images.resolve()} at 32x64"
+    assert line in (printed := capsys.readouterr().out), printed
+    old = tmp_path / "old.npz"  # a file written before the record: still read, and said so
+    sml.save_stats(old, *sml.load_stats(stats))
+    smiyc = _smiyc(tmp_path / "t")
+    for file, said, frames in ((stats, line, record), (old, "frames not recorded", "not recorded")):
+        out = tmp_path / f"eval_{file.stem}"
+        assert main(["evaluate", "--run", str(tiny_run), "--dataset", "smiyc", "--path", str(smiyc), "--track", "none",
+                     "--methods", "sml", "--stats", str(file), "--out", str(out)]) == 0
+        assert said in capsys.readouterr().out
+        assert json.loads((out / "metrics.json").read_text())["sml_statistics"]["frames"] == frames
+        assert main(["predict", str(smiyc / "images"), "--run", str(tiny_run), "--methods", "sml", "--stats", str(file),
+                     "--out", str(tmp_path / f"predict_{file.stem}")]) == 0
+        assert said in capsys.readouterr().out

@@ -88,6 +88,14 @@ def _mmf_folder_without_networks(root):
     return str(root)
 
 
+def _cityscapes_frame(root):
+    """One training frame in Cityscapes' layout (no labels: fit-stats reads none)."""
+    (root / "leftImg8bit/train/city").mkdir(parents=True)
+    image = np.random.default_rng(0).integers(0, 256, (H, W, 3), dtype=np.uint8)
+    cv2.imwrite(str(root / "leftImg8bit/train/city/city_000000_000000_leftImg8bit.png"), image)
+    return str(root)
+
+
 def _train_config(root):
     (root / "exp.py").write_text(TRAIN)
     return str(root / "exp.py")
@@ -114,8 +122,11 @@ CASES = {
          "--frames", "1"], "--mmf "),
     "fit-stats: frames too small to pool": lambda tmp, run: (
         ["fit-stats", "--run", str(run), "--frames", "1", "--size", "3x3", "--policy", "shrink",
-         "--out", f"{OUT}/stats.npz"],
+         "--cityscapes", _cityscapes_frame(tmp / "cs"), "--out", f"{OUT}/stats.npz"],
         "stats has only 9 counted pixel(s)"),
+    "fit-stats: a converted run without frames": lambda tmp, run: (
+        ["fit-stats", "--run", str(run), "--frames", "2", "--missing", "pooled", "--out", f"{OUT}/stats.npz"],
+        "--cityscapes DIR needed"),
     "convert-weights: a checkpoint of another network": lambda tmp, run: (
         ["convert-weights", "--from", "erfnet-cityscapes", _checkpoint_of_other_keys(tmp), OUT],
         "IN: state dict does not match erfnet-cityscapes"),

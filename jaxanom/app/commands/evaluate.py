@@ -49,6 +49,9 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
     if protocol_.name != "native" and not run:
         raise InputError("protocol", f" {protocol_.name}: resizes the frames the network sees, so it needs {{run}}",
                          mentions=("run",))
+    if maps and stats:  # the maps are finished scores: statistics would change nothing, silently
+        raise InputError("stats", f" {stats}: {{maps}} reads finished score maps, which no statistics change; "
+                         "leave it out", mentions=("maps",))
     load_plugins(plugins)
     mean_std = read_stats(stats)
     if cudam_sigma is not None:
@@ -62,7 +65,7 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
         with reading("path", path):  # a folder that does not hold the dataset
             source = dataset_reader(dataset, path, base=base, frames=frames, depth=depth)
         try:
-            names, batches = saved_map_batches(maps, source, methods.split(",") if methods else None)
+            names, batches = saved_map_batches(maps, source, methods.split(",") if methods else None, track)
         except FileNotFoundError as error:
             raise InputError("maps", f": {error}") from None
     else:  # the frames' images come with every batch (evaluation_batches)
@@ -106,7 +109,8 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
         # the frames and logits as the protocol scores them (the statistics describe those logits)
         write_pictures(out_dir, protocol_.outputs(predict), protocol_.source(source), mean_std, pictures)
     if convention == "smiyc":
-        print("The official SegmentMeIfYouCan kit's numbers (binned; the exact ones: metrics.json, \"exact\"):")
+        print("The official SegmentMeIfYouCan kit's numbers (binned; the exact ones, AP "
+              f"{ap_convention} and FPR@95 {fpr_convention or protocol_.fpr_convention}: metrics.json, \"exact\"):")
     print(results_table(metrics))
     if all_conventions:
         print("\n" + conventions_table(metrics))
@@ -114,12 +118,13 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
 
 
 def statistics_record(path: str) -> dict:
-    """What ``metrics.json`` says about the SML statistics: file, policy, the outputs they describe,
-    counts, pooled and shrunk classes."""
+    """What ``metrics.json`` says about the SML statistics: file, the frames they were fitted on (or
+    "not recorded"), policy, the outputs they describe, counts, pooled and shrunk classes."""
     from jaxanom.sml import load_stats, load_stats_info
 
     info = load_stats_info(path)
-    record = {"file": path, "policy": info["policy"], "channels": info["channels"],
+    record = {"file": path, "frames": info["frames"] or "not recorded", "policy": info["policy"],
+              "channels": info["channels"],
               "counts": load_stats(path)[2].tolist()}
     if info["status"] is None:
         record["classes"] = "unknown: the file has no per-class status (written without a policy)"

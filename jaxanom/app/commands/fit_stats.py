@@ -19,13 +19,17 @@ def fit_stats(*, run: str, out: str, frames: int = 200, cityscapes: str | None =
     """Fit the statistics of ``run``'s network on ``frames`` of its training data (or of the train
     split of the Cityscapes folder ``cityscapes``, no labels read), resized to ``size`` (H, W)
     when given; finalize them by ``policy`` (``jaxanom.sml.stats_finalize``) and write ``out``
-    (.npz). ``protocol`` (``jaxanom.app.protocols``): the frames resized and the output channels
+    (.npz), which records the frames (set, folder, count, size). A converted run (a network
+    jaxanom did not train: only a step-0 checkpoint) has no training data: it needs ``cityscapes``.
+    ``protocol`` (``jaxanom.app.protocols``): the frames resized and the output channels
     selected as that protocol scores them (``erfnet-community``: 512x1024, the void output
     dropped), recorded in the file for ``evaluate`` to check. Prints the per-class table and
     warns on classes below ``min_count`` pixels."""
     from jaxanom import sml
+    from jaxanom.app.commands.inputs import fitted_on as described
     from jaxanom.app.evaluate import class_statistics, predictor
-    from jaxanom.app.experiment import build_network, frames as run_frames, load_variables
+    from jaxanom.app.experiment import _trained_steps, build_network, load_variables
+    from jaxanom.app.experiment import frames as run_frames, frames_record as run_frames_record
     from jaxanom.app.protocols import get_protocol
     from jaxanom.data import Cityscapes
     from jaxanom.data.frames import FirstFrames, Resized
@@ -53,11 +57,17 @@ def fit_stats(*, run: str, out: str, frames: int = 200, cityscapes: str | None =
         experiment, variables = load_variables(run)
     channels = {"protocol": protocol_.name, "network_outputs": experiment.num_classes,
                 "void_dropped": protocol_.classes(experiment.num_classes) < experiment.num_classes}
+    if not cityscapes and _trained_steps(Path(run)) == 0:
+        raise InputError("cityscapes", f"{{cityscapes}} DIR needed: the network in {run} was not trained by jaxanom "
+                         "(its only checkpoint is step 0: a convert-weights run), so the run has no training frames "
+                         "of its own to fit the statistics on")
     if cityscapes:  # the statistics use the network's predictions only: no labels read
         with reading("cityscapes", cityscapes):
             source = FirstFrames(Cityscapes(cityscapes, "train", with_labels=False), frames)
+        fitted_on = {"set": "cityscapes train", "folder": str(Path(cityscapes).resolve())}
     else:
         source = run_frames(experiment, "train", frames)
+        fitted_on = run_frames_record(experiment, "train")
     if protocol_.size is not None:
         source = protocol_.images(source)
     elif size is not None:
@@ -72,7 +82,9 @@ def fit_stats(*, run: str, out: str, frames: int = 200, cityscapes: str | None =
     final = sml.stats_finalize_report(stats, missing=missing, policy=policy, min_count=min_count, strength=strength)
     record = {"policy": policy, "missing": missing, "min_count": min_count, "strength": strength,
               "frames": len(source)}
-    sml.save_stats(path, final.mean, final.std, final.count, status=final.status, policy=record, channels=channels)
+    fitted_on.update(count=len(source), size=list(protocol_.size or size or source[0]["image"].shape[:2]))
+    sml.save_stats(path, final.mean, final.std, final.count, status=final.status, policy=record, channels=channels,
+                   frames=fitted_on)
     print(stats_table(final))
     scarce = [c for c, n in enumerate(final.count) if n < min_count]
     if scarce:
@@ -82,8 +94,7 @@ def fit_stats(*, run: str, out: str, frames: int = 200, cityscapes: str | None =
               file=sys.stderr)
     selection = (f" (the network's {experiment.num_classes} outputs less its void output, as protocol "
                  f"{protocol_.name} scores them)" if channels["void_dropped"] else "")
-    print(f"statistics of {len(final.mean)} classes{selection} from {record['frames']} frames, policy {policy} "
-          f"-> {path}")
+    print(f"statistics of {len(final.mean)} classes{selection} {described(fitted_on)}, policy {policy} -> {path}")
     return path
 
 

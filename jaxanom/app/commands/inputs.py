@@ -26,14 +26,25 @@ def load_plugins(plugins) -> None:
 
 
 def read_stats(path: str | None):
-    """``(mean, std)`` from a statistics .npz, or None for None."""
+    """``(mean, std)`` from a statistics .npz, or None for None; prints the frames they were fitted on."""
     if path is None:
         return None
-    from jaxanom.sml import load_stats as load
+    from jaxanom.sml import load_stats as load, load_stats_info
 
     with reading("stats", path):
         mean, std, _ = load(path)
+        frames = load_stats_info(path)["frames"]
+    print(f"SML statistics {path}: {fitted_on(frames)}")
     return mean, std
+
+
+def fitted_on(frames: dict | None) -> str:
+    """The frames a statistics file records (``sml.save_stats``'s ``frames``), in words."""
+    if frames is None:
+        return "frames not recorded (a file written before fit-stats recorded them)"
+    where = f" in {frames['folder']}" if frames.get("folder") else ""
+    height, width = frames["size"]
+    return f"fitted on {frames['count']} frames of {frames['set']}{where} at {height}x{width}"
 
 
 def read_config(path: str, cls, variable: str = "config"):
