@@ -1,4 +1,8 @@
-"""A tiny converted run: the module fixture of the tests of commands that read a run folder."""
+"""A tiny converted run: the module fixture of the tests of commands that read a run folder; and tiny
+Cityscapes frames, which a converted run's statistics are fitted on."""
+from pathlib import Path
+
+import cv2
 import jax
 import numpy as np
 import pytest
@@ -32,3 +36,19 @@ def write_tiny_run(folder, classes: int):
 
     write_run(folder, "deeplabv3plus_tiny", model, jax.tree_util.tree_map_with_path(fill, shapes))
     return folder
+
+
+def write_tiny_cityscapes(root: Path, sizes, labels: bool = False) -> Path:
+    """Random frames of ``sizes`` (H, W) in the Cityscapes layout (train split, one city) under ``root``;
+    with ``labels``, label images of one class (road)."""
+    rng = np.random.default_rng(2)
+    for index, (height, width) in enumerate(sizes):
+        name = f"city_000000_00000{index}"
+        path = root / "leftImg8bit" / "train" / "city" / f"{name}_leftImg8bit.png"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(path), rng.integers(0, 256, (height, width, 3), dtype=np.uint8))
+        if labels:
+            label = root / "gtFine" / "train" / "city" / f"{name}_gtFine_labelIds.png"
+            label.parent.mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(label), np.full((height, width), 7, np.uint8))
+    return root

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from converted_run import write_tiny_run
+from converted_run import write_tiny_cityscapes, write_tiny_run
 from jaxanom.app import protocols
 from jaxanom.cli import main
 from jaxanom.sml import load_stats, load_stats_info
@@ -33,14 +33,15 @@ def small_protocol(monkeypatch):
 
 @pytest.fixture(scope="module")
 def stats_files(run20, tmp_path_factory):
-    """Statistics of the run's 2 training frames: as the protocol scores them, and of every output."""
+    """Statistics of 2 Cityscapes-layout frames: as the protocol scores them, and of every output."""
     folder = tmp_path_factory.mktemp("stats")
+    frames = write_tiny_cityscapes(folder / "cityscapes", [SIZE, SIZE])
     with pytest.MonkeyPatch.context() as patch:
         patch.setitem(protocols.PROTOCOLS, "erfnet-community",
                       dataclasses.replace(protocols.PROTOCOLS["erfnet-community"], size=SIZE))
         for name, extra in (("dropped", ["--protocol", "erfnet-community"]), ("all", ["--size", "64x128"])):
             assert main(["fit-stats", "--run", str(run20), "--frames", "2", "--policy", "none", "--missing", "pooled",
-                         "--out", str(folder / f"{name}.npz"), *extra]) == 0
+                         "--cityscapes", str(frames), "--out", str(folder / f"{name}.npz"), *extra]) == 0
     return folder / "dropped.npz", folder / "all.npz"
 
 
@@ -66,7 +67,7 @@ def evaluate(run, out, stats, path, protocol="erfnet-community", extra=()):
 
 
 def test_fit_stats_drops_the_void_output_as_the_protocol_does(run20, stats_files):
-    from jaxanom.app.experiment import frames, load_variables
+    from jaxanom.app.experiment import load_variables
     from jaxanom.data.transforms import normalize
     from jaxanom.models import build_model
 
@@ -77,8 +78,9 @@ def test_fit_stats_drops_the_void_output_as_the_protocol_does(run20, stats_files
     assert load_stats_info(stats_files[1])["channels"]["void_dropped"] is False
     # reference: the frames resized by PIL, the logits without channel 19, per-class moments in NumPy
     experiment, variables = load_variables(run20)
-    images = np.stack([np.asarray(Image.fromarray(frame["image"]).resize(SIZE[::-1], Image.BILINEAR))
-                       for frame in frames(experiment, "train", 2)])
+    files = sorted((stats_files[0].parent / "cityscapes").rglob("*_leftImg8bit.png"))
+    images = np.stack([np.asarray(Image.open(path).convert("RGB").resize(SIZE[::-1], Image.BILINEAR))
+                       for path in files])
     model = build_model("deeplabv3plus_tiny", num_classes=20, attention=None, output_stride=16)
     logits = np.asarray(jax.jit(lambda x: model.apply(variables, normalize(x), train=False)["logits"])(images),
                         np.float64)[..., :19].reshape(-1, 19)
