@@ -125,6 +125,8 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
     values move to ``metrics[name]["exact"]``. Batches may carry finished score maps
     ``"maps": {name: (B, H, W)}`` instead of ``"logits"`` (``saved_map_batches``). ``drop_void``:
     the methods but ``void`` score the logits without a void channel (``app.scoring.score_all``).
+    A method's scores that are not finite on non-void pixels are refused naming it
+    (``method_registry.check_finite``, one count per map).
     """
     import tempfile
 

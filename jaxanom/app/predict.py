@@ -21,8 +21,10 @@ size and written in every requested format:
 Every file is written under a temporary name beside it and renamed, so a killed run leaves
 complete files only, and a rerun skips the frames whose files all exist (and removes the
 temporary files a kill left). ``settings.json`` in ``out`` records the settings and the
-fingerprints of the network and statistics the maps were made with (``settings_record``); a
-rerun that would make other maps is refused (``check_resumable``).
+fingerprints of the methods' code and options, the network and the statistics the maps were
+made with (``settings_record``); a rerun that would make other maps is refused
+(``check_resumable``). Every file written or removed is proven inside ``out``
+(``app.outputs.within``).
 
 With ``threads`` > 1 the host work runs beside the device's: a pool decodes the next frames
 ahead, in order, and a pool of writers resizes, checks and writes each frame's maps under
