@@ -10,7 +10,10 @@ Where methods come from, loaded once on first use:
 - jaxanom's own: every library module whose file name ends in ``methods.py`` (``score_methods``
   beside ``scores``, ``sml/methods``, ``cudam_methods``, ``mmf/methods``, ...), so a paper's rows
   sit beside its code and adding one is a single file;
-- installed packages: the modules (or objects) named by the ``jaxanom.methods`` entry-point group;
+- installed packages: the modules (or objects) named by the ``jaxanom.methods`` entry-point group,
+  unless the environment variable ``JAXANOM_DISABLE_ENTRY_POINTS`` is set (to anything but
+  ``""`` or ``0``); one that fails to load is left out and named only when a name it might have
+  provided is asked for (``get``, ``check``), so it breaks no command that does not need it;
 - any module imported by the caller (``load_plugin``, the commands' ``--plugin MODULE``).
 
 Each of those modules calls ``register(Method(...))`` when imported.
@@ -21,6 +24,7 @@ import dataclasses
 import functools
 import hashlib
 import importlib
+import os
 import re
 import sys
 import types
@@ -30,6 +34,7 @@ from typing import Any, Callable, Iterable, Mapping
 from jaxanom.errors import InputError
 
 ENTRY_POINTS = "jaxanom.methods"
+DISABLE_ENTRY_POINTS = "JAXANOM_DISABLE_ENTRY_POINTS"  # environment variable: installed plug-ins not loaded
 
 # What a batch can give the methods, and how a missing input is described in an error.
 INPUTS: dict[str, str] = {
@@ -100,6 +105,7 @@ class Method:
 
 
 _METHODS: dict[str, Method] = {}
+_BROKEN: list[str] = []  # one line per entry point that failed to load, for the errors of unknown names
 _ORIGIN: dict[str, str] = {}  # name -> the module that registered it, for conflict messages and fingerprints
 _loaded = False
 
@@ -143,7 +149,7 @@ def get(name: str) -> Method:
     """The method called ``name``; ValueError naming it and the known names otherwise."""
     _load()
     if name not in _METHODS:
-        raise InputError("methods", f": expected names from {', '.join(_METHODS)}; got unknown {name!r}")
+        raise InputError("methods", f": expected names from {', '.join(_METHODS)}; got unknown {name!r}{_broken()}")
     return _METHODS[name]
 
 
@@ -164,7 +170,8 @@ def check(method_names: Iterable[str], provided: Iterable[str], options: Options
     _load()
     unknown = [n for n in selected if n not in _METHODS]
     if unknown or not selected:
-        raise InputError("methods", f": expected names from {', '.join(_METHODS)}; got {list(selected)}")
+        raise InputError("methods", f": expected names from {', '.join(_METHODS)}; got {list(selected)}"
+                         f"{_broken() if unknown else ''}")
     provided = set(provided)
     for key in INPUTS:  # the first missing input, with every method that needs it
         if key not in provided and (missing := [n for n in selected if key in _METHODS[n].needs]):
@@ -273,14 +280,24 @@ def _load() -> None:
         importlib.import_module(module)
     from importlib.metadata import entry_points
 
-    for entry in entry_points(group=ENTRY_POINTS):
+    _BROKEN.clear()
+    for entry in () if os.environ.get(DISABLE_ENTRY_POINTS, "") not in ("", "0") else entry_points(group=ENTRY_POINTS):
         try:
             entry.load()
-        except Exception as error:
-            raise ImportError(f"the {ENTRY_POINTS} entry point {entry.name} = {entry.value} "
-                              f"({entry.dist.name if entry.dist else 'unknown distribution'}) failed to load: "
-                              f"{type(error).__name__}: {error}") from error
+        except Exception as error:  # noqa: BLE001  a broken installed plug-in: named when its names are needed
+            reason = str(error).strip().splitlines()[0] if str(error).strip() else ""
+            _BROKEN.append(f"the {ENTRY_POINTS} entry point {entry.name} = {entry.value} "
+                           f"({entry.dist.name if entry.dist else 'unknown distribution'}) failed to load "
+                           f"({type(error).__name__}: {reason})")
     _loaded = True
+
+
+def _broken() -> str:
+    """For an error about unknown names: the entry points that failed to load (which might have
+    provided them), or ""."""
+    if not _BROKEN:
+        return ""
+    return f"; {'; '.join(_BROKEN)} (fix or uninstall it, or set {DISABLE_ENTRY_POINTS}=1)"
 
 
 def _own_modules() -> list[str]:

@@ -368,3 +368,46 @@ def test_predict_never_mixes_frames_of_two_plugins_registering_one_name(tiny_run
     assert "0 frames written, 2 already there" in run_predict(capsys, images, tiny_run, out, minus, "signed")[1]
     record = json.loads((out / "settings.json").read_text())
     assert record["method_code"] == {"signed": {"code": method_registry.implementation("signed"), "options": {}}}
+
+
+# --- a broken installed plug-in breaks only what needs its names ----------------------------------------
+
+@pytest.fixture
+def broken_entry_point(tmp_path, monkeypatch, registry_state):  # noqa: F811
+    """An installed distribution (a dist-info on sys.path) with two ``jaxanom.methods`` entry
+    points: ``good`` registers ``installed_twin``, ``broken`` fails to import; the registry
+    reloads its entry points on next use."""
+    site = tmp_path / "site"
+    info = site / "jaxanom_test_plugin_dist-1.0.dist-info"
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: jaxanom-test-plugin-dist\nVersion: 1.0\n")
+    (info / "entry_points.txt").write_text("[jaxanom.methods]\ngood = jaxanom_test_plugin_good\n"
+                                           "broken = jaxanom_test_plugin_broken\n")
+    write_module(site, "jaxanom_test_plugin_good", registering("installed_twin"), monkeypatch)
+    write_module(site, "jaxanom_test_plugin_broken", "import no_such_dependency_xyz\n", monkeypatch)
+    monkeypatch.setattr(method_registry, "_loaded", False)
+    monkeypatch.setattr(method_registry, "_BROKEN", [], raising=False)
+
+
+def test_a_broken_entry_point_breaks_no_help_and_no_command_that_does_not_need_it(tmp_path, capsys,
+                                                                                  broken_entry_point):
+    for argv in (["--help"], ["train", "--help"], ["convert-weights", "--help"], ["score", "--help"]):
+        with pytest.raises(SystemExit) as stop:
+            main(argv)
+        assert stop.value.code == 0, argv
+    assert "installed_twin" in capsys.readouterr().out  # the working entry point's method is listed
+    argv = logits_file(tmp_path)
+    assert main([*argv, "--methods", "msp,installed_twin", "--out", str(tmp_path / "o")]) == 0
+    error = one_line_error(capsys, [*argv, "--methods", "msp,unknown_one", "--out", str(tmp_path / "p")])
+    assert error.endswith("got ['msp', 'unknown_one']; the jaxanom.methods entry point broken = "
+                          "jaxanom_test_plugin_broken (jaxanom-test-plugin-dist) failed to load (ModuleNotFoundError: "
+                          "No module named 'no_such_dependency_xyz') (fix or uninstall it, or set "
+                          "JAXANOM_DISABLE_ENTRY_POINTS=1)"), error
+
+
+def test_entry_points_can_be_switched_off(tmp_path, capsys, monkeypatch, broken_entry_point):
+    monkeypatch.setenv("JAXANOM_DISABLE_ENTRY_POINTS", "1")
+    method_registry._METHODS.pop("installed_twin", None)
+    assert "installed_twin" not in method_registry.names()
+    error = one_line_error(capsys, [*logits_file(tmp_path), "--methods", "installed_twin", "--out", str(tmp_path / "o")])
+    assert "got ['installed_twin']" in error and "entry point" not in error
