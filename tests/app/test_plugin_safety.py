@@ -266,6 +266,11 @@ def test_a_plugin_changing_its_inputs_leaves_the_other_methods_alone(tmp_path, m
         assert after[name]["ap"] == alone[name]["ap"]
         np.testing.assert_array_equal(np.load(tmp_path / "after" / "scores" / f"{name}.npy"),
                                       np.load(tmp_path / "alone" / "scores" / f"{name}.npy"))
+    rng = np.random.default_rng(1)  # evaluate's loop, on a network's (immutable) logits
+    batch = {"logits": rng.normal(size=(B, H, W, C)).astype(np.float32),
+             "label": rng.choice(np.array([0, 1], np.uint8), size=(B, H, W))}
+    alone, after = (anomaly_results([batch], names)[0] for names in (("msp",), ("mutating", "msp")))
+    assert after["msp"]["ap"] == alone["msp"]["ap"]
 
 
 def test_a_method_cannot_write_into_the_callers_arrays(registry_state):  # noqa: F811
