@@ -111,7 +111,8 @@ _loaded = False
 
 
 def register(method: Method) -> Method:
-    """Add ``method``; ValueError if another method already has its name. Returns it."""
+    """Add ``method`` (whose name ``Method`` has checked: a name, never a path); ValueError if
+    another method already has its name. Returns it."""
     if not isinstance(method, Method):
         raise ValueError(f"method: expected a jaxanom.method_registry.Method, got {type(method).__name__}")
     origin = sys._getframe(1).f_globals.get("__name__", "?")  # the module calling register

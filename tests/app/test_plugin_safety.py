@@ -306,7 +306,9 @@ def test_a_broken_plugin_is_one_line_naming_it(tmp_path, capsys, monkeypatch, re
     write_module(folder, "p_msp", registering("msp"), monkeypatch)
     write_module(folder, "p_raises", "import jax\n\nCONSTANT = 1 / 0\n", monkeypatch)
     plugins, expected = {
-        "file path": (["./p_one.py"], "--plugin './p_one.py': expected a module's dotted name"),
+        "file path": (["./p_one.py"], "--plugin './p_one.py': expected a module's dotted name (e.g. my_scores or "
+                                      "package.module), importable from the Python path; not a file (for this "
+                                      "file: PYTHONPATH=. and --plugin p_one)"),
         "empty": ([""], "--plugin '': expected a module's dotted name"),
         "duplicate": (["p_one", "p_two"], "--plugin p_two: importing it raised ValueError: method 'twin': already "
                                           "registered by p_one; p_two cannot register another under the same name ("

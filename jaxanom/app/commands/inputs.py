@@ -31,19 +31,23 @@ def load_plugins(plugins) -> None:
 
     for module in plugins:
         if not (isinstance(module, str) and all(part.isidentifier() for part in module.split("."))):
-            raise InputError("plugin", f" {module!r}: expected a module's dotted name (e.g. my_scores or "
-                             "package.module), importable from the Python path; not a file")
+            file = Path(str(module))
+            hint = (f" (for this file: PYTHONPATH={file.parent} and {{plugins}} {file.stem})"
+                    if file.suffix == ".py" and file.stem.isidentifier() else "")
+            raise InputError("plugins", f" {module!r}: expected a module's dotted name (e.g. my_scores or "
+                             f"package.module), importable from the Python path; not a file{hint}",
+                             mentions=("plugins",))
         try:
             load_plugin(module)
         except ModuleNotFoundError as error:
             if error.name is None or not (module + ".").startswith(error.name + "."):
-                raise InputError("plugin", f" {module}: importing it failed: {error}") from None
-            raise InputError("plugin", f" {module}: no module named {error.name!r} on the Python path") from None
+                raise InputError("plugins", f" {module}: importing it failed: {error}") from None
+            raise InputError("plugins", f" {module}: no module named {error.name!r} on the Python path") from None
         except Exception as error:  # noqa: BLE001  a plug-in's own failure: one line naming it and where
             frames = traceback.extract_tb(error.__traceback__)
             package = str(Path(__file__).parents[2])  # the plug-in's own line, not jaxanom's nor importlib's
             frame = next((f for f in reversed(frames) if not f.filename.startswith((package, "<"))), frames[-1])
-            raise InputError("plugin", f" {module}: importing it raised {type(error).__name__}: "
+            raise InputError("plugins", f" {module}: importing it raised {type(error).__name__}: "
                              f"{str(error).splitlines()[0] if str(error) else ''} ({frame.filename}, line "
                              f"{frame.lineno})") from None
 
