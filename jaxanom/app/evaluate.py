@@ -13,8 +13,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxanom.app.outputs import within
 from jaxanom.app.scoring import inputs_of, score_all
 from jaxanom.cudam_score import upsample_attention
+from jaxanom.method_registry import check_finite
 from jaxanom.metrics import anomaly_metrics, pr_curve, restrict_to_roi, roc_curve
 from jaxanom.metrics.evaluator import (Components, PixelAnomaly, Segmentation, SmiycPixels, run_evaluators,
                                        update_keyed)
@@ -133,6 +135,8 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
     convention's value, ``ap_conventions`` / ``fpr_conventions``), so each number carries its own. Batches may carry finished score maps
     ``"maps": {name: (B, H, W)}`` instead of ``"logits"`` (``saved_map_batches``). ``drop_void``:
     the methods but ``void`` score the logits without a void channel (``app.scoring.score_all``).
+    A method's scores that are not finite on non-void pixels are refused naming it
+    (``method_registry.check_finite``, one count per map).
     """
     import tempfile
 
@@ -155,6 +159,9 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
             labels = np.asarray(batch["label"])
             if "roi" in batch:  # evaluate inside the region of interest only (MMF: the road)
                 labels = restrict_to_roi(labels, batch["roi"])
+            where = f" of frame {', '.join(map(str, batch['name']))}" if "name" in batch else ""
+            for name, score in batch_scores.items():  # a count per map, read once the next batch is dispatched
+                check_finite(name, score, labels, where)
             first = len(frames)
             if spill is not None:
                 names_in_batch = batch.get("name", [None] * len(labels))
@@ -172,7 +179,7 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
                     kept.setdefault(name, []).extend(zip(np.asarray(score), labels))
                 if spill is not None:
                     for index, (one, label) in enumerate(zip(np.asarray(score), labels)):
-                        np.save(Path(spill.name) / f"{name}_{first + index}.npy", one)
+                        np.save(within(spill.name, Path(spill.name) / f"{name}_{first + index}.npy"), one)
                         frames[first + index]["pixels"][name] = _frame_pixel_metrics(one, label, fpr_convention,
                                                                                       ap_convention)
         if not pixels:

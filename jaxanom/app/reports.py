@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxanom import method_registry
+from jaxanom.app.outputs import within
 
 
 def results_table(metrics: dict, segmentation: dict | None = None) -> str:
@@ -60,4 +61,4 @@ def write_pictures(out_dir: Path, predict, source, stats, count: int) -> None:
         if "attention_up" in out:
             panels.append(Panel("CuDAM attention (Eq. 1)", np.asarray(out["attention_up"][0]), cmap="viridis",
                                 label="attention"))
-        write_panels(out_dir / f"frame_{index}.png", panels)
+        write_panels(within(out_dir, out_dir / f"frame_{index}.png"), panels)

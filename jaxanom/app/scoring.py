@@ -12,7 +12,7 @@ from typing import Iterable, Mapping
 import numpy as np
 
 from jaxanom.data.cityscapes_labels import NUM_CLASSES
-from jaxanom.method_registry import INPUTS, check, get, given, load_plugin, names
+from jaxanom.method_registry import INPUTS, call, check, get, given, load_plugin, names
 
 __all__ = ["INPUTS", "check", "describe", "get", "inputs_of", "load_plugin", "names", "provided", "run_inputs",
            "score_all", "without_channel"]
@@ -62,15 +62,17 @@ def score_all(method_names: Iterable[str], inputs: Mapping, options: Mapping | N
     """``(scores, used)``: each method's scores (B, H, W) of ``inputs`` and the options it used
     (``Method.options``: defaults, ``options``, resolved for this batch). ``drop_void``: the
     methods that do not read the void channel score the logits without it (a protocol's choice,
-    ``jaxanom.app.protocols``); the ``void`` method still reads every channel."""
+    ``jaxanom.app.protocols``); the ``void`` method still reads every channel. Each method is
+    called through ``method_registry.call`` (its own read-only copy of the inputs; its output's
+    shape and dtype checked); the caller checks the values where it reads them
+    (``method_registry.check_finite``)."""
     method_names = check(method_names, given(inputs), options)
     without_void = _without_void(inputs) if drop_void and inputs.get("void_channel") is not None else inputs
     scores, used = {}, {}
     for name in method_names:
         method = get(name)
         method_inputs = inputs if "void_channel" in method.needs else without_void
-        used[name] = method.options(method_inputs, options)
-        scores[name] = method.score(method_inputs, used[name])
+        scores[name], used[name] = call(method, method_inputs, options)
     return scores, used
 
 

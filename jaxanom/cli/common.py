@@ -72,7 +72,9 @@ class _KeepIndented(argparse.HelpFormatter):
 
 def add_methods(parser, unavailable: tuple[str, ...] = ()) -> None:
     """``--methods`` (the registered methods listed with their descriptions under the help, but those
-    needing an input of ``unavailable``) and ``--plugin``."""
+    needing an input of ``unavailable``) and ``--plugin``. The listing is made when the help is
+    shown: building the parsers loads no method, so a broken installed plug-in breaks no other
+    command's help or run."""
     from jaxanom.app.scoring import describe
 
     parser.add_argument("--methods", type=method_list, help=f"comma-separated names of the methods listed below "
@@ -80,7 +82,13 @@ def add_methods(parser, unavailable: tuple[str, ...] = ()) -> None:
     parser.add_argument("--plugin", action="append", default=[], metavar="MODULE",
                         help="import this Python module first, which registers its own methods (repeatable)")
     parser.formatter_class = _KeepIndented
-    parser.epilog = "methods (plug-ins add theirs):\n" + describe(unavailable)
+    format_help = parser.format_help
+
+    def with_methods() -> str:
+        parser.epilog = "methods (plug-ins add theirs):\n" + describe(unavailable)
+        return format_help()
+
+    parser.format_help = with_methods
 
 
 def add_scoring(parser) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from jaxanom.app.commands.inputs import (DEFAULT_METHODS, check_stats_classes, load_plugins, method_names,
                                          read_stats)
-from jaxanom.app.outputs import check_out_outside, out_folder
+from jaxanom.app.outputs import check_out_outside, out_folder, within
 from jaxanom.app.protocols import PROTOCOLS
 from jaxanom.errors import InputError, reading
 
@@ -65,7 +65,7 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
         with reading("path", path):  # a folder that does not hold the dataset
             source = dataset_reader(dataset, path, base=base, frames=frames, depth=depth)
         try:
-            names, batches = saved_map_batches(maps, source, methods.split(",") if methods else None, track)
+            names, batches = saved_map_batches(maps, source, method_names(methods, ()) or None, track)
         except FileNotFoundError as error:
             raise InputError("maps", f": {error}") from None
     else:  # the frames' images come with every batch (evaluation_batches)
@@ -102,7 +102,7 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
     if "cudam" in metrics:
         record["cudam_sigma"] = {"values": metrics["cudam"]["options"]["cudam_sigma"],
                                  "source": "given" if cudam_sigma is not None else "paper-equivalent"}
-    write_json_atomic(out_dir / "metrics.json", record)
+    write_json_atomic(within(out_dir, out_dir / "metrics.json"), record)
     if pictures and run:  # MMF's pictures: jaxanom demo mmf; maps': jaxanom predict --format png
         from jaxanom.app.reports import write_pictures
 
