@@ -38,7 +38,7 @@ def add_parser(commands) -> None:
     add_config(parser, "Python file defining `experiment = Experiment(...)`, or an Experiment's JSON "
                "(e.g. a run's experiment.json)")
     add_common(parser, progress=True, overwrite=False)
-    parser.set_defaults(handler=run, aliases={"overrides": "set"})
+    parser.set_defaults(handler=run, aliases={"overrides": "set", "run_dir": "out", "train.steps": "steps"})
 
 
 def run(args) -> None:

@@ -135,7 +135,7 @@ def test_experiment_json_of_the_earlier_version_loads_as_the_same_training(tmp_p
 def test_a_different_experiment_names_the_field_and_steps_grow_only_on_a_flat_schedule(tmp_path):
     stored = Experiment(train=TrainConfig(run_dir="", steps=6))
     with pytest.raises(ValueError, match=r"holds a run of a different experiment: train.optim.lr is 0.01 there, "
-                                         r"0.02 here; choose another folder"):
+                                         r"0.02 here; resume continues that run with its own settings"):
         check_same_run(stored, dataclasses.replace(stored, train=dataclasses.replace(
             stored.train, optim=OptimConfig(lr=0.02))), tmp_path)
     with pytest.raises(ValueError, match=r"different experiment: attention is None there, 'cudam' here \(and 1 more\)"):

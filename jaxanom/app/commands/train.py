@@ -27,8 +27,8 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
     ``distributed``: one process per host (``jax.distributed``)."""
     import jax
 
-    from jaxanom.app.experiment import (Experiment, attention_positions, check_objective, check_schedule,
-                                        load_experiment, run_training)
+    from jaxanom.app.experiment import (Experiment, attention_positions, check_data, check_objective,
+                                        check_schedule, load_experiment, run_training)
     from jaxanom.train.checkpoint import DamagedCheckpointError
     from jaxanom.train.loop import NonFiniteLossError
 
@@ -57,8 +57,9 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
         experiment = with_overrides(experiment, overrides)
         check_objective(experiment)
         check_schedule(experiment)
+        check_data(experiment)
     if lead and not resume:  # claimed once the whole experiment is checked: a refused one leaves no folder
-        out_folder(out, overwrite=False, hint="continue the run there with {resume}")
+        out_folder(out, overwrite=_unstarted(out_dir, experiment), hint="continue the run there with {resume}")
     if experiment.train.objective.name == "cudam":
         positions = attention_positions(experiment, *experiment.crop)
         print(f"CuDAM tau = {experiment.train.objective.reward_weight(positions):.6g} (position "
@@ -74,6 +75,24 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
         raise InputError("out", f"{out_dir}: {error}") from None
     print(f"trained {experiment.train.steps} steps on {jax.device_count()} devices ({jax.process_count()} "
           f"processes); checkpoints in {out_dir / 'checkpoints'}")
+
+
+def _unstarted(out_dir: Path, experiment) -> bool:
+    """Whether ``out_dir`` holds nothing but the experiment.json of a start of this very
+    ``experiment`` that ended before writing anything else (a crash, ``kill -9``): such a folder is
+    started afresh rather than refused. Another experiment's file is refused, naming the field."""
+    from jaxanom.app.experiment import changed_fields, describe_changes, load_experiment
+
+    if not out_dir.is_dir() or {p.name for p in out_dir.iterdir()} - {CLAIM} != {"experiment.json"}:
+        return False
+    with reading("out", out_dir):
+        stored = load_experiment(out_dir)
+    differences = changed_fields(stored, experiment)
+    if differences:
+        raise InputError("out", f"{out_dir}: holds the experiment.json of a run that never reached its first "
+                         f"checkpoint, of a different experiment ({describe_changes(differences)}); {{resume}} "
+                         "starts that one, or delete the file, or choose another folder", mentions=("resume",))
+    return True
 
 
 def _base_experiment(init_from: str | None):
