@@ -16,6 +16,8 @@ def test_the_argument_leads_unless_the_message_places_it():
     placed = InputError("min_count", "the run diverged; lower {min_count}")
     assert (str(placed), placed.render(FLAG)) == ("the run diverged; lower min_count", "the run diverged; lower --min-count")
     assert isinstance(error, ValueError) and error.argument == "out"
+    advice = InputError("min_count", ": 0 counts nothing; pass {min_count} 1")  # follows the name and repeats it
+    assert advice.render(FLAG) == "--min-count: 0 counts nothing; pass --min-count 1"
 
 
 def test_reading_names_the_argument_of_a_plain_value_error_and_passes_input_errors():

@@ -22,6 +22,7 @@ def fit_stats(*, run: str, out: str, frames: int = 200, cityscapes: str | None =
     from jaxanom import sml
     from jaxanom.app.evaluate import class_statistics, predictor
     from jaxanom.app.experiment import build_network, frames as run_frames, load_variables
+    from jaxanom.app.predict import size_check
     from jaxanom.data import Cityscapes
     from jaxanom.data.frames import FirstFrames, Resized
     from jaxanom.data.pipeline import evaluation_batches
@@ -41,6 +42,8 @@ def fit_stats(*, run: str, out: str, frames: int = 200, cityscapes: str | None =
     check_policy(policy, min_count, strength)
     with reading("run", run):
         experiment, variables = load_variables(run)
+    if size is not None:
+        size_check(build_network(experiment), variables)(size, "the working size")
     if cityscapes:  # the statistics use the network's predictions only: no labels read
         with reading("cityscapes", cityscapes):
             source = FirstFrames(Cityscapes(cityscapes, "train", with_labels=False), frames)
