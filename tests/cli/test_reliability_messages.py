@@ -208,3 +208,23 @@ def test_resume_errors_name_the_flags_and_advise_resume(tmp_path, capsys):
     error = capsys.readouterr().err.strip()
     assert error.startswith(f"jaxanom train: error: --steps: the run in {run} has 6 steps") and "run_dir" not in error
     assert f"resume it with 6 steps, start a new run from its weights (--init-from {run})" in error, error
+
+
+def test_init_modules_need_init_from_which_is_stored_absolute_however_given(tmp_path, monkeypatch, capsys):
+    import jaxanom.app.experiment as app
+
+    handed = []
+    monkeypatch.setattr(app, "run_training", lambda experiment, out, **_: handed.append(experiment))
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "source").mkdir()
+    (tmp_path / "source" / "experiment.json").write_text(json.dumps(jsonable(Experiment())))
+    for flags in (["--init-modules", "backbone"], ["--set", "init_modules=backbone"]):
+        assert main(["train", "--out", "a", *flags, "--no-progress"]) == 2
+        assert ("error: --init-modules takes modules from the run of --init-from, which is not given"
+                in capsys.readouterr().err)
+        assert not (tmp_path / "a").exists() and handed == []
+    for k, flags in enumerate((["--init-from", "source"], ["--set", "init_from=source"])):
+        assert main(["train", "--out", f"b{k}", *flags, "--init-modules", "backbone", "--no-progress"]) == 0
+        assert (handed[-1].init_from, handed[-1].init_modules) == (str(tmp_path / "source"), ("backbone",))
+    assert main(["train", "--out", "c", "--set", "init_from=nowhere", "--no-progress"]) == 2
+    assert "error: --init-from nowhere: " in capsys.readouterr().err

@@ -55,6 +55,8 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
                                init_from=init_from, init_modules=init_modules, cudam_position=cudam_position,
                                cudam_gate=cudam_gate, cudam_tau=cudam_tau)
         experiment = with_overrides(experiment, overrides)
+        if not resume:
+            experiment = _initial_weights(experiment)
         check_objective(experiment)
         check_schedule(experiment)
         check_data(experiment)
@@ -95,6 +97,22 @@ def _unstarted(out_dir: Path, experiment) -> bool:
     return True
 
 
+def _initial_weights(experiment):
+    """``experiment`` with its ``init_from`` (given by flag, config or ``--set``) checked to be a run
+    and stored absolute, so the run records one folder wherever it is resumed from; InputError when
+    ``init_modules`` names modules to take from no ``init_from``."""
+    from jaxanom.app.experiment import load_experiment
+
+    if experiment.init_from is None:
+        if experiment.init_modules is not None:
+            raise InputError("init_modules", " takes modules from the run of {init_from}, which is not given",
+                             mentions=("init_from",))
+        return experiment
+    with reading("init_from", experiment.init_from):
+        load_experiment(experiment.init_from)
+    return dataclasses.replace(experiment, init_from=str(Path(experiment.init_from).resolve()))
+
+
 def _base_experiment(init_from: str | None):
     """The default experiment, with the network of ``init_from``'s run when given."""
     from jaxanom.app.experiment import Experiment, load_experiment
@@ -116,11 +134,7 @@ def _override(experiment, *, model, attention, data, data_root, steps, batch_siz
     fields = {"model": model, "data": data, "data_root": data_root, "batch_size": batch_size,
               "cudam_position": cudam_position, "cudam_gate": cudam_gate}
     if init_from is not None:
-        from jaxanom.app.experiment import load_experiment
-
-        with reading("init_from", init_from):
-            load_experiment(init_from)
-        fields["init_from"] = str(Path(init_from).resolve())
+        fields["init_from"] = init_from
     if init_modules is not None:
         fields["init_modules"] = tuple(name for name in init_modules.split(",") if name)
     train = {"steps": steps, "seed": seed, "distributed": distributed or None}
