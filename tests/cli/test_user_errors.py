@@ -146,6 +146,9 @@ CASES = {
     "convert-weights: a checkpoint of another network": lambda tmp, run: (
         ["convert-weights", "--from", "erfnet-cityscapes", _checkpoint_of_other_keys(tmp), OUT],
         "IN: state dict does not match erfnet-cityscapes"),
+    "convert-weights: an output stride for ESPNet": lambda tmp, run: (
+        ["convert-weights", "--from", "espnet-cityscapes", _checkpoint_of_other_keys(tmp), OUT, "--output-stride", "8"],
+        "error: --output-stride: espnet-cityscapes is no DeepLabV3+ and has no output stride to set; got 8"),
     "train: warm-up longer than the run": lambda tmp, run: (
         ["train", "--config", _train_config(tmp), "--set", "train.optim.warmup_steps=50", "--no-progress"],
         "warmup_steps=50"),
