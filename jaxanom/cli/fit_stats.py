@@ -16,7 +16,7 @@ def add_parser(commands) -> None:
                         help="fit on the train split of this Cityscapes folder (official layout; its leftImg8bit/ "
                         "only: the statistics need no labels) instead of the run's training data, e.g. for a network "
                         "from convert-weights")
-    parser.add_argument("--size", help="HxW the frames are resized to first, e.g. 512x1024 (default: as read)")
+    parser.add_argument("--size", help="HxW the frames are resized to first, e.g. `--size 512x1024` (default: as read)")
     parser.add_argument("--out", required=True, help="output .npz file")
     parser.add_argument("--missing", choices=["error", "pooled"], default="error",
                         help="policy none: classes never predicted fail, or use the pooled statistics "
