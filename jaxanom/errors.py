@@ -42,7 +42,8 @@ class InputError(ValueError):
 def reading(argument: str, value=None) -> Iterator[None]:
     """A plain ValueError inside the block (a reader refusing ``value``, given as ``argument``)
     becomes an InputError ``argument value: <its message>`` (``argument: <its message>`` without
-    ``value``); an InputError passes unchanged."""
+    ``value``; a message that starts with ``value:`` or ``argument:`` is not prefixed with it
+    twice); an InputError passes unchanged."""
     try:
         yield
     except InputError:
@@ -51,4 +52,6 @@ def reading(argument: str, value=None) -> Iterator[None]:
         text = str(error)
         if value is None and text.startswith(f"{argument}:"):  # the reader named the argument already
             text = text[len(argument) + 1:].lstrip()
+        if value is not None and text.startswith(f"{value}:"):  # ... or the value
+            text = text[len(str(value)) + 1:].lstrip()
         raise InputError(argument, f"{'' if value is None else value}: {text}") from None

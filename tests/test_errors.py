@@ -29,6 +29,10 @@ def test_reading_names_the_argument_of_a_plain_value_error_and_passes_input_erro
         with reading("out"):
             raise ValueError("out: cannot join")  # the reader named it already: not twice
     assert caught.value.render(FLAG) == "--out: cannot join"
+    with pytest.raises(InputError) as caught:
+        with reading("out", "/x"):
+            raise ValueError("/x: not a run folder")  # ... or the value
+    assert caught.value.render(FLAG) == "--out /x: not a run folder"
     original = InputError("min_count", ": must be >= 0")
     with pytest.raises(InputError) as caught:
         with reading("out", "/x"):

@@ -342,7 +342,8 @@ def load_experiment(run_dir: str | os.PathLike) -> Experiment:
     """The ``Experiment`` a run folder was trained with; ValueError if the folder is not a run."""
     config_file = Path(run_dir) / "experiment.json"
     if not config_file.is_file():
-        raise ValueError(f"run_dir: expected a training run folder with experiment.json, got {os.fspath(run_dir)!r}")
+        raise ValueError(f"{os.fspath(run_dir)}: not a run folder: it holds no experiment.json (train and "
+                         "convert-weights write one)")
     return load_config(config_file, Experiment, written=("train.run_dir", "train.optim"))
 
 

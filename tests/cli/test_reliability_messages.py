@@ -208,6 +208,14 @@ def test_resume_errors_name_the_flags_and_advise_resume(tmp_path, capsys):
     error = capsys.readouterr().err.strip()
     assert error.startswith(f"jaxanom train: error: --steps: the run in {run} has 6 steps") and "run_dir" not in error
     assert f"resume it with 6 steps, start a new run from its weights (--init-from {run})" in error, error
+    assert main(["train", "--out", str(tmp_path / "none"), "--resume", "--no-progress"]) == 2
+    assert capsys.readouterr().err.strip() == (f"jaxanom train: error: --out {tmp_path / 'none'}: holds no run to "
+                                               "resume (no experiment.json); start one there without --resume")
+    (tmp_path / "empty").mkdir()
+    assert main(["evaluate", "--run", str(tmp_path / "empty"), "--dataset", "synthetic", "--path", "anomaly", "--out",
+                 str(tmp_path / "o")]) == 2
+    assert (f"error: --run {tmp_path / 'empty'}: not a run folder: it holds no experiment.json"
+            in capsys.readouterr().err)
 
 
 def test_init_modules_need_init_from_which_is_stored_absolute_however_given(tmp_path, monkeypatch, capsys):

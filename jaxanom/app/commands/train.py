@@ -43,6 +43,9 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
         if config or init_from or init_modules:
             raise InputError("resume", " continues the run's own experiment.json; do not pass {config}, {init_from} "
                              "or {init_modules}", mentions=("config", "init_from", "init_modules"))
+        if not (out_dir / "experiment.json").is_file():
+            raise InputError("out", f"{out_dir}: holds no run to resume (no experiment.json); start one there "
+                             "without {resume}", mentions=("resume",))
         with reading("out", out_dir):
             experiment = load_experiment(out_dir)
         if lead:
