@@ -173,6 +173,9 @@ def test_train_values_that_do_not_fit_the_data_are_refused_before_anything_is_wr
     (run / "experiment.json").write_text(json.dumps(jsonable(with_overrides(Experiment(), [setting]))))
     assert main(["train", "--out", str(run), "--resume", "--no-progress"]) == 2
     assert message in capsys.readouterr().err
+    assert main(["train", "--out", str(run), "--steps", "2", "--no-progress"]) == 2  # fixed: names what differs
+    error = capsys.readouterr().err
+    assert "never reached its first checkpoint" in error and "--resume" not in error, error
 
 
 def test_a_start_that_ended_before_its_first_checkpoint_does_not_block_its_rerun(tmp_path, monkeypatch, capsys):

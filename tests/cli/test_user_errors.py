@@ -254,22 +254,30 @@ def test_a_size_the_network_does_not_take_is_one_line_naming_the_flag(case, espn
     assert [p.name for p in out.iterdir()] == (["settings.json"] if argv[0] == "predict" else [])  # predict resumes
 
 
+def _huge_logits(model, variables):
+    """A stand-in for ``app.evaluate.predictor``: logits 1e5, and 2e5 on the left half, at any size."""
+    def call(images):
+        logits = np.zeros((*images.shape[:3], 19), np.float32)
+        logits[..., 0], logits[:, :, :images.shape[2] // 2, 1] = 1e5, 2e5
+        return {"logits": logits}
+    return call
+
+
+def _one_anomalous_frame(tmp_path):
+    """_smiyc's frames, f1 with anomaly pixels in its top rows."""
+    path = _smiyc(tmp_path / "d", 0)
+    cv2.imwrite(str(tmp_path / "d" / "labels_masks" / "f1_labels_semantic.png"),
+                np.where(np.arange(H)[:, None] < 2, 1, 0).repeat(W, 1).astype(np.uint8))
+    return path
+
+
 def test_scores_the_kit_cannot_store_are_one_line_naming_the_method(tiny_run, tmp_path, capsys,  # noqa: F811
                                                                       monkeypatch):
     """The official kit casts maps to float16: a max_logit of -2e5 has no kit number (inf there)."""
     import jaxanom.app.evaluate
 
-    def predictor(model, variables):
-        def call(images):
-            logits = np.zeros((*images.shape[:3], 19), np.float32)
-            logits[..., 0], logits[:, :, :W // 2, 1] = 1e5, 2e5
-            return {"logits": logits}
-        return call
-
-    monkeypatch.setattr(jaxanom.app.evaluate, "predictor", predictor)
-    path = _smiyc(tmp_path / "d", 0)
-    cv2.imwrite(str(tmp_path / "d" / "labels_masks" / "f1_labels_semantic.png"),
-                np.where(np.arange(H)[:, None] < 2, 1, 0).repeat(W, 1).astype(np.uint8))
+    monkeypatch.setattr(jaxanom.app.evaluate, "predictor", _huge_logits)
+    path = _one_anomalous_frame(tmp_path)
     argv = _evaluate_smiyc(tiny_run, path, "--methods", "msp,max_logit", "--track", "anomaly")
     assert main([*argv, "--convention", "smiyc", "--out", str(tmp_path / "o")]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
@@ -278,3 +286,15 @@ def test_scores_the_kit_cannot_store_are_one_line_naming_the_method(tiny_run, tm
                      "where such scores become inf and its bins undefined; use --convention exact"]
     assert not (tmp_path / "o").exists()
     assert main([*argv, "--out", str(tmp_path / "o")]) == 0  # the exact curves take any float
+
+
+def test_the_frames_a_protocol_skips_are_named(tiny_run, tmp_path, capsys, monkeypatch):  # noqa: F811
+    import jaxanom.app.evaluate
+
+    monkeypatch.setattr(jaxanom.app.evaluate, "predictor", _huge_logits)
+    argv = _evaluate_smiyc(tiny_run, _one_anomalous_frame(tmp_path), "--track", "none", "--protocol",
+                           "erfnet-community", "--out", str(tmp_path / "o"))
+    assert main(argv) == 0
+    assert ("jaxanom evaluate: the erfnet-community protocol skipped 1 of 2 frames, which have no anomaly pixel: f0 "
+            "(metrics.json: frames_skipped)") in capsys.readouterr().out
+    assert json.loads((tmp_path / "o" / "metrics.json").read_text())["frames_skipped"] == ["f0"]

@@ -95,6 +95,10 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
         raise InputError("path", f"{error.message.rstrip('.')}; the {protocol_.name} protocol skipped "
                          f"{len(skipped)} frames without anomaly pixels ({', '.join(skipped[:5])}"
                          f"{', ...' if len(skipped) > 5 else ''})") from None
+    if skipped:
+        print(f"jaxanom evaluate: the {protocol_.name} protocol skipped {len(skipped)} of {len(source)} frames, "
+              f"which have no anomaly pixel: {', '.join(skipped[:10])}{', ...' if len(skipped) > 10 else ''} "
+              "(metrics.json: frames_skipped)")
     record = {"dataset": dataset, "path": path, "frames": len(source), "convention": convention,
               "protocol": protocol_.name, "metrics": metrics}
     if skipped:

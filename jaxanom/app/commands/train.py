@@ -86,7 +86,7 @@ def _unstarted(out_dir: Path, experiment) -> bool:
     """Whether ``out_dir`` holds nothing but the experiment.json of a start of this very
     ``experiment`` that ended before writing anything else (a crash, ``kill -9``): such a folder is
     started afresh rather than refused. Another experiment's file is refused, naming the field."""
-    from jaxanom.app.experiment import changed_fields, describe_changes, load_experiment
+    from jaxanom.app.experiment import changed_fields, check_data, describe_changes, load_experiment
 
     if not out_dir.is_dir() or {p.name for p in out_dir.iterdir()} - {CLAIM} != {"experiment.json"}:
         return False
@@ -94,9 +94,14 @@ def _unstarted(out_dir: Path, experiment) -> bool:
         stored = load_experiment(out_dir)
     differences = changed_fields(stored, experiment)
     if differences:
+        try:
+            check_data(stored)
+            resumable = "{resume} starts that one, or "
+        except ValueError:  # e.g. written by a version that checked train.ignore at the first batch only
+            resumable = ""
         raise InputError("out", f"{out_dir}: holds the experiment.json of a run that never reached its first "
-                         f"checkpoint, of a different experiment ({describe_changes(differences)}); {{resume}} "
-                         "starts that one, or delete the file, or choose another folder", mentions=("resume",))
+                         f"checkpoint, of a different experiment ({describe_changes(differences)}); {resumable}"
+                         "delete the file, or choose another folder", mentions=("resume",))
     return True
 
 
