@@ -127,6 +127,8 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
     values move to ``metrics[name]["exact"]``. Batches may carry finished score maps
     ``"maps": {name: (B, H, W)}`` instead of ``"logits"`` (``saved_map_batches``). ``drop_void``:
     the methods but ``void`` score the logits without a void channel (``app.scoring.score_all``).
+    InputError naming ``path`` when the frames pool no anomaly or no normal pixel (each frame's
+    reason said), and naming ``methods`` when ``convention="smiyc"`` meets a score outside float16.
     """
     import tempfile
 
@@ -164,7 +166,7 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
                 update_keyed(pixels, name, lambda: PixelAnomaly(name, mode, fpr_convention, ap_convention,
                                                                 conventions=True), scored)
                 if convention == "smiyc":
-                    check_kit_range(name, score, labels, names_in_batch)
+                    _check_kit_range(name, score, labels, names_in_batch)
                     update_keyed(binned, name, lambda: SmiycPixels(name), scored)
                 if keep_curves:
                     kept.setdefault(name, []).extend(zip(np.asarray(score), labels))
@@ -173,7 +175,7 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
                         np.save(Path(spill.name) / f"{name}_{first + index}.npy", one)
                         frames[first + index]["pixels"][name] = _frame_pixel_metrics(one, label, fpr_convention,
                                                                                       ap_convention)
-        check_both_classes(counted)
+        _check_both_classes(counted)
     except BaseException:  # a refused frame mid-way leaves no spilled maps in --out
         if spill is not None:
             spill.cleanup()
@@ -201,7 +203,7 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
     return metrics, curves
 
 
-def check_both_classes(counted: list[tuple]) -> None:
+def _check_both_classes(counted: list[tuple]) -> None:
     """InputError naming ``path`` unless the frames ``(name, anomaly pixels, normal pixels)`` pool
     pixels of both classes (AP, AUROC and FPR@95 need both), with each frame's reason."""
     if not counted:
@@ -219,7 +221,7 @@ def check_both_classes(counted: list[tuple]) -> None:
                      f"{more}); AP, AUROC and FPR@95 are undefined without both classes")
 
 
-def check_kit_range(method: str, scores, labels: np.ndarray, names) -> None:
+def _check_kit_range(method: str, scores, labels: np.ndarray, names) -> None:
     """InputError naming ``methods`` where a non-void score of ``method`` (``scores`` (B, H, W),
     ``labels`` (B, H, W), frames ``names``) has no float16 value. The official SegmentMeIfYouCan
     kit stores every map as float16 (``anomaly_p.astype(np.float16)`` in its ``save_output``),

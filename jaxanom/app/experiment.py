@@ -264,7 +264,8 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
 def check_same_run(stored: Experiment, experiment: Experiment, run_dir: str | os.PathLike) -> None:
     """InputError naming the first field in which ``experiment`` differs from the run ``stored`` in
     ``run_dir``. ``train.steps`` may differ (a run is extended, or stops earlier) when the learning
-    rate schedule does not depend on it and the run has not trained past the new count."""
+    rate schedule does not depend on it and the run has not trained past the new count, or when
+    the run has no checkpoint yet (nothing trained on the old schedule)."""
     differences = changed_fields(stored, experiment)
     if differences:
         raise InputError("run_dir", f": {os.fspath(run_dir)} holds a run of a different experiment: "
@@ -272,14 +273,14 @@ def check_same_run(stored: Experiment, experiment: Experiment, run_dir: str | os
                          "(pass none that change them), or train this experiment in another folder",
                          mentions=("resume",))
     old, new = stored.train.steps, experiment.train.steps
-    if new != old and schedule_depends_on_steps(experiment.train.optim):
+    trained = _trained_steps(Path(run_dir))
+    if new != old and trained and schedule_depends_on_steps(experiment.train.optim):
         raise InputError(
             "train.steps", f": the run in {os.fspath(run_dir)} has {old} steps and its learning rate decays to "
             f"{experiment.train.optim.end_lr:g} at the last one (poly_power {experiment.train.optim.poly_power:g}), so "
             f"{new} steps would not continue it; resume it with {old} steps, start a new run from its weights "
             f"({{init_from}} {os.fspath(run_dir)}), or use a schedule that does not depend on the steps "
             "(train.optim.poly_power=0)", mentions=("init_from",))
-    trained = _trained_steps(Path(run_dir))
     if trained > new:
         raise InputError("train.steps", f": expected at least the {trained} steps the run in {os.fspath(run_dir)} has "
                          f"trained, got {new}")

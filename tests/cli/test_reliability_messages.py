@@ -18,6 +18,7 @@ from jaxanom.app.experiment import Experiment, jsonable
 from jaxanom.cli import _parser, main
 from jaxanom.data.image_io import read_rgb
 from jaxanom.io import write_bytes_atomic, write_json_atomic
+from jaxanom.train.checkpoint import Checkpointer
 from jaxanom.train.sharding import initialize_distributed
 
 
@@ -203,6 +204,8 @@ def test_resume_errors_name_the_flags_and_advise_resume(tmp_path, capsys):
     run = tmp_path / "run"
     run.mkdir()
     (run / "experiment.json").write_text(json.dumps(jsonable(with_overrides(Experiment(), ["train.steps=6"]))))
+    with Checkpointer(run / "checkpoints") as checkpointer:  # 3 steps trained on the schedule of 6
+        checkpointer.save(3, {"x": np.zeros(2, np.float32)})
     assert main(["train", "--out", str(run), "--resume", "--batch-size", "4", "--no-progress"]) == 2
     error = capsys.readouterr().err.strip()
     assert error.startswith(f"jaxanom train: error: --out: {run} holds a run of a different experiment: batch_size "
