@@ -123,6 +123,7 @@ def test_score_reports_the_envelope_ap(tmp_path):
 def test_score_bad_input_is_one_line(tmp_path, capsys, problem, message):
     logits = np.zeros((2, 3, 4, 5), np.float32)
     labels = np.zeros((2, 4, 5), np.uint8)
+    labels[:, 0, 0] = 1  # both classes: the metrics are defined
     args = ["--methods", "msp"]
     if problem == "nan":
         logits[0, 0, 0, 0] = np.nan

@@ -103,6 +103,11 @@ def _smiyc(root, label: int, size=(H, W)):
     return str(root)
 
 
+def _array(path, values):
+    np.save(path, values)
+    return str(path)
+
+
 def _evaluate_smiyc(run, path, *flags):
     return ["evaluate", "--run", str(run), "--dataset", "smiyc", "--path", path, "--methods", "msp", *flags]
 
@@ -136,6 +141,11 @@ CASES = {
         "--path: no frame to score; the erfnet-community protocol skipped 2 frames without anomaly pixels (f0, f1)"),
     "evaluate: smiyc without its track": lambda tmp, run: (
         _evaluate_smiyc(run, _smiyc(tmp / "d", 0)), "error: --track: the smiyc dataset holds either track"),
+    "score: labels without an anomaly pixel": lambda tmp, run: (
+        ["score", "--logits", _array(tmp / "logits.npy", np.ones((2, 3, 4, 5), np.float32)), "--labels",
+         _array(tmp / "labels.npy", np.zeros((2, 4, 5), np.uint8)), "--methods", "msp"],
+        f"error: --labels {tmp / 'labels.npy'}: no anomaly (1) pixel outside void (255) in any of its 2 images; AP, "
+        "AUROC and FPR@95 need both classes (leave --labels out for the score maps alone)"),
     "evaluate: an MMF folder without its networks": lambda tmp, run: (
         ["evaluate", "--mmf", _mmf_folder_without_networks(tmp / "mmf"), "--dataset", "synthetic", "--path", "anomaly",
          "--frames", "1"], "--mmf "),
