@@ -262,9 +262,12 @@ def _member(kind, holder, key, path):
         return (args[0] if len(args) == 2 and args[1] is Ellipsis else args[int(key)]), holder[int(key)], where
     if dataclasses.is_dataclass(kind) and isinstance(holder, dict):
         cls = _config_class(kind, holder, path, _MISSING)
-        names = [f.name for f in dataclasses.fields(cls) if f.init]
-        if key not in names:
-            raise ConfigError(where, f"unknown field of {cls.__name__}; expected one of {names}")
+        fields = {f.name: f for f in dataclasses.fields(cls)}
+        if key not in fields:
+            raise ConfigError(where, f"unknown field of {cls.__name__}; expected one of {list(fields)}")
+        if not fields[key].init:  # a registered name: it picks the class, so the class is given whole
+            raise ConfigError(where, f"is fixed by the class ({cls.__name__}'s is {holder.get(key)!r}); give "
+                              f"{path} whole to pick another, e.g. {path}=NAME or {path}={{\"{key}\": NAME, ...}}")
         return typing.get_type_hints(cls)[key], holder.get(key), where
     raise ConfigError(where, f"{path or 'the config'} is {describe(kind)}, which has no member {key!r}")
 

@@ -269,6 +269,11 @@ def test_set_indexes_tuples_of_configs():
     ("train.steps.every=1", "train.steps.every: train.steps is an integer, which has no member 'every'"),
     ("train.objective.tau=3", "train.objective.tau: unknown field of CrossEntropy"),
     ("train.objective=pebal", "train.objective.name: expected one of"),
+    ("train.objective.nme=cudam", r"train.objective.nme: unknown field of CrossEntropy; expected one of "
+                                  r"\['class_weights', 'name'\]"),
+    ("train.objective.name=cudam", r"train.objective.name: is fixed by the class \(CrossEntropy's is "
+                                   r"'cross_entropy'\); give train.objective whole to pick another, e.g. "
+                                   r"train.objective=NAME"),
     ("init_modules.0=backbone", "init_modules: is none; give it whole first"),
     ("crop.2=5", "crop.2: expected an index below 2 of crop"),
     ("train.optim=0.5", "train.optim: expected an object of OptimConfig fields, got '0.5'"),

@@ -76,14 +76,18 @@ def predictions(predict: Callable, batches: Iterable[dict]) -> Iterator[dict]:
         yield pending
 
 
-def protocol_predictions(predict: Callable, source, protocol, skipped: list | None = None) -> Iterator[dict]:
+def protocol_predictions(predict: Callable, source, protocol, skipped: list | None = None,
+                         check_size: Callable | None = None) -> Iterator[dict]:
     """One-frame batches of ``source`` (a frame reader) as ``protocol`` (``jaxanom.app.protocols``)
     counts them, with the network's outputs added: each frame resized to the protocol's size, the
-    frames it skips left out (their names appended to ``skipped``) before the network runs."""
+    frames it skips left out (their names appended to ``skipped``) before the network runs.
+    ``check_size((h, w), name)`` (``app.predict.size_check``) refuses a size before the network runs on it."""
     from jaxanom.data.pipeline import evaluation_batches
 
     for batch in evaluation_batches(protocol.source(source), batch_size=1):
         if protocol.counts(batch["label"]):
+            if check_size is not None:
+                check_size(batch["image"].shape[1:3], str(batch.get("name", ["?"])[0]))
             yield {**batch, **predict(batch["image"])}
         elif skipped is not None:
             skipped.extend(str(name) for name in batch.get("name", ["?"]))
@@ -137,12 +141,15 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
     the methods but ``void`` score the logits without a void channel (``app.scoring.score_all``).
     A method's scores that are not finite on non-void pixels are refused naming it
     (``method_registry.check_finite``, one count per map).
+    InputError naming ``path`` when the frames pool no anomaly or no normal pixel (each frame's
+    reason said), and naming ``methods`` when ``convention="smiyc"`` meets a score outside float16.
     """
     import tempfile
 
     if convention not in CONVENTIONS:
         raise ValueError(f"convention: expected one of {CONVENTIONS}, got {convention!r}")
     pixels, kept, used, frames, binned = {}, {}, {}, [], {}  # method -> (evaluator, state)
+    counted: list[tuple] = []  # (frame name, anomaly pixels, normal pixels)
     spill = (tempfile.TemporaryDirectory(prefix=".jaxanom-maps-", suffix=".tmp", dir=spill_dir)
              if track is not None else None)
     try:
@@ -162,9 +169,11 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
             where = f" of frame {', '.join(map(str, batch['name']))}" if "name" in batch else ""
             for name, score in batch_scores.items():  # a count per map, read once the next batch is dispatched
                 check_finite(name, score, labels, where)
+            names_in_batch = batch.get("name", [None] * len(labels))
+            for index, label in enumerate(labels):  # what each frame adds to the pool, named if it adds no class
+                counted.append((names_in_batch[index], int((label == 1).sum()), int((label == 0).sum())))
             first = len(frames)
             if spill is not None:
-                names_in_batch = batch.get("name", [None] * len(labels))
                 for index, label in enumerate(labels):
                     name = names_in_batch[index]
                     frames.append({"name": str(name) if name is not None else str(first + index), "pixels": {}})
@@ -174,6 +183,7 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
                 update_keyed(pixels, name, lambda: PixelAnomaly(name, mode, fpr_convention, ap_convention,
                                                                 conventions=True), scored)
                 if convention == "smiyc":
+                    _check_kit_range(name, score, labels, names_in_batch)
                     update_keyed(binned, name, lambda: SmiycPixels(name), scored)
                 if keep_curves:
                     kept.setdefault(name, []).extend(zip(np.asarray(score), labels))
@@ -182,8 +192,7 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
                         np.save(within(spill.name, Path(spill.name) / f"{name}_{first + index}.npy"), one)
                         frames[first + index]["pixels"][name] = _frame_pixel_metrics(one, label, fpr_convention,
                                                                                       ap_convention)
-        if not pixels:
-            raise ValueError("outputs: expected at least one batch, got none")
+        _check_both_classes(counted)
     except BaseException:  # a refused frame mid-way leaves no spilled maps in --out
         if spill is not None:
             spill.cleanup()
@@ -209,6 +218,42 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
         precision, recall, _ = pr_curve(scores, labels)
         curves[name] = {"roc": (fpr, tpr), "pr": (recall, precision), "scores": maps, "labels": truths}
     return metrics, curves
+
+
+def _check_both_classes(counted: list[tuple]) -> None:
+    """InputError naming ``path`` unless the frames ``(name, anomaly pixels, normal pixels)`` pool
+    pixels of both classes (AP, AUROC and FPR@95 need both), with each frame's reason."""
+    if not counted:
+        raise InputError("path", ": no frame to score")
+    if sum(c[1] for c in counted) and sum(c[2] for c in counted):
+        return
+    missing = "anomaly" if not sum(c[1] for c in counted) else "normal (non-anomaly, non-void)"
+
+    def reason(positives, negatives):
+        return "all void" if not positives + negatives else "no anomaly pixel" if not positives else "no normal pixel"
+
+    shown = [f"{'?' if name is None else name}: {reason(p, n)}" for name, p, n in counted[:5]]
+    more = f", and {len(counted) - 5} more" if len(counted) > 5 else ""
+    raise InputError("path", f": no {missing} pixel in any of the {len(counted)} frames scored ({'; '.join(shown)}"
+                     f"{more}); AP, AUROC and FPR@95 are undefined without both classes")
+
+
+def _check_kit_range(method: str, scores, labels: np.ndarray, names) -> None:
+    """InputError naming ``methods`` where a non-void score of ``method`` (``scores`` (B, H, W),
+    ``labels`` (B, H, W), frames ``names``) has no float16 value. The official SegmentMeIfYouCan
+    kit stores every map as float16 (``anomaly_p.astype(np.float16)`` in its ``save_output``),
+    which turns such a score into +-inf and its bin edges into infinite or NaN ones
+    (docs/decisions/smiyc-convention.md): no number of the kit's exists to reproduce."""
+    from jaxanom.metrics.smiyc import FLOAT16_MAX
+
+    for one, label, name in zip(np.asarray(scores), labels, names):
+        values = one[label != 255]
+        bad = values[~(np.abs(values) <= FLOAT16_MAX)]  # NaN included
+        if bad.size:
+            raise InputError("methods", f": {method}'s scores of frame {name} reach {bad[0]:g}, outside float16's "
+                             f"range (|score| <= {FLOAT16_MAX:g}); the official SegmentMeIfYouCan kit stores maps "
+                             "as float16, where such scores become inf and its bins undefined; use {convention} exact",
+                             mentions=("convention",))
 
 
 def _frame_pixel_metrics(score, label, fpr_convention: str, ap_convention: str) -> dict | None:

@@ -162,6 +162,21 @@ def check_schedule(experiment: Experiment) -> None:
     poly_schedule(optim, experiment.train.steps // optim.accum_steps)
 
 
+def check_data(experiment: Experiment) -> None:
+    """ValueError unless the data's labels fit the network and the loss: both datasets label
+    Cityscapes' 19 trainIds (0..18) and void 255, so ``num_classes`` must be >= 19 and
+    ``train.ignore`` 255 (any other value would leave the void pixels out of range). Checked before
+    a run writes anything, not at its first batch."""
+    from jaxanom.data.cityscapes_labels import IGNORE_INDEX, NUM_CLASSES
+
+    if experiment.num_classes < NUM_CLASSES:
+        raise ValueError(f"num_classes: the {experiment.data} data has {NUM_CLASSES} classes (0..{NUM_CLASSES - 1}); "
+                         f"expected >= {NUM_CLASSES}, got {experiment.num_classes}")
+    if experiment.train.ignore != IGNORE_INDEX:
+        raise ValueError(f"train.ignore: the {experiment.data} data marks void pixels {IGNORE_INDEX}; expected "
+                         f"{IGNORE_INDEX}, got {experiment.train.ignore}")
+
+
 def _outputs(needs: tuple[str, ...]) -> str:
     return "the logits only" if not needs else " and ".join(repr(name) for name in needs)
 
@@ -232,6 +247,7 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
     run_dir = Path(run_dir)
     check_objective(experiment)
     check_schedule(experiment)
+    check_data(experiment)
     config_file = run_dir / "experiment.json"
     if config_file.exists():
         check_same_run(load_experiment(run_dir), experiment, run_dir)
@@ -254,27 +270,40 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
 
 
 def check_same_run(stored: Experiment, experiment: Experiment, run_dir: str | os.PathLike) -> None:
-    """ValueError naming the first field in which ``experiment`` differs from the run ``stored`` in
+    """InputError naming the first field in which ``experiment`` differs from the run ``stored`` in
     ``run_dir``. ``train.steps`` may differ (a run is extended, or stops earlier) when the learning
-    rate schedule does not depend on it and the run has not trained past the new count."""
-    differences = [(name, a, b) for name, a, b in _differences(jsonable(stored), jsonable(experiment))
-                   if name != "train.steps"]
+    rate schedule does not depend on it and the run has not trained past the new count, or when
+    the run has no checkpoint yet (nothing trained on the old schedule)."""
+    differences = changed_fields(stored, experiment)
     if differences:
-        name, there, here = differences[0]
-        more = f" (and {len(differences) - 1} more)" if len(differences) > 1 else ""
-        raise InputError("run_dir", f": {os.fspath(run_dir)} holds a run of a different experiment: {name} is {there!r} "
-                         f"there, {here!r} here{more}; choose another folder")
+        raise InputError("run_dir", f": {os.fspath(run_dir)} holds a run of a different experiment: "
+                         f"{describe_changes(differences)}; {{resume}} continues that run with its own settings "
+                         "(pass none that change them), or train this experiment in another folder",
+                         mentions=("resume",))
     old, new = stored.train.steps, experiment.train.steps
-    if new != old and schedule_depends_on_steps(experiment.train.optim):
+    trained = _trained_steps(Path(run_dir))
+    if new != old and trained and schedule_depends_on_steps(experiment.train.optim):
         raise InputError(
             "train.steps", f": the run in {os.fspath(run_dir)} has {old} steps and its learning rate decays to "
             f"{experiment.train.optim.end_lr:g} at the last one (poly_power {experiment.train.optim.poly_power:g}), so "
-            f"{new} steps would not continue it; start a new run (init_from={os.fspath(run_dir)!r} starts from its "
-            "weights) or use a schedule that does not depend on the steps (optim.poly_power=0)")
-    trained = _trained_steps(Path(run_dir))
+            f"{new} steps would not continue it; resume it with {old} steps, start a new run from its weights "
+            f"({{init_from}} {os.fspath(run_dir)}), or use a schedule that does not depend on the steps "
+            "(train.optim.poly_power=0)", mentions=("init_from",))
     if trained > new:
         raise InputError("train.steps", f": expected at least the {trained} steps the run in {os.fspath(run_dir)} has "
                          f"trained, got {new}")
+
+
+def changed_fields(stored: Experiment, experiment: Experiment) -> list[tuple[str, Any, Any]]:
+    """``(dotted name, stored value, new value)`` of each field but ``train.steps`` in which the two differ."""
+    return [(name, a, b) for name, a, b in _differences(jsonable(stored), jsonable(experiment)) if name != "train.steps"]
+
+
+def describe_changes(differences: list[tuple[str, Any, Any]]) -> str:
+    """The first of ``changed_fields`` in words, and how many more there are."""
+    name, there, here = differences[0]
+    more = f" (and {len(differences) - 1} more)" if len(differences) > 1 else ""
+    return f"{name} is {there!r} there, {here!r} here{more}"
 
 
 def _differences(a: Any, b: Any, prefix: str = "") -> list[tuple[str, Any, Any]]:
@@ -322,7 +351,8 @@ def load_experiment(run_dir: str | os.PathLike) -> Experiment:
     """The ``Experiment`` a run folder was trained with; ValueError if the folder is not a run."""
     config_file = Path(run_dir) / "experiment.json"
     if not config_file.is_file():
-        raise ValueError(f"run_dir: expected a training run folder with experiment.json, got {os.fspath(run_dir)!r}")
+        raise ValueError(f"{os.fspath(run_dir)}: not a run folder: it holds no experiment.json (train and "
+                         "convert-weights write one)")
     return load_config(config_file, Experiment, written=("train.run_dir", "train.optim"))
 
 

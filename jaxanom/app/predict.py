@@ -623,20 +623,27 @@ def logits_shape(model, variables, size: tuple[int, int]) -> tuple[int, ...]:
     return tuple(jax.eval_shape(lambda v, x: model.apply(v, x, train=False), variables, spec)["logits"].shape)
 
 
-def size_check(model, variables) -> Callable[[tuple[int, int], str], None]:
-    """``check((h, w), frame)``: ValueError unless ``model`` takes (1, h, w, 3) images and returns
-    logits of that size (shapes only)."""
+def size_check(model, variables, argument: str = "size",
+               advice: str = "; choose a working size it takes ({size})") -> Callable[[tuple[int, int], str], None]:
+    """``check((h, w), frame)``: InputError naming ``argument`` (followed by ``advice``) unless
+    ``model`` takes (1, h, w, 3) images and returns logits of that size (shapes only; each size
+    is checked once)."""
+    checked: set = set()
 
     def check(shape: tuple[int, int], frame: str) -> None:
+        shape = tuple(int(n) for n in shape)
+        if shape in checked:
+            return
         try:
-            logits = logits_shape(model, variables, tuple(shape))
+            logits = logits_shape(model, variables, shape)
         except Exception as error:  # flax / XLA shape errors of many types: one line naming the size
             reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-            raise InputError("size", f": the network does not run on {shape[0]}x{shape[1]} images ({frame}): "
-                             f"{reason}; choose a working size it takes ({{size}})") from None
-        if logits[1:3] != tuple(shape):
-            raise InputError("size", f": the network's logits are {logits[1:3]} for {shape[0]}x{shape[1]} images "
+            raise InputError(argument, f": the network does not run on {shape[0]}x{shape[1]} images ({frame}): "
+                             f"{reason}{advice}", mentions=("size",)) from None
+        if logits[1:3] != shape:
+            raise InputError(argument, f": the network's logits are {logits[1:3]} for {shape[0]}x{shape[1]} images "
                              f"({frame}); expected the input's size")
+        checked.add(shape)
 
     return check
 

@@ -42,14 +42,15 @@ def size_hw(text: str | None) -> tuple[int, int] | None:
     return int(parts[0]), int(parts[1])
 
 
-def add_config(parser, config_help: str | None = None) -> None:
-    """``--set NAME=VALUE`` (repeatable; the app function's ``overrides``) and, with ``config_help``,
-    ``--config FILE``."""
+def add_config(parser, example: str, config_help: str | None = None) -> None:
+    """``--set NAME=VALUE`` (repeatable; the app function's ``overrides``), its help showing
+    ``--set example`` (a field of this command's configuration), and, with ``config_help``,
+    ``--config FILE``. Help texts write examples as whole flags in backticks, which a test runs."""
     if config_help:
         parser.add_argument("--config", help=config_help)
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="set one field of the configuration by its dotted name, after --config and the other "
-                        "flags, e.g. --set train.optim.lr=1e-3; VALUE is read as the field's type (none, true / "
+                        f"flags, e.g. `--set {example}`; VALUE is read as the field's type (none, true / "
                         "false, comma-separated lists, JSON); repeatable")
 
 

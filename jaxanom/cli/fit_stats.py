@@ -18,7 +18,7 @@ def add_parser(commands) -> None:
                         help="fit on the train split of this Cityscapes folder (official layout; its leftImg8bit/ "
                         "only: the statistics need no labels) instead of the run's training data; needed for a "
                         "network from convert-weights, which has none")
-    parser.add_argument("--size", help="HxW the frames are resized to first, e.g. 512x1024 (default: as read)")
+    parser.add_argument("--size", help="HxW the frames are resized to first, e.g. `--size 512x1024` (default: as read)")
     parser.add_argument("--protocol", choices=list(PROTOCOLS), default="native",
                         help="fit as evaluate --protocol scores: erfnet-community resizes the frames to 512x1024 "
                         "(PIL's bilinear filter) and drops a void output, so the statistics have one class per "

@@ -12,7 +12,8 @@ def add_parser(commands) -> None:
     parser.add_argument("--out", required=True, help="run folder (checkpoints, logs, experiment.json); "
                         "must be new or empty unless --resume")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
-    parser.add_argument("--model", help="model preset, e.g. deeplabv3plus_tiny, deeplabv3plus_r101")
+    parser.add_argument("--model", help="model preset, e.g. `--model deeplabv3plus_tiny` or "
+                        "`--model deeplabv3plus_r101`")
     parser.add_argument("--attention", choices=["none", "cudam", "msaam"], help="attention module")
     parser.add_argument("--data", choices=["synthetic", "cityscapes"], help="training data")
     parser.add_argument("--data-root", help="dataset folder (Cityscapes layout)")
@@ -25,7 +26,7 @@ def add_parser(commands) -> None:
     parser.add_argument("--init-from", help="start from the weights of this run folder (e.g. from convert-weights); "
                         "without --config or --model the network's preset, output stride and classes are its")
     parser.add_argument("--init-modules", help="comma-separated top-level modules to take from --init-from, "
-                        "e.g. backbone (default: all it has)")
+                        "e.g. `--init-modules backbone` (default: all it has)")
     parser.add_argument("--cudam-position", choices=["deep", "surface", "output"],
                         help="CuDAM's place: deep (paper's best), surface (pre-classifier variant), "
                         "output (the paper's surface: on the logits)")
@@ -35,10 +36,10 @@ def add_parser(commands) -> None:
                         help="CuDAM reward weight (Eq. 4); default: the CuDAM objective's, the paper's 5e4 rescaled to "
                         "this network's attention-map size at the crop size (equivalent_weight), unless a config file "
                         "set another tau; the value used is printed")
-    add_config(parser, "Python file defining `experiment = Experiment(...)`, or an Experiment's JSON "
+    add_config(parser, "train.optim.lr=1e-3", "Python file defining `experiment = Experiment(...)`, or an Experiment's JSON "
                "(e.g. a run's experiment.json)")
     add_common(parser, progress=True, overwrite=False)
-    parser.set_defaults(handler=run, aliases={"overrides": "set"})
+    parser.set_defaults(handler=run, aliases={"overrides": "set", "run_dir": "out", "train.steps": "steps"})
 
 
 def run(args) -> None:

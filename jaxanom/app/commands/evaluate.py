@@ -32,6 +32,7 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
     from jaxanom.app.evaluate import anomaly_results, dataset_reader, predictor, protocol_predictions, saved_map_batches
     from jaxanom.app.experiment import build_network, load_experiment, load_variables
     from jaxanom.app.mmf_experiment import mmf_scored_batches
+    from jaxanom.app.predict import size_check
     from jaxanom.app.protocols import get_protocol
     from jaxanom.app.reports import conventions_table, results_table
     from jaxanom.io import write_json_atomic
@@ -83,12 +84,24 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
         predict = predictor(network, variables)
     skipped: list[str] = []
     if run:
-        batches = protocol_predictions(predict, source, protocol_, skipped)
+        batches = protocol_predictions(predict, source, protocol_, skipped,
+                                       check_size=size_check(network, variables, "path", advice=""))
     out_dir = out_folder(out, overwrite)
-    metrics, _ = anomaly_results(batches, names, stats=mean_std, options=options,
-                                 fpr_convention=fpr_convention or protocol_.fpr_convention,
-                                 ap_convention=ap_convention, track=None if track == "none" else track,
-                                 spill_dir=out_dir, convention=convention, drop_void=protocol_.drop_void)
+    try:
+        metrics, _ = anomaly_results(batches, names, stats=mean_std, options=options,
+                                     fpr_convention=fpr_convention or protocol_.fpr_convention,
+                                     ap_convention=ap_convention, track=None if track == "none" else track,
+                                     spill_dir=out_dir, convention=convention, drop_void=protocol_.drop_void)
+    except InputError as error:  # no frame, or no class, left to score: say which frames the protocol skipped
+        if error.argument != "path" or not skipped:
+            raise
+        raise InputError("path", f"{error.message.rstrip('.')}; the {protocol_.name} protocol skipped "
+                         f"{len(skipped)} frames without anomaly pixels ({', '.join(skipped[:5])}"
+                         f"{', ...' if len(skipped) > 5 else ''})") from None
+    if skipped:
+        print(f"jaxanom evaluate: the {protocol_.name} protocol skipped {len(skipped)} of {len(source)} frames, "
+              f"which have no anomaly pixel: {', '.join(skipped[:10])}{', ...' if len(skipped) > 10 else ''} "
+              "(metrics.json: frames_skipped)")
     record = {"dataset": dataset, "path": path, "frames": len(source), "convention": convention,
               "protocol": protocol_.name, "metrics": metrics}
     if skipped:

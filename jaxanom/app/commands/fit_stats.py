@@ -31,6 +31,7 @@ def fit_stats(*, run: str, out: str, frames: int = 200, cityscapes: str | None =
     from jaxanom.app.experiment import _trained_steps, build_network, load_variables
     from jaxanom.app.experiment import frames as run_frames, frames_record as run_frames_record
     from jaxanom.app.protocols import get_protocol
+    from jaxanom.app.predict import size_check
     from jaxanom.data import Cityscapes
     from jaxanom.data.frames import FirstFrames, Resized
     from jaxanom.data.pipeline import evaluation_batches
@@ -61,6 +62,8 @@ def fit_stats(*, run: str, out: str, frames: int = 200, cityscapes: str | None =
         raise InputError("cityscapes", f"{{cityscapes}} DIR needed: the network in {run} was not trained by jaxanom "
                          "(its only checkpoint is step 0: a convert-weights run), so the run has no training frames "
                          "of its own to fit the statistics on")
+    if size is not None:
+        size_check(build_network(experiment), variables)(size, "the working size")
     if cityscapes:  # the statistics use the network's predictions only: no labels read
         with reading("cityscapes", cityscapes):
             source = FirstFrames(Cityscapes(cityscapes, "train", with_labels=False), frames)

@@ -47,6 +47,12 @@ def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = Fal
     shape = (len(streamed), *size)
     if label_array is not None and label_array.shape != shape:
         raise InputError("labels", f": expected shape {shape} (N, H, W) to match the logits, got {label_array.shape}")
+    if label_array is not None:  # one pass over the (1 byte a pixel) labels before any work
+        pooled = np.sum([((label == 1).sum(), (label == 0).sum()) for label in label_array], axis=0)
+        if not pooled.all():
+            raise InputError("labels", f" {labels}: no {'anomaly (1)' if not pooled[0] else 'normal (0)'} pixel "
+                             f"outside void (255) in any of its {len(label_array)} images; AP, AUROC and FPR@95 "
+                             "need both classes (leave {labels} out for the score maps alone)")
     mean_std = read_stats(stats)
     if mean_std is not None and len(mean_std[0]) != classes:
         raise InputError("stats", f": has {len(mean_std[0])} classes, the logits have {classes}")
