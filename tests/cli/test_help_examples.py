@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from converted_run import tiny_run  # noqa: F401  (the module fixture: a tiny converted run)
+from converted_run import tiny_run, write_tiny_cityscapes  # noqa: F401  (tiny_run: the module fixture, a tiny converted run)
 from jaxanom.cli import _parser, main
 
 
@@ -37,7 +37,8 @@ BASES = {
              "jaxanom.app.demos.sml_cudam.run_demo"),
     "train": (lambda tmp, run: ["train", "--out", str(tmp / "o"), "--init-from", str(run), "--no-progress"],
               "jaxanom.app.experiment.run_training"),
-    "fit-stats": (lambda tmp, run: ["fit-stats", "--run", str(run), "--frames", "1", "--out", str(tmp / "s.npz")],
+    "fit-stats": (lambda tmp, run: ["fit-stats", "--run", str(run), "--frames", "1", "--out", str(tmp / "s.npz"),
+                                    "--cityscapes", str(write_tiny_cityscapes(tmp / "cs", [(64, 128)]))],
                   "jaxanom.app.evaluate.class_statistics"),
     "predict": (lambda tmp, run: ["predict", _image(tmp), "--run", str(run), "--out", str(tmp / "o"),
                                   "--methods", "msp", "--no-progress"], "jaxanom.app.predict.predict_images"),

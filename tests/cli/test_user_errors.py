@@ -255,7 +255,8 @@ SIZE_CASES = {  # sizes the network does not take: one line naming the flag, as 
         _evaluate_smiyc(run, _smiyc(tmp / "d", 1, (1, 1)), "--track", "anomaly"),
         "error: --path: the network does not run on 1x1 images (f0): images: expected H and W multiples of 8"),
     "fit-stats: --size 1x1": lambda tmp, run: (
-        ["fit-stats", "--run", str(run), "--frames", "1", "--size", "1x1", "--out", f"{OUT}/stats.npz"],
+        ["fit-stats", "--run", str(run), "--frames", "1", "--size", "1x1", "--cityscapes",
+         _cityscapes_frame(tmp / "cs"), "--out", f"{OUT}/stats.npz"],
         "error: --size: the network does not run on 1x1 images (the working size)"),
     "predict: a 33x65 image": lambda tmp, run: (
         ["predict", _image(tmp / "images", 33, 65), "--run", str(run), "--methods", "msp"],
