@@ -14,6 +14,12 @@ Where methods come from, loaded once on first use:
 - any module imported by the caller (``load_plugin``, the commands' ``--plugin MODULE``).
 
 Each of those modules calls ``register(Method(...))`` when imported.
+
+Post-processing composes by name: ``"NAME+POST"`` is method NAME's scores through the
+post-processor POST, one that a module registered with ``register_post(Post(...))`` (SML's
+``post``, ``suppress`` and ``smooth``: ``"energy+post"``), applied left to right
+(``"NAME+POST1+POST2"``). ``+`` never occurs in a registered name, so a composed name is never
+ambiguous; ``get`` and ``check`` resolve it, ``names()`` lists registered methods only.
 """
 from __future__ import annotations
 
@@ -81,6 +87,47 @@ class Method:
         return dict(self.resolve(inputs, options)) if self.resolve is not None else options
 
 
+@dataclasses.dataclass(frozen=True)
+class Post:
+    """A post-processor any method composes with as ``"NAME+<name>"``: ``apply(scores, inputs)``
+    maps a method's (B, H, W) scores to (B, H, W) scores, reading the batch's ``needs`` (keys of
+    ``INPUTS``) from ``inputs``. ``description``: one line, following the method's in the composition."""
+
+    name: str
+    needs: frozenset[str]
+    apply: Callable[[Any, Inputs], Any]
+    description: str
+
+
+_POSTS: dict[str, Post] = {}
+
+
+def register_post(post: Post) -> Post:
+    """Add ``post`` under its name (a name without ``+``); ValueError if another has it. Returns it."""
+    if not isinstance(post, Post) or not post.name or "+" in post.name or "," in post.name:
+        raise ValueError(f"post: expected a Post named without '+' or ',', got {post!r}")
+    if post.name in _POSTS and _POSTS[post.name] != post:
+        raise ValueError(f"post-processor {post.name!r}: already registered")
+    _POSTS[post.name] = post
+    return post
+
+
+def _composed(name: str) -> Method | None:
+    """The method ``"BASE+POST1+POST2..."`` (each POST applied in turn), or None if ``name`` is
+    not of that form with a registered BASE and registered POSTs."""
+    base, *posts = name.split("+")
+    if not posts or base not in _METHODS or any(p not in _POSTS for p in posts):
+        return None
+    method = _METHODS[base]
+    for post in (_POSTS[p] for p in posts):
+        inner = method.score
+        method = dataclasses.replace(
+            method, name=f"{method.name}+{post.name}", needs=method.needs | post.needs,
+            score=lambda inputs, options, inner=inner, post=post: post.apply(inner(inputs, options), inputs),
+            description=f"{method.description}; then {post.description}")
+    return method
+
+
 _METHODS: dict[str, Method] = {}
 _ORIGIN: dict[str, str] = {}  # name -> the module that registered it, for conflict messages
 _loaded = False
@@ -90,6 +137,8 @@ def register(method: Method) -> Method:
     """Add ``method``; ValueError if another method already has its name. Returns it."""
     if not isinstance(method, Method):
         raise ValueError(f"method: expected a jaxanom.method_registry.Method, got {type(method).__name__}")
+    if "+" in method.name:  # "+" composes a method with a post-processor ("msp+post")
+        raise ValueError(f"name: expected a name without '+', got {method.name!r}")
     origin = getattr(method.score, "__module__", "?")
     if method.name in _METHODS and _METHODS[method.name] != method:
         raise ValueError(f"method {method.name!r}: already registered by {_ORIGIN[method.name]}; "
@@ -100,11 +149,14 @@ def register(method: Method) -> Method:
 
 
 def get(name: str) -> Method:
-    """The method called ``name``; ValueError naming it and the known names otherwise."""
+    """The method called ``name`` (registered, or composed ``"NAME+POST"``); ValueError naming it
+    and the known names otherwise."""
     _load()
-    if name not in _METHODS:
-        raise InputError("methods", f": expected names from {', '.join(_METHODS)}; got unknown {name!r}")
-    return _METHODS[name]
+    method = _METHODS.get(name) or _composed(name)
+    if method is None:
+        raise InputError("methods", f": expected names from {', '.join(_METHODS)} (each may end in "
+                                    f"{', '.join('+' + p for p in _POSTS)}); got unknown {name!r}")
+    return method
 
 
 def names() -> tuple[str, ...]:
@@ -122,12 +174,13 @@ def check(method_names: Iterable[str], provided: Iterable[str], options: Options
     """
     selected = tuple(method_names)
     _load()
-    unknown = [n for n in selected if n not in _METHODS]
-    if unknown or not selected:
-        raise InputError("methods", f": expected names from {', '.join(_METHODS)}; got {list(selected)}")
+    methods = {n: _METHODS.get(n) or _composed(n) for n in selected}
+    if None in methods.values() or not selected:
+        raise InputError("methods", f": expected names from {', '.join(_METHODS)} (each may end in "
+                                    f"{', '.join('+' + p for p in _POSTS)}); got {list(selected)}")
     provided = set(provided)
     for key in INPUTS:  # the first missing input, with every method that needs it
-        if key not in provided and (missing := [n for n in selected if key in _METHODS[n].needs]):
+        if key not in provided and (missing := [n for n in selected if key in methods[n].needs]):
             raise InputError("methods", f"{missing} need {INPUTS[key]}; none were given")
     declared = {k for m in _METHODS.values() for k in m.defaults}
     if stray := sorted(set(options or {}) - declared):
@@ -143,6 +196,12 @@ def score(name: str, inputs: Inputs, options: Options | None = None):
     method = get(name)
     check((name,), given(inputs), options)
     return method.score(inputs, method.options(inputs, options))
+
+
+def posts() -> tuple[Post, ...]:
+    """Every registered post-processor (``"NAME+<post>"`` composes it with any method)."""
+    _load()
+    return tuple(_POSTS.values())
 
 
 def given(inputs: Inputs) -> set[str]:
