@@ -11,9 +11,13 @@ histograms alone (docs/decisions/jit-metrics.md derives it):
 - AP: sum_b (n+_b / P) (U_b - L_b), the recall a bin spans times the precision range of its box;
 - FPR at TPR t: the negatives' share of the bin in which the TPR crosses t.
 
+A bin whose pixels all have one score is a single point of the exact curve too and adds nothing
+(``binned_anomaly_metrics`` finds those bins with a per-bin min and max of the scores).
+
 ``binned_anomaly_metrics`` adds to each bound the float rounding of its working precision (float32
-unless JAX's 64-bit mode is on), so |returned - exact| <= returned bound, and returns NaN where a
-metric is undefined (no positive or no negative pixel, or a NaN score on a non-void pixel).
+unless JAX's 64-bit mode is on: 2 (K' + 16) u for AP and AUROC, K' the non-empty bins, u the
+unit roundoff), so |returned - exact| <= returned bound, and returns NaN where a metric is
+undefined (no positive or no negative pixel, or a NaN score on a non-void pixel).
 ``AnomalyMetricAccumulator``'s binned mode uses the same histogram and bounds on the host.
 """
 from __future__ import annotations
@@ -174,7 +178,11 @@ def _binned_metrics(scores, labels, score_range, tpr, num_bins, fpr_convention, 
     tied = _tied_bins(scores, counted, low, high, num_bins)[::-1]
     tpr = jnp.asarray(tpr, real)
     summary = curve_summary(jnp.arange(num_bins, dtype=jnp.uint32), positives, negatives, tpr)
-    rounding = float(np.finfo(real).eps) / 2 * (num_bins + 16)  # see the decision page: K + 16 roundings
+    # float rounding (docs/decisions/jit-metrics.md): the metric and its bound are each a sum of
+    # K' non-zero terms (K' non-empty bins) within 16 roundings of their values, so each errs by
+    # at most (K' + 16) u; the FPR is a ratio of two rounded counts, its bound a ratio of two sums
+    unit = float(np.finfo(real).eps) / 2
+    rounding = 2 * unit * (summary["num_thresholds"].astype(real) + 16)
     bounds = binned_error_bounds(positives, negatives, tpr, fpr_convention, ap_convention,
                                  margin=float(np.finfo(real).eps) * 8, tied=tied)
     width = (high.astype(real) - low.astype(real)) / num_bins
@@ -183,7 +191,7 @@ def _binned_metrics(scores, labels, score_range, tpr, num_bins, fpr_convention, 
                "fpr_at_tpr": summary[f"fpr_{fpr_convention}"], "threshold_at_tpr": edge,
                "ap_error_bound": bounds["ap_error_bound"] + rounding,
                "auroc_error_bound": bounds["auroc_error_bound"] + rounding,
-               "fpr_error_bound": bounds["fpr_error_bound"] + rounding}
+               "fpr_error_bound": bounds["fpr_error_bound"] * (1 + 4 * unit) + 4 * unit}
     num_positives, num_negatives = jnp.sum(positives), jnp.sum(negatives)
     defined = (num_positives > 0) & (num_negatives > 0) & ~jnp.any(jnp.isnan(scores) & counted)
     metrics = {k: jnp.where(defined, v.astype(real), jnp.nan) for k, v in metrics.items()}
