@@ -171,4 +171,4 @@ def _non_void_range(scores, labels):
     return (jnp.min(jnp.where(void, jnp.inf, scores)), jnp.max(jnp.where(void, -jnp.inf, scores)))
 
 
-_histogram = jax.jit(score_histogram, static_argnames="num_bins")
+_histogram = jax.jit(score_histogram, static_argnames=("low", "high", "num_bins"))  # its scale in float64

@@ -41,8 +41,9 @@ def score_histogram(scores, labels, low, high, num_bins: int) -> jax.Array:
 
     Bin i holds the scores s with floor((s - low) num_bins / (high - low)) = i, clipped to
     [0, num_bins - 1]; labels 0 / 1 count, any other label (void, 255) weighs 0. The scale is
-    computed on halves, so that ranges up to float's largest span do not overflow. Pure JAX:
-    ``low`` / ``high`` may be traced; ``num_bins`` is static. Counts are int32 (int64 in 64-bit mode).
+    computed on halves, so that ranges up to float's largest span do not overflow, in float64 on
+    the host when ``low`` and ``high`` are Python numbers. Pure JAX: ``low`` / ``high`` may be
+    traced; ``num_bins`` is static. Counts are int32 (int64 in 64-bit mode).
     """
     bins = _bin_index(scores, low, high, num_bins)
     counted = (labels == 0) | (labels == 1)
@@ -54,8 +55,11 @@ def _bin_index(scores, low, high, num_bins: int) -> jax.Array:
     """The uniform bin of each score, int32 in [0, num_bins) (``score_histogram``'s binning)."""
     work = scores.dtype if scores.dtype == jnp.float64 else jnp.float32
     half = lambda x: jnp.asarray(x, work) / 2  # noqa: E731
-    scaled = (half(scores) - half(low)) * (jnp.asarray(num_bins, work) / (half(high) - half(low)))
-    return jnp.clip(jnp.floor(scaled), 0, num_bins - 1).astype(jnp.int32)
+    if isinstance(low, (int, float, np.number)) and isinstance(high, (int, float, np.number)):
+        scale = jnp.asarray(num_bins / (float(high) / 2 - float(low) / 2), work)  # float64 on the host
+    else:
+        scale = jnp.asarray(num_bins, work) / (half(high) - half(low))
+    return jnp.clip(jnp.floor((half(scores) - half(low)) * scale), 0, num_bins - 1).astype(jnp.int32)
 
 
 def _tied_bins(scores, counted, low, high, num_bins: int) -> jax.Array:
