@@ -19,6 +19,10 @@ unless JAX's 64-bit mode is on: 2 (K' + 16) u for AP and AUROC, K' the non-empty
 unit roundoff), so |returned - exact| <= returned bound, and returns NaN where a metric is
 undefined (no positive or no negative pixel, or a NaN score on a non-void pixel).
 ``AnomalyMetricAccumulator``'s binned mode uses the same histogram and bounds on the host.
+
+``sorted_anomaly_metrics`` is the exact counterpart for static sizes: a sort of the map (every
+distinct score a tied bin), the same ``curve_summary`` and the same reporting; its bounds hold
+the float32 rounding alone (none in 64-bit mode, where it gives ``anomaly_metrics``' numbers).
 """
 from __future__ import annotations
 
@@ -30,7 +34,8 @@ import numpy as np
 
 from jaxanom._validate import check_count, dtype_of, is_concrete
 from jaxanom.errors import InputError
-from jaxanom.metrics.curve import curve_summary
+from jaxanom.metrics.curve import curve_points, curve_summary
+from jaxanom.metrics.ranking import descending_keys
 
 BOUNDED_FPR_CONVENTIONS = ("first", "interp", "strict")  # "nearest" has no bin bound
 AP_CONVENTIONS = ("step", "trapz", "envelope")
@@ -124,6 +129,42 @@ def binned_error_bounds(positives, negatives, tpr, fpr_convention: str = "first"
             "fpr_error_bound": fpr_bound}
 
 
+def _check_arguments(scores, labels, tpr, fpr_convention: str, ap_convention: str) -> None:
+    """One-line InputErrors for what is known without the data (dtypes, shapes, static options)."""
+    if fpr_convention not in BOUNDED_FPR_CONVENTIONS:
+        raise InputError("fpr_convention", f"expected one of {BOUNDED_FPR_CONVENTIONS} (\"nearest\" has no bound), "
+                         f"got {fpr_convention!r}")
+    if ap_convention not in AP_CONVENTIONS:
+        raise InputError("ap_convention", f"expected one of {AP_CONVENTIONS}, got {ap_convention!r}")
+    if not jnp.issubdtype(dtype_of(scores), jnp.floating):
+        raise InputError("scores", f"expected a floating dtype, got {dtype_of(scores)}")
+    if not jnp.issubdtype(dtype_of(labels), jnp.integer):
+        raise InputError("labels", f"expected an integer dtype (0 / 1 / void), got {dtype_of(labels)}")
+    if np.shape(scores) != np.shape(labels):
+        raise InputError("labels", f"expected the shape of scores {np.shape(scores)}, got {np.shape(labels)}")
+    if is_concrete(tpr) and not isinstance(tpr, jax.Array) and not 0.0 < float(tpr) <= 1.0:
+        raise InputError("tpr", f"expected a value in (0, 1], got {tpr}")
+
+
+def _reported(summary, bounds, threshold, defined, fpr_convention: str, ap_convention: str) -> dict:
+    """The metrics of ``curve_summary`` with their bounds plus the float rounding, NaN where not ``defined``.
+
+    Float rounding (docs/decisions/jit-metrics.md): the metric and its bound are each a sum of K'
+    non-zero terms (K' curve points) within 16 roundings of their values, so each errs by at most
+    (K' + 16) u; the FPR is a ratio of two rounded counts, its bound a ratio of two sums.
+    """
+    real = jax.dtypes.canonicalize_dtype(jnp.float64)
+    unit = float(np.finfo(real).eps) / 2
+    rounding = 2 * unit * (summary["num_thresholds"].astype(real) + 16)
+    metrics = {"ap": summary[f"ap_{ap_convention}"], "auroc": summary["auroc"],
+               "fpr_at_tpr": summary[f"fpr_{fpr_convention}"], "threshold_at_tpr": threshold,
+               "ap_error_bound": bounds["ap_error_bound"] + rounding,
+               "auroc_error_bound": bounds["auroc_error_bound"] + rounding,
+               "fpr_error_bound": bounds["fpr_error_bound"] * (1 + 4 * unit) + 4 * unit}
+    metrics = {k: jnp.where(defined, v.astype(real), jnp.nan) for k, v in metrics.items()}
+    return {**metrics, "num_positives": summary["num_positives"], "num_negatives": summary["num_negatives"]}
+
+
 def binned_anomaly_metrics(scores, labels, *, num_bins: int = 4096, score_range=None, tpr=0.95,
                            fpr_convention: str = "first", ap_convention: str = "step") -> dict:
     """AP, AUROC and FPR at ``tpr`` of the binned scores, with bounds on their distance to the exact ones.
@@ -145,20 +186,8 @@ def binned_anomaly_metrics(scores, labels, *, num_bins: int = 4096, score_range=
     on a non-void pixel. Works in float32 (float64 in 64-bit mode), counts in int32: up to 2**31
     non-void pixels per call.
     """
-    if fpr_convention not in BOUNDED_FPR_CONVENTIONS:
-        raise InputError("fpr_convention", f"expected one of {BOUNDED_FPR_CONVENTIONS} (\"nearest\" has no bin bound), "
-                         f"got {fpr_convention!r}")
-    if ap_convention not in AP_CONVENTIONS:
-        raise InputError("ap_convention", f"expected one of {AP_CONVENTIONS}, got {ap_convention!r}")
+    _check_arguments(scores, labels, tpr, fpr_convention, ap_convention)
     num_bins = check_count("num_bins", num_bins, 1, 2**30)
-    if not jnp.issubdtype(dtype_of(scores), jnp.floating):
-        raise InputError("scores", f"expected a floating dtype, got {dtype_of(scores)}")
-    if not jnp.issubdtype(dtype_of(labels), jnp.integer):
-        raise InputError("labels", f"expected an integer dtype (0 / 1 / void), got {dtype_of(labels)}")
-    if np.shape(scores) != np.shape(labels):
-        raise InputError("labels", f"expected the shape of scores {np.shape(scores)}, got {np.shape(labels)}")
-    if is_concrete(tpr) and not isinstance(tpr, jax.Array) and not 0.0 < float(tpr) <= 1.0:
-        raise InputError("tpr", f"expected a value in (0, 1], got {tpr}")
     if score_range is not None:
         score_range = tuple(score_range)
     return _binned_metrics(scores, labels, score_range, tpr, num_bins, fpr_convention, ap_convention)
@@ -182,21 +211,48 @@ def _binned_metrics(scores, labels, score_range, tpr, num_bins, fpr_convention, 
     tied = _tied_bins(scores, counted, low, high, num_bins)[::-1]
     tpr = jnp.asarray(tpr, real)
     summary = curve_summary(jnp.arange(num_bins, dtype=jnp.uint32), positives, negatives, tpr)
-    # float rounding (docs/decisions/jit-metrics.md): the metric and its bound are each a sum of
-    # K' non-zero terms (K' non-empty bins) within 16 roundings of their values, so each errs by
-    # at most (K' + 16) u; the FPR is a ratio of two rounded counts, its bound a ratio of two sums
-    unit = float(np.finfo(real).eps) / 2
-    rounding = 2 * unit * (summary["num_thresholds"].astype(real) + 16)
     bounds = binned_error_bounds(positives, negatives, tpr, fpr_convention, ap_convention,
                                  margin=float(np.finfo(real).eps) * 8, tied=tied)
     width = (high.astype(real) - low.astype(real)) / num_bins
     edge = low.astype(real) + (num_bins - 1 - summary["first_key"].astype(real)) * width
-    metrics = {"ap": summary[f"ap_{ap_convention}"], "auroc": summary["auroc"],
-               "fpr_at_tpr": summary[f"fpr_{fpr_convention}"], "threshold_at_tpr": edge,
-               "ap_error_bound": bounds["ap_error_bound"] + rounding,
-               "auroc_error_bound": bounds["auroc_error_bound"] + rounding,
-               "fpr_error_bound": bounds["fpr_error_bound"] * (1 + 4 * unit) + 4 * unit}
-    num_positives, num_negatives = jnp.sum(positives), jnp.sum(negatives)
-    defined = (num_positives > 0) & (num_negatives > 0) & ~jnp.any(jnp.isnan(scores) & counted)
-    metrics = {k: jnp.where(defined, v.astype(real), jnp.nan) for k, v in metrics.items()}
-    return {**metrics, "num_positives": num_positives, "num_negatives": num_negatives}
+    defined = (summary["num_positives"] > 0) & (summary["num_negatives"] > 0) & ~jnp.any(jnp.isnan(scores) & counted)
+    return _reported(summary, bounds, edge, defined, fpr_convention, ap_convention)
+
+
+def sorted_anomaly_metrics(scores, labels, *, tpr=0.95, fpr_convention: str = "first",
+                           ap_convention: str = "step") -> dict:
+    """The exact metrics (one curve point per distinct score, ties as scikit-learn) as pure JAX:
+    a sort of the static-size map inside ``jax.jit`` / ``vmap``.
+
+    Arguments, conventions and the returned dict as ``binned_anomaly_metrics``, but
+    ``threshold_at_tpr`` is the score of the first point with TPR >= ``tpr``. In 64-bit mode the
+    numbers are ``anomaly_metrics``' (the same sort keys and ``curve_summary``, in float64); in
+    float32 the sums are float32, and the bounds hold that rounding, 2 (K' + 16) u with K' the
+    distinct scores, plus, for the FPR, the negatives of the points whose TPR lies within 8 eps of
+    ``tpr`` (where a float32 and a float64 crossing may differ). A sort of every map costs more
+    than a histogram (docs/decisions/jit-metrics.md).
+    """
+    _check_arguments(scores, labels, tpr, fpr_convention, ap_convention)
+    return _sorted_metrics(scores, labels, tpr, fpr_convention, ap_convention)
+
+
+@partial(jax.jit, static_argnums=(3, 4))
+def _sorted_metrics(scores, labels, tpr, fpr_convention, ap_convention):
+    real = jax.dtypes.canonicalize_dtype(jnp.float64)
+    scores, labels = scores.ravel(), labels.ravel()
+    counted = (labels == 0) | (labels == 1)
+    keys = descending_keys(scores)
+    keys = jnp.where(counted, keys, ~jnp.zeros_like(keys))  # uncounted pixels last, on a key of their own
+    pos, neg = (labels == 1).astype(jnp.int32), (labels == 0).astype(jnp.int32)
+    keys, pos, neg, ordered = jax.lax.sort((keys, pos, neg, scores), num_keys=1)
+    tpr = jnp.asarray(tpr, real)
+    summary = curve_summary(keys, pos, neg, tpr)
+    tp, fp, end, tp_prev, fp_prev = curve_points(keys, pos, neg)
+    # each distinct score is a tied bin whose counts sit at its last entry: only the FPR's
+    # crossing (decided in the working precision) bounds anything
+    bounds = binned_error_bounds(jnp.where(end, tp - tp_prev, 0), jnp.where(end, fp - fp_prev, 0), tpr,
+                                 fpr_convention, ap_convention, margin=float(np.finfo(real).eps) * 8,
+                                 tied=jnp.ones(keys.shape, bool))
+    threshold = ordered[jnp.argmax(keys == summary["first_key"])].astype(real)
+    defined = (summary["num_positives"] > 0) & (summary["num_negatives"] > 0) & ~jnp.any(jnp.isnan(scores) & counted)
+    return _reported(summary, bounds, threshold, defined, fpr_convention, ap_convention)

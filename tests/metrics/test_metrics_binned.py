@@ -1,4 +1,5 @@
-"""binned_anomaly_metrics: pure JAX AP / AUROC / FPR, within their stated bound of the exact host metrics."""
+"""binned_anomaly_metrics and sorted_anomaly_metrics: pure JAX AP / AUROC / FPR, within their stated
+bound of the exact host metrics."""
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -6,7 +7,7 @@ import pytest
 from test_metrics_smiyc_convention import real_frames
 
 from jaxanom.errors import InputError
-from jaxanom.metrics import anomaly_metrics, binned_anomaly_metrics, score_histogram
+from jaxanom.metrics import anomaly_metrics, binned_anomaly_metrics, score_histogram, sorted_anomaly_metrics
 
 METRICS = (("ap", "ap_error_bound"), ("auroc", "auroc_error_bound"), ("fpr_at_tpr", "fpr_error_bound"))
 SLACK = 1e-9  # the host's own float64 rounding over up to ~10^6 curve points
@@ -97,6 +98,24 @@ def test_huge_and_infinite_scores():
     infinite.flat[np.flatnonzero(labels == 1)[:3]] = np.inf
     infinite[0, :4] = -np.inf
     assert_within_bound(jax.jit(binned_anomaly_metrics)(infinite, labels), infinite, labels)
+
+
+def test_sorted_metrics_are_the_exact_ones_under_jit_and_vmap():
+    scores, labels = random_maps(9, 3)
+    scores[1] = np.round(scores[1] * 4) / 4  # ties
+    labels[2] = 255  # all void: NaN
+    settings = dict(tpr=0.9, fpr_convention="interp", ap_convention="envelope")
+    metric = jax.jit(jax.vmap(lambda s, l: sorted_anomaly_metrics(s, l, **settings)))
+    got = metric(scores, labels)
+    with jax.enable_x64(True):  # float64 sums: anomaly_metrics' numbers
+        got64 = metric(scores, labels)
+    for i in range(2):
+        exact = assert_within_bound({k: v[i] for k, v in got.items()}, scores[i], labels[i], **settings)
+        for name, _ in METRICS:
+            np.testing.assert_allclose(float(got64[name][i]), exact[name], rtol=1e-12, err_msg=name)
+        assert float(got["threshold_at_tpr"][i]) == exact["threshold_at_tpr"]
+        assert float(got["auroc_error_bound"][i]) < 2e-4  # the float32 rounding alone: 2 (K' + 16) u
+    assert np.isnan(np.asarray(got["ap"][2])) and np.isnan(np.asarray(got64["fpr_at_tpr"][2]))
 
 
 def test_histogram_of_a_huge_range_equals_numpy():
