@@ -17,6 +17,12 @@ Where methods come from, loaded once on first use:
 - any module imported by the caller (``load_plugin``, the commands' ``--plugin MODULE``).
 
 Each of those modules calls ``register(Method(...))`` when imported.
+
+Post-processing composes by name: ``"NAME+POST"`` is method NAME's scores through the
+post-processor POST, one that a module registered with ``register_post(Post(...))`` (SML's
+``post``, ``suppress`` and ``smooth``: ``"energy+post"``), applied left to right
+(``"NAME+POST1+POST2"``). ``+`` never occurs in a registered name, so a composed name is never
+ambiguous; ``get`` and ``check`` resolve it, ``names()`` lists registered methods only.
 """
 from __future__ import annotations
 
@@ -51,14 +57,17 @@ Inputs = Mapping[str, Any]
 Options = Mapping[str, Any]
 
 # A method's name becomes a folder or file name of the commands' outputs (``npy/<method>/``,
-# ``scores/<method>.npy``): letters, digits, ``_``, ``-`` and ``.``, never ``.`` or ``..``, so never a path.
+# ``scores/<method>.npy``): letters, digits, ``_``, ``-`` and ``.``, never ``.`` or ``..``, so never a
+# path; a composed name joins such names with ``+`` (``msp+post``), still no path.
 NAME = re.compile(r"[A-Za-z0-9_.-]+")
-NAME_RULE = "letters, digits, '_', '-', '.' (not '.' or '..')"
+NAME_RULE = "letters, digits, '_', '-', '.' (not '.' or '..'), composed with '+'"
 
 
 def is_name(text) -> bool:
-    """Whether ``text`` may name a method (``NAME_RULE``): a plain name, never a path."""
-    return isinstance(text, str) and NAME.fullmatch(text) is not None and text not in (".", "..")
+    """Whether ``text`` may name a method (``NAME_RULE``): a plain name, or plain names joined by
+    ``+`` (a method composed with post-processors); never a path."""
+    return isinstance(text, str) and all(NAME.fullmatch(part) is not None and part not in (".", "..")
+                                         for part in text.split("+"))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -104,6 +113,47 @@ class Method:
         return dict(self.resolve(inputs, options)) if self.resolve is not None else options
 
 
+@dataclasses.dataclass(frozen=True)
+class Post:
+    """A post-processor any method composes with as ``"NAME+<name>"``: ``apply(scores, inputs)``
+    maps a method's (B, H, W) scores to (B, H, W) scores, reading the batch's ``needs`` (keys of
+    ``INPUTS``) from ``inputs``. ``description``: one line, following the method's in the composition."""
+
+    name: str
+    needs: frozenset[str]
+    apply: Callable[[Any, Inputs], Any]
+    description: str
+
+
+_POSTS: dict[str, Post] = {}
+
+
+def register_post(post: Post) -> Post:
+    """Add ``post`` under its name (a name without ``+``); ValueError if another has it. Returns it."""
+    if not isinstance(post, Post) or not post.name or "+" in post.name or "," in post.name:
+        raise ValueError(f"post: expected a Post named without '+' or ',', got {post!r}")
+    if post.name in _POSTS and _POSTS[post.name] != post:
+        raise ValueError(f"post-processor {post.name!r}: already registered")
+    _POSTS[post.name] = post
+    return post
+
+
+def _composed(name: str) -> Method | None:
+    """The method ``"BASE+POST1+POST2..."`` (each POST applied in turn), or None if ``name`` is
+    not of that form with a registered BASE and registered POSTs."""
+    base, *posts = name.split("+")
+    if not posts or base not in _METHODS or any(p not in _POSTS for p in posts):
+        return None
+    method = _METHODS[base]
+    for post in (_POSTS[p] for p in posts):
+        inner = method.score
+        method = dataclasses.replace(
+            method, name=f"{method.name}+{post.name}", needs=method.needs | post.needs,
+            score=lambda inputs, options, inner=inner, post=post: post.apply(inner(inputs, options), inputs),
+            description=f"{method.description}; then {post.description}")
+    return method
+
+
 _METHODS: dict[str, Method] = {}
 _BROKEN: list[str] = []  # one line per entry point that failed to load, for the errors of unknown names
 _ORIGIN: dict[str, str] = {}  # name -> the module that registered it, for conflict messages and fingerprints
@@ -115,6 +165,8 @@ def register(method: Method) -> Method:
     another method already has its name. Returns it."""
     if not isinstance(method, Method):
         raise ValueError(f"method: expected a jaxanom.method_registry.Method, got {type(method).__name__}")
+    if "+" in method.name:  # "+" composes a method with a post-processor ("msp+post")
+        raise ValueError(f"name: expected a name without '+', got {method.name!r}")
     origin = sys._getframe(1).f_globals.get("__name__", "?")  # the module calling register
     if method.name in _METHODS and _METHODS[method.name] != method:
         raise ValueError(f"method {method.name!r}: already registered by {_ORIGIN[method.name]}; "
@@ -128,11 +180,13 @@ def register(method: Method) -> Method:
 def implementation(name: str) -> str:
     """A fingerprint of method ``name``'s code: SHA-256 (hex) of the source files of the modules
     that registered it and define its ``score`` and ``resolve`` (a plug-in's module, or jaxanom's
-    own ``*methods.py``; a module without a file counts by its name only). Another plug-in
+    own ``*methods.py``; a module without a file counts by its name only), and, for a composed
+    ``"NAME+POST"``, those defining each post's ``apply``. Another plug-in
     registering the name, or an edit of its module (a default option included), changes it."""
     method = get(name)
-    modules = {_ORIGIN[name]}
-    for function in (method.score, method.resolve):
+    base, *post_names = name.split("+")  # a composed method: its base's code and each post's
+    modules = {_ORIGIN[base]}
+    for function in (_METHODS[base].score, method.resolve, *(_POSTS[p].apply for p in post_names)):
         while isinstance(function, functools.partial):
             function = function.func
         if function is not None:
@@ -147,11 +201,14 @@ def implementation(name: str) -> str:
 
 
 def get(name: str) -> Method:
-    """The method called ``name``; ValueError naming it and the known names otherwise."""
+    """The method called ``name`` (registered, or composed ``"NAME+POST"``); ValueError naming it
+    and the known names otherwise."""
     _load()
-    if name not in _METHODS:
-        raise InputError("methods", f": expected names from {', '.join(_METHODS)}; got unknown {name!r}{_broken()}")
-    return _METHODS[name]
+    method = _METHODS.get(name) or _composed(name)
+    if method is None:
+        raise InputError("methods", f": expected names from {', '.join(_METHODS)} (each may end in "
+                                    f"{', '.join('+' + p for p in _POSTS)}); got unknown {name!r}{_broken()}")
+    return method
 
 
 def names() -> tuple[str, ...]:
@@ -169,13 +226,14 @@ def check(method_names: Iterable[str], provided: Iterable[str], options: Options
     """
     selected = tuple(method_names)
     _load()
-    unknown = [n for n in selected if n not in _METHODS]
-    if unknown or not selected:
-        raise InputError("methods", f": expected names from {', '.join(_METHODS)}; got {list(selected)}"
-                         f"{_broken() if unknown else ''}")
+    methods = {n: _METHODS.get(n) or _composed(n) for n in selected}
+    if None in methods.values() or not selected:
+        raise InputError("methods", f": expected names from {', '.join(_METHODS)} (each may end in "
+                                    f"{', '.join('+' + p for p in _POSTS)}); got {list(selected)}"
+                                    f"{_broken() if None in methods.values() else ''}")
     provided = set(provided)
     for key in INPUTS:  # the first missing input, with every method that needs it
-        if key not in provided and (missing := [n for n in selected if key in _METHODS[n].needs]):
+        if key not in provided and (missing := [n for n in selected if key in methods[n].needs]):
             raise InputError("methods", f"{missing} need {INPUTS[key]}; none were given")
     declared = {k for m in _METHODS.values() for k in m.defaults}
     if stray := sorted(set(options or {}) - declared):
@@ -257,6 +315,12 @@ def check_finite(name: str, scores, labels=None, where: str = "") -> None:
         pixels = "non-void pixels" if labels is not None else "pixels"
         raise InputError("methods", f": method {name!r} returned {count} NaN or infinite scores on {pixels}{where}; "
                          "expected finite scores")
+
+
+def posts() -> tuple[Post, ...]:
+    """Every registered post-processor (``"NAME+<post>"`` composes it with any method)."""
+    _load()
+    return tuple(_POSTS.values())
 
 
 def given(inputs: Inputs) -> set[str]:

@@ -12,7 +12,7 @@ from typing import Iterable, Mapping
 import numpy as np
 
 from jaxanom.data.cityscapes_labels import NUM_CLASSES
-from jaxanom.method_registry import INPUTS, call, check, get, given, load_plugin, names
+from jaxanom.method_registry import INPUTS, call, check, get, given, load_plugin, names, posts
 
 __all__ = ["INPUTS", "check", "describe", "get", "inputs_of", "load_plugin", "names", "provided", "run_inputs",
            "score_all", "without_channel"]
@@ -92,7 +92,10 @@ def without_channel(logits, channel: int = VOID_CHANNEL):
 
 def describe(unavailable: Iterable[str] = ()) -> str:
     """Every method, one per line: its name and description (the commands' ``--help``), but those
-    that need an input of ``unavailable``."""
-    known = [name for name in names() if not get(name).needs & set(unavailable)]
-    width = max(map(len, known))
-    return "\n".join(f"  {name.ljust(width)}  {get(name).description}" for name in known)
+    that need an input of ``unavailable``; then the post-processors any method composes with."""
+    unavailable = set(unavailable)
+    rows = [(name, get(name).description) for name in names() if not get(name).needs & unavailable]
+    rows += [(f"NAME+{post.name}", f"any method NAME, then {post.description}") for post in posts()
+             if not post.needs & unavailable]
+    width = max(len(name) for name, _ in rows)
+    return "\n".join(f"  {name.ljust(width)}  {text}" for name, text in rows)
