@@ -149,8 +149,8 @@ def test_every_command_reading_method_names_refuses_a_path(tmp_path, capsys, roa
         argv = ["evaluate", "--maps", str(tmp_path / "maps"), "--dataset", "road-anomaly", "--path",
                 str(road_anomaly), "--track", "none", "--methods", names, "--out", str(tmp_path / "o")]
     error = one_line_error(capsys, argv)
-    assert error.endswith("--methods: expected names of letters, digits, '_', '-', '.' (not '.' or '..'), never a "
-                          "path; got '../outside'")
+    assert error.endswith("--methods: expected names of letters, digits, '_', '-', '.' (not '.' or '..'), composed "
+                          "with '+', never a path; got '../outside'")
     assert not (tmp_path / "o").exists()
 
 
