@@ -103,7 +103,7 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
     if pictures and run:  # MMF's pictures: jaxanom demo mmf; maps': jaxanom predict --format png
         from jaxanom.app.reports import write_pictures
 
-        write_pictures(out_dir, predict, source, mean_std, pictures)
+        write_pictures(out_dir, predict, source, mean_std, pictures, experiment.data)
     if convention == "smiyc":
         print("The official SegmentMeIfYouCan kit's numbers (binned; the exact ones: metrics.json, \"exact\"):")
     print(results_table(metrics))
