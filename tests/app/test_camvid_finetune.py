@@ -40,12 +40,13 @@ def camvid(tmp_path):
     return tmp_path / "CamVid"
 
 
-def _train(camvid, init_from, run):
+def _train(camvid, init_from, run, *more):
     return main(["train", "--data", "camvid", "--data-root", str(camvid), "--init-from", str(init_from), "--steps", "2",
-                 "--batch-size", "4", "--set", "crop=16,32", "--out", str(run), "--no-progress"])
+                 "--batch-size", "4", "--set", "crop=16,32", "--out", str(run), "--no-progress", *more])
 
 
-def test_train_on_camvid_from_a_converted_run_starts_with_a_new_head(tiny_run, camvid, tmp_path, monkeypatch):  # noqa: F811
+def test_train_on_camvid_from_a_converted_run_starts_with_a_new_head(tiny_run, camvid, tmp_path,  # noqa: F811
+                                                                     monkeypatch):
     started = {}
 
     def train(config, model, batches, val, variables=None):  # the loop itself is tested elsewhere
@@ -53,12 +54,13 @@ def test_train_on_camvid_from_a_converted_run_starts_with_a_new_head(tiny_run, c
         return types.SimpleNamespace(variables=variables)
 
     monkeypatch.setattr("jaxanom.train.loop.train", train)
-    assert _train(camvid, tiny_run, tmp_path / "run") == 0
+    assert _train(camvid, tiny_run, tmp_path / "run", "--set", "val_frames=1") == 0
     experiment = load_experiment(tmp_path / "run")
     assert (experiment.model, experiment.num_classes, experiment.data) == ("deeplabv3plus_tiny", 11, "camvid")
     assert experiment.init_modules is None and started["model"].num_classes == 11
     assert started["batch"]["image"].shape == (4, 16, 32, 3)  # augmented crops of the training frames
-    assert {"image", "label"} <= set(started["val"][0]) and started["val"][0]["image"].shape[1:] == (32, 48, 3)
+    # the first val_frames validation frames, whole
+    assert [batch["image"].shape for batch in started["val"]] == [(1, 32, 48, 3)] and "label" in started["val"][0]
     # every module of the converted run but its classifier, which starts from the seed
     _, source = load_variables(tiny_run)
     fresh = jax.jit(started["model"].init, static_argnames="train")(
