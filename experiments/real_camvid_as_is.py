@@ -3,8 +3,9 @@
     JAXANOM_CAMVID=/path/to/CamVid python -m experiments.real_camvid_as_is [--frames 40]
 
 The starting point a CamVid fine-tune improves on (``docs/decisions/camvid.md``). Each of the
-first ``--frames`` test frames (360x480, in the split list's order) is scored at its own size and
-at 720x960 (bilinear, the prediction taken back at the native pixels by nearest neighbour); the
+first ``--frames`` test frames (360x480, in the split list's order) is scored at its own size, at
+720x960 and squashed to 512x1024 (bilinear; the prediction taken back to the native pixels by
+nearest neighbour); the
 argmax over the 19 trainIds (the void output dropped) becomes a CamVid class through
 ``jaxanom.data.camvid.CITYSCAPES_TO_CAMVID``; mIoU over CamVid's 11 classes (void pixels ignored).
 Prints a markdown table (nothing written); a few minutes on 2 CPU cores.
@@ -22,7 +23,7 @@ from jaxanom.data.camvid import CITYSCAPES_TO_CAMVID, CLASS_NAMES, NUM_CLASSES, 
 from jaxanom.metrics import confusion_scores
 
 WEIGHTS = REALDATA / "erfnet" / "erfnet_cityscapes_int8.pth"
-SIZES = {"360x480 (native)": None, "720x960 (2x)": (720, 960)}
+SIZES = {"360x480 (native)": None, "720x960 (2x)": (720, 960), "512x1024 (squashed, its training size)": (512, 1024)}
 
 
 def confusion(predict, frames, size) -> np.ndarray:
