@@ -216,7 +216,12 @@ def frames(experiment: Experiment, split: str, num_frames: int | None = None) ->
     from jaxanom.data import CamVid, Cityscapes
     from jaxanom.data.frames import FirstFrames
 
-    split_frames = (CamVid if experiment.data == "camvid" else Cityscapes)(experiment.data_root, split)
+    try:
+        split_frames = (CamVid if experiment.data == "camvid" else Cityscapes)(experiment.data_root, split)
+    except InputError as error:  # the reader's folder is the experiment's data_root
+        if error.argument != "root":
+            raise
+        raise InputError("data_root", error.message) from None
     return split_frames if num_frames is None else FirstFrames(split_frames, num_frames)
 
 

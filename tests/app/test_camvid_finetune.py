@@ -71,6 +71,14 @@ def test_train_on_camvid_from_a_converted_run_starts_with_a_new_head(tiny_run, c
         np.testing.assert_array_equal(leaf, _at(want, keys), err_msg=jax.tree_util.keystr(path))
 
 
+def test_a_bad_camvid_list_is_one_line_naming_the_data_root(camvid, tmp_path, capsys):
+    (camvid / "train.txt").write_text("/SegNet/CamVid/train/a.png /SegNet/CamVid/testannot/a.png\n")
+    assert main(["train", "--data", "camvid", "--data-root", str(camvid), "--out", str(tmp_path / "run")]) == 2
+    error = capsys.readouterr().err.strip()
+    assert error.startswith("jaxanom train: error: --data-root: line 1 of ") and len(error.splitlines()) == 1, error
+    assert not (tmp_path / "run").exists()  # nothing blocks a rerun
+
+
 def test_the_data_gives_the_classes_unless_the_run_has_them(camvid, tmp_path, monkeypatch):
     monkeypatch.setattr("jaxanom.train.loop.train", lambda config, model, batches, val, variables=None:
                         types.SimpleNamespace(variables=variables))
