@@ -8,11 +8,13 @@ import numpy as np
 import pytest
 
 from camvid_tree import write_camvid
-from converted_run import tiny_run  # noqa: F401  (a module-scoped fixture: a converted tiny DeepLabV3+, 19 classes)
+import converted_run
 from jaxanom.app.experiment import class_layers, load_experiment, load_variables
 from jaxanom.app.runs import write_run
 from jaxanom.cli import main
 from jaxanom.models import build_model
+
+tiny_run = converted_run.tiny_run  # a module-scoped fixture: a converted tiny DeepLabV3+, 19 classes
 
 
 def _shapes(name, classes):
@@ -45,8 +47,7 @@ def _train(camvid, init_from, run, *more):
                  "--batch-size", "4", "--set", "crop=16,32", "--out", str(run), "--no-progress", *more])
 
 
-def test_train_on_camvid_from_a_converted_run_starts_with_a_new_head(tiny_run, camvid, tmp_path,  # noqa: F811
-                                                                     monkeypatch):
+def test_train_on_camvid_from_a_converted_run_starts_with_a_new_head(tiny_run, camvid, tmp_path, monkeypatch):
     started = {}
 
     def train(config, model, batches, val, variables=None):  # the loop itself is tested elsewhere
@@ -95,7 +96,7 @@ def test_the_data_gives_the_classes_unless_the_run_has_them(camvid, tmp_path, mo
 
 
 @pytest.mark.end_to_end
-def test_a_camvid_run_is_validated_and_read_by_every_command(tiny_run, camvid, tmp_path):  # noqa: F811
+def test_a_camvid_run_is_validated_and_read_by_every_command(tiny_run, camvid, tmp_path):
     run = tmp_path / "run"
     assert _train(camvid, tiny_run, run) == 0
     logged = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
