@@ -2,7 +2,8 @@
 
 A VGG has no run folder: ``write_vgg`` / ``read_vgg`` keep its variables in an .npz with the Flax
 paths as names (``params/conv1_1/kernel``) and the configuration in ``vgg.json``.
-``take_modules(fresh, source, modules, keep)`` starts a network from another's top-level modules, but the layers ``keep``.
+``take_modules(fresh, source, modules, keep)`` starts a network from another's top-level modules
+(but the layers ``keep``: a new head).
 (Run folders of converted DeepLabV3+ / ESPNet weights: ``jaxanom.app.runs.write_run``.)
 """
 from __future__ import annotations
