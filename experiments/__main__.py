@@ -11,9 +11,11 @@ and a rerun only evaluates. Before the tables, ``--jobs`` processes (default 2) 
 and compute every seed they need (``experiments.jobs``); the tables then restore them. RESULTS.md
 is rewritten after every table from the ``<name>.json`` files present in ``--out``.
 
-``--out`` records how its results were made (``made_by.json``): a smoke run writes into
-``experiments/smoke/`` by default and refuses a folder holding results of a full run (a folder
-with results and no record counts as one), so it never replaces them.
+``--out`` records how its results were made (``made_by.json``), and every table in it was made
+so: a smoke run writes into ``experiments/smoke/`` by default and refuses a folder holding results
+of a full run (a folder with results and no record counts as one), so it never replaces them, and
+a full run refuses a folder holding a smoke run's results, so that no smoke table ever stands
+under a full run's label (RESULTS.md's smoke banner is the folder's).
 """
 from __future__ import annotations
 
@@ -28,7 +30,7 @@ import traceback
 from pathlib import Path
 
 from experiments.common import (ANOMALY_READERS, COMPETENT_MIOU, HERE, RUNS, Scale, matched_sigma, matched_tau,
-                                report, run_table, table_jobs)
+                                report, run_table, table_jobs, warmup_steps)
 from experiments.jobs import Job, run_jobs
 from experiments.offroad_common import seed_jobs
 from experiments.stats import REPLICATES
@@ -70,6 +72,9 @@ def parse_args(argv=None) -> argparse.Namespace:
         value = getattr(args, name)
         if value is not None and value < 1:
             parser.error(f"--{name.replace('_', '-')}: expected a positive integer, got {value}")
+    if args.steps is not None and args.steps <= warmup_steps(args.steps):
+        parser.error(f"--steps: expected at least 2 (the networks warm up for {warmup_steps(args.steps)} step(s) and "
+                     f"need one more to train), got {args.steps}")
     if args.size is not None and not all(n >= 16 and n % 16 == 0 for n in args.size):
         parser.error(f"--size: expected H and W as positive multiples of 16 (the networks' output stride), "
                      f"got {' '.join(map(str, args.size))}")
@@ -83,18 +88,19 @@ def parse_args(argv=None) -> argparse.Namespace:
     if args.cityscapes is not None and not Path(args.cityscapes).is_dir():
         parser.error(f"--cityscapes: the folder {args.cityscapes} does not exist")
     args.out = args.out or (SMOKE_OUT if args.smoke else HERE)
-    if args.smoke and holds_full_results(args.out):
+    if args.smoke and holds_results(args.out) and not made_by_smoke(args.out):
         parser.error(f"--out {args.out}: holds the results of a full run, which a smoke run would overwrite; "
                      f"choose another folder (the default for --smoke is {SMOKE_OUT})")
+    if not args.smoke and holds_results(args.out) and made_by_smoke(args.out):
+        parser.error(f"--out {args.out}: holds the results of a smoke run, which a full run's tables would join "
+                     "under one label; choose another folder, or delete that one first")
     return args
 
 
-def holds_full_results(out: Path) -> bool:
-    """Whether ``out`` holds results not recorded as a smoke run's (``MADE_BY``)."""
+def holds_results(out: Path) -> bool:
+    """Whether ``out`` holds results: RESULTS.md, a table's JSON or a real-data table."""
     results = [out / "RESULTS.md", *(out / f"{name}.json" for name in EXPERIMENTS), *out.glob("real_*.md")]
-    if not any(path.exists() for path in results):
-        return False
-    return not made_by_smoke(out)
+    return any(path.exists() for path in results)
 
 
 def made_by_smoke(out: Path) -> bool:

@@ -187,6 +187,12 @@ def matched_sigma(height: int, width: int) -> float:
     return equivalent_weight(PAPER_SIGMA, attention_positions(height, width), PAPER_TEST_POSITIONS)
 
 
+def warmup_steps(steps: int) -> int:
+    """The linear warm-up of a network trained ``steps`` steps (a tenth, 1 to 30); the schedule
+    needs at least one step after it, so ``steps`` >= 2."""
+    return max(1, min(30, steps // 10))
+
+
 def network(scale: Scale, attention: str | None = None, objective: Objective = CrossEntropy(),
             cudam_position: str = "deep", cudam_gate: str = "paper") -> Network:
     """``scale.model`` (a DeepLabV3+) trained on ``scale``'s data with ``objective``."""
@@ -194,7 +200,7 @@ def network(scale: Scale, attention: str | None = None, objective: Objective = C
     train = TrainConfig(run_dir="", steps=scale.steps, seed=scale.seed, objective=objective, eval_every=scale.steps,
                         save_every=scale.steps, keep=1, progress=False,
                         optim=OptimConfig(name="adamw", lr=2e-3, weight_decay=1e-4,
-                                          warmup_steps=max(1, min(30, scale.steps // 10))))
+                                          warmup_steps=warmup_steps(scale.steps)))
     experiment = Experiment(model=scale.model, attention=attention, train_frames=scale.train_frames,
                             height=scale.height, width=scale.width, crop=(scale.height, scale.width),
                             batch_size=scale.batch_size, cudam_position=cudam_position, cudam_gate=cudam_gate,

@@ -3,9 +3,8 @@ Cityscapes frames, with the protocol the road-anomaly repositories use for this 
 
     python -m experiments.real_erfnet_miou          # writes real_erfnet_miou.json / .md beside this file
 
-Each 2048x1024 frame is resized to 1024x512 with a triangle (bilinear) filter widened to the
-scale, i.e. antialiased (``jaxanom.data.resize``: PIL's BILINEAR within one grey level),
-rounded to uint8 as PIL returns it, then scaled to [0, 1] (``ERFNet.normalize_input``). Labels
+Each 2048x1024 frame is resized to 1024x512 with PIL's BILINEAR (a triangle filter widened to the
+scale, i.e. antialiased; ``jaxanom.data.resize``), then scaled to [0, 1] (``ERFNet.normalize_input``). Labels
 (trainIds, 255 ignored) are resized to 1024x512 by PIL's nearest neighbour (row 2i + 1 of the
 original), or the logits upsampled to 2048x1024. The headline is the
 argmax over the 19 trainId channels (the void channel dropped) at 1024x512; the other variants as
@@ -27,7 +26,7 @@ AUTHORS_VAL_MIOU = 72.2  # the float weights on the Cityscapes validation set (t
 
 
 def antialiased(image: np.ndarray) -> np.ndarray:
-    """uint8 (H, W, 3) -> uint8 ``INPUT``, triangle filter widened when shrinking, rounded."""
+    """uint8 (H, W, 3) -> uint8 ``INPUT`` by PIL's BILINEAR (a triangle filter widened when shrinking)."""
     return resize_image_antialiased(image, INPUT)
 
 
@@ -45,8 +44,9 @@ def main() -> dict:
                "input": [INPUT[1], INPUT[0]], "weights": "/".join(WEIGHTS), "authors_val_miou_float": AUTHORS_VAL_MIOU}
     title = (f"ERFNet (authors' Cityscapes weights, int8 redistribution) on {len(results['frames'])} "
              "Cityscapes train frames")
-    intro = (f"Written by `python -m experiments.{NAME}`. Input 1024x512, antialiased bilinear resize, RGB in [0, 1]; "
-             "labels resized by nearest neighbour at pixel centres; classes that occur or are predicted averaged. "
+    intro = (f"Written by `python -m experiments.{NAME}`. Input 1024x512 resized by PIL's BILINEAR (antialiased), "
+             "RGB in [0, 1]; labels resized by nearest neighbour at pixel centres; classes that occur or are "
+             "predicted averaged. "
              "The community's protocol drops the void channel: the row '1024x512, 19 trainIds' is the one to quote. "
              "These are training frames of the weights (optimistic); the authors report 72.2% on the Cityscapes "
              "validation set with the float weights.")

@@ -49,6 +49,13 @@ def values_checked(x) -> bool:
     return is_concrete(x) and _READ_DEVICE_ARRAYS.get()
 
 
+def check_static(name: str, value, why: str) -> None:
+    """An option that must be a Python value, not traced (inside jit / vmap / grad), because ``why``
+    (e.g. "sets the kernel's shape"): a one-line ``InputError`` instead of a tracer error."""
+    if not is_concrete(value):
+        raise InputError(name, f"must be static (a Python value, not traced under jit / vmap / grad): it {why}")
+
+
 def check_rank(name: str, x, rank: int, layout: str) -> None:
     """``x`` must have ``rank`` dimensions, described by ``layout`` such as ``"(H, W, C)"``."""
     if np.ndim(x) != rank:
@@ -138,7 +145,9 @@ def check_range(name: str, x, low: float, high: float, hint: str = "") -> None:
 
 
 def check_count(name: str, value, minimum: int = 1, maximum: int = 2**31 - 1) -> int:
-    """A whole number (int, or an integer NumPy scalar; not bool, not float) in ``[minimum, maximum]``."""
+    """A whole number (int, or an integer NumPy scalar; not bool, not float) in ``[minimum, maximum]``;
+    never traced (a count sets a shape or a loop: ``check_static``)."""
+    check_static(name, value, "is a count (it sets a shape or a loop)")
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
         raise InputError(name, f"must be an integer >= {minimum}, got {value!r} ({type(value).__name__})")
     if value < minimum:

@@ -4,7 +4,8 @@
 object of all its fields, a tuple a list, an Enum its value. ``decode(cls, values)`` is its strict
 inverse, driven by the declared field types (``int``, ``float``, ``bool``, ``str``, ``Literal``,
 Enums, nested dataclasses, ``tuple[X, ...]`` and fixed tuples, ``X | None``, unions): an unknown
-key, a value of the wrong type or a missing field without a default raises ``ConfigError`` naming
+key, a value of the wrong type (NaN and infinity are no ``float``'s: no config field takes them) or a
+missing field without a default raises ``ConfigError`` naming
 the dotted path (``train.optim.lr``), what was expected and what came, and the dataclasses' own
 checks run as they are built. A field left out keeps its default; the default of a nested config
 is the enclosing config's (``{"experiment": {"train_frames": 8}}`` changes one field of a demo's
@@ -24,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import json
+import math
 import types
 import typing
 from typing import Any, Sequence
@@ -86,6 +88,8 @@ def decode(kind: Any, values: Any, path: str = "", base: Any = _MISSING) -> Any:
                 else isinstance(values, (int, float) if kind is float else int) and not isinstance(values, bool))
         if not fits:
             raise ConfigError(path, f"expected {describe(kind)}, got {values!r}")
+        if kind is float and not math.isfinite(values):  # no config field takes NaN or infinity
+            raise ConfigError(path, f"expected a finite number, got {values!r}")
         return float(values) if kind is float else values
     if kind is Any:
         return values
@@ -206,6 +210,16 @@ def _decode_dataclass(kind, values, path, base):
         raise ConfigError(path, str(error)) from None
 
 
+def check_finite(values: Any, path: str = "") -> None:
+    """ConfigError naming the first number of the JSON values ``values`` (``encode``'s) that is NaN or
+    infinite: what ``decode`` refuses, for a config built in Python."""
+    if isinstance(values, float) and not math.isfinite(values):
+        raise ConfigError(path, f"expected a finite number, got {values!r}")
+    items = values.items() if isinstance(values, dict) else enumerate(values) if isinstance(values, list) else ()
+    for key, value in items:
+        check_finite(value, _join(path, str(key)))
+
+
 def _field_default(field: dataclasses.Field) -> Any:
     if field.default is not _MISSING:
         return field.default
@@ -248,9 +262,12 @@ def _member(kind, holder, key, path):
         return (args[0] if len(args) == 2 and args[1] is Ellipsis else args[int(key)]), holder[int(key)], where
     if dataclasses.is_dataclass(kind) and isinstance(holder, dict):
         cls = _config_class(kind, holder, path, _MISSING)
-        names = [f.name for f in dataclasses.fields(cls) if f.init]
-        if key not in names:
-            raise ConfigError(where, f"unknown field of {cls.__name__}; expected one of {names}")
+        fields = {f.name: f for f in dataclasses.fields(cls)}
+        if key not in fields:
+            raise ConfigError(where, f"unknown field of {cls.__name__}; expected one of {list(fields)}")
+        if not fields[key].init:  # a registered name: it picks the class, so the class is given whole
+            raise ConfigError(where, f"is fixed by the class ({cls.__name__}'s is {holder.get(key)!r}); give "
+                              f"{path} whole to pick another, e.g. {path}=NAME or {path}={{\"{key}\": NAME, ...}}")
         return typing.get_type_hints(cls)[key], holder.get(key), where
     raise ConfigError(where, f"{path or 'the config'} is {describe(kind)}, which has no member {key!r}")
 

@@ -17,7 +17,7 @@ class InputError(ValueError):
     ``InputError("out", f"{folder}: exists and is not a folder")`` reads ``out /x: exists ...``
     to Python and ``--out /x: exists ...`` on the command line; a message starting with ``:``,
     ``,``, ``;`` or a space is attached without another (``InputError("track", ": needs ...")``), and one
-    that writes ``{argument}`` itself places the name there instead of in front.
+    that writes ``{argument}`` itself (and starts with none of those) places the name there instead of in front.
     """
 
     def __init__(self, argument: str, message: str, *, mentions: tuple[str, ...] = ()):
@@ -30,17 +30,20 @@ class InputError(ValueError):
         for name in self.mentions:
             text = text.replace("{" + name + "}", spell(name))
         placeholder = "{" + self.argument + "}"
-        if placeholder in text:  # the message places the argument's name itself
-            return text.replace(placeholder, spell(self.argument))
-        separator = "" if text[:1] in (":", ",", ";", " ") else " "
-        return f"{spell(self.argument)}{separator}{text}"
+        text = text.replace(placeholder, spell(self.argument))
+        if text[:1] in (":", ",", ";", " "):  # written to follow the name, even where it names it again
+            return f"{spell(self.argument)}{text}"
+        if placeholder in self.message:  # the message places the argument's name itself
+            return text
+        return f"{spell(self.argument)} {text}"
 
 
 @contextlib.contextmanager
 def reading(argument: str, value=None) -> Iterator[None]:
     """A plain ValueError inside the block (a reader refusing ``value``, given as ``argument``)
     becomes an InputError ``argument value: <its message>`` (``argument: <its message>`` without
-    ``value``); an InputError passes unchanged."""
+    ``value``; a message that starts with ``value:`` or ``argument:`` is not prefixed with it
+    twice); an InputError passes unchanged."""
     try:
         yield
     except InputError:
@@ -49,4 +52,6 @@ def reading(argument: str, value=None) -> Iterator[None]:
         text = str(error)
         if value is None and text.startswith(f"{argument}:"):  # the reader named the argument already
             text = text[len(argument) + 1:].lstrip()
+        if value is not None and text.startswith(f"{value}:"):  # ... or the value
+            text = text[len(str(value)) + 1:].lstrip()
         raise InputError(argument, f"{'' if value is None else value}: {text}") from None

@@ -81,9 +81,10 @@ def _umask() -> int:
     return mask
 
 
-def write_json_atomic(path: str | os.PathLike, obj: Any) -> Path:
-    """Write ``obj`` as indented JSON, atomically."""
-    return write_bytes_atomic(path, (json.dumps(obj, indent=2, sort_keys=True) + "\n").encode())
+def write_json_atomic(path: str | os.PathLike, obj: Any, *, allow_nan: bool = True) -> Path:
+    """Write ``obj`` as indented JSON, atomically; ``allow_nan=False``: ValueError, before anything is
+    written, where ``obj`` holds NaN or infinity (which JSON has no word for)."""
+    return write_bytes_atomic(path, (json.dumps(obj, indent=2, sort_keys=True, allow_nan=allow_nan) + "\n").encode())
 
 
 def write_png_atomic(path: str | os.PathLike, rgb) -> Path:

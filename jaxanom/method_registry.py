@@ -9,21 +9,37 @@ Where methods come from, loaded once on first use:
 
 - jaxanom's own: the modules ``jaxanom.builtins`` lists (``score_methods`` beside ``scores``,
   ``sml/methods``, ``cudam/methods``, ``mmf/methods``, ...), so a paper's rows sit beside its code;
-- installed packages: the modules (or objects) named by the ``jaxanom.methods`` entry-point group;
+- installed packages: the modules (or objects) named by the ``jaxanom.methods`` entry-point group,
+  unless the environment variable ``JAXANOM_DISABLE_ENTRY_POINTS`` is set (to anything but
+  ``""`` or ``0``); one that fails to load is left out and named only when a name it might have
+  provided is asked for (``get``, ``check``), so it breaks no command that does not need it;
 - any module imported by the caller (``load_plugin``, the commands' ``--plugin MODULE``).
 
 Each of those modules calls ``register(Method(...))`` when imported.
+
+Post-processing composes by name: ``"NAME+POST"`` is method NAME's scores through the
+post-processor POST, one that a module registered with ``register_post(Post(...))`` (SML's
+``post``, ``suppress`` and ``smooth``: ``"energy+post"``), applied left to right
+(``"NAME+POST1+POST2"``). ``+`` never occurs in a registered name, so a composed name is never
+ambiguous; ``get`` and ``check`` resolve it, ``names()`` lists registered methods only.
 """
 from __future__ import annotations
 
 import dataclasses
+import functools
+import hashlib
 import importlib
+import os
+import re
+import sys
 import types
+from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
 
 from jaxanom.errors import InputError
 
 ENTRY_POINTS = "jaxanom.methods"
+DISABLE_ENTRY_POINTS = "JAXANOM_DISABLE_ENTRY_POINTS"  # environment variable: installed plug-ins not loaded
 
 # What a batch can give the methods, and how a missing input is described in an error.
 INPUTS: dict[str, str] = {
@@ -38,6 +54,19 @@ INPUTS: dict[str, str] = {
 
 Inputs = Mapping[str, Any]
 Options = Mapping[str, Any]
+
+# A method's name becomes a folder or file name of the commands' outputs (``npy/<method>/``,
+# ``scores/<method>.npy``): letters, digits, ``_``, ``-`` and ``.``, never ``.`` or ``..``, so never a
+# path; a composed name joins such names with ``+`` (``msp+post``), still no path.
+NAME = re.compile(r"[A-Za-z0-9_.-]+")
+NAME_RULE = "letters, digits, '_', '-', '.' (not '.' or '..'), composed with '+'"
+
+
+def is_name(text) -> bool:
+    """Whether ``text`` may name a method (``NAME_RULE``): a plain name, or plain names joined by
+    ``+`` (a method composed with post-processors); never a path."""
+    return isinstance(text, str) and all(NAME.fullmatch(part) is not None and part not in (".", "..")
+                                         for part in text.split("+"))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,8 +88,8 @@ class Method:
     resolve: Callable[[Inputs, Options], Options] | None = None
 
     def __post_init__(self):
-        if not isinstance(self.name, str) or not self.name or "," in self.name or self.name != self.name.strip():
-            raise ValueError(f"name: expected a non-empty name without commas or surrounding spaces, got {self.name!r}")
+        if not is_name(self.name):
+            raise ValueError(f"name: expected {NAME_RULE}, got {self.name!r}")
         needs = frozenset(self.needs)
         if unknown := sorted(needs - set(INPUTS)):
             raise ValueError(f"needs of {self.name}: expected keys of INPUTS {sorted(INPUTS)}, got {unknown}")
@@ -71,38 +100,114 @@ class Method:
         object.__setattr__(self, "needs", needs)
         object.__setattr__(self, "defaults", types.MappingProxyType(dict(self.defaults)))
 
-    def options(self, inputs: Inputs, given: Options | None = None) -> dict:
-        """This method's options: its defaults, overridden by the keys of ``given`` it declares
-        (a None value keeps the default), then resolved against ``inputs``."""
+    def unresolved(self, given: Options | None = None) -> dict:
+        """This method's options before any batch: its defaults, overridden by the keys of
+        ``given`` it declares (a None value keeps the default)."""
         given = given or {}
-        options = {k: given[k] if given.get(k) is not None else v for k, v in self.defaults.items()}
+        return {k: given[k] if given.get(k) is not None else v for k, v in self.defaults.items()}
+
+    def options(self, inputs: Inputs, given: Options | None = None) -> dict:
+        """This method's options: ``unresolved(given)``, then resolved against ``inputs``."""
+        options = self.unresolved(given)
         return dict(self.resolve(inputs, options)) if self.resolve is not None else options
 
 
+@dataclasses.dataclass(frozen=True)
+class Post:
+    """A post-processor any method composes with as ``"NAME+<name>"``: ``apply(scores, inputs)``
+    maps a method's (B, H, W) scores to (B, H, W) scores, reading the batch's ``needs`` (keys of
+    ``INPUTS``) from ``inputs``. ``description``: one line, following the method's in the composition."""
+
+    name: str
+    needs: frozenset[str]
+    apply: Callable[[Any, Inputs], Any]
+    description: str
+
+
+_POSTS: dict[str, Post] = {}
+
+
+def register_post(post: Post) -> Post:
+    """Add ``post`` under its name (a name without ``+``); ValueError if another has it. Returns it."""
+    if not isinstance(post, Post) or not post.name or "+" in post.name or "," in post.name:
+        raise ValueError(f"post: expected a Post named without '+' or ',', got {post!r}")
+    if post.name in _POSTS and _POSTS[post.name] != post:
+        raise ValueError(f"post-processor {post.name!r}: already registered")
+    _POSTS[post.name] = post
+    return post
+
+
+def _composed(name: str) -> Method | None:
+    """The method ``"BASE+POST1+POST2..."`` (each POST applied in turn), or None if ``name`` is
+    not of that form with a registered BASE and registered POSTs."""
+    base, *posts = name.split("+")
+    if not posts or base not in _METHODS or any(p not in _POSTS for p in posts):
+        return None
+    method = _METHODS[base]
+    for post in (_POSTS[p] for p in posts):
+        inner = method.score
+        method = dataclasses.replace(
+            method, name=f"{method.name}+{post.name}", needs=method.needs | post.needs,
+            score=lambda inputs, options, inner=inner, post=post: post.apply(inner(inputs, options), inputs),
+            description=f"{method.description}; then {post.description}")
+    return method
+
+
 _METHODS: dict[str, Method] = {}
-_ORIGIN: dict[str, str] = {}  # name -> the module that registered it, for conflict messages
+_BROKEN: list[str] = []  # one line per entry point that failed to load, for the errors of unknown names
+_ORIGIN: dict[str, str] = {}  # name -> the module that registered it, for conflict messages and fingerprints
 _loaded = False
 
 
 def register(method: Method) -> Method:
-    """Add ``method``; ValueError if another method already has its name. Returns it."""
+    """Add ``method`` (whose name ``Method`` has checked: a name, never a path); ValueError if
+    another method already has its name. Returns it."""
     if not isinstance(method, Method):
         raise ValueError(f"method: expected a jaxanom.method_registry.Method, got {type(method).__name__}")
-    origin = getattr(method.score, "__module__", "?")
+    if "+" in method.name:  # "+" composes a method with a post-processor ("msp+post")
+        raise ValueError(f"name: expected a name without '+', got {method.name!r}")
+    origin = sys._getframe(1).f_globals.get("__name__", "?")  # the module calling register
     if method.name in _METHODS and _METHODS[method.name] != method:
         raise ValueError(f"method {method.name!r}: already registered by {_ORIGIN[method.name]}; "
                          f"{origin} cannot register another under the same name")
-    _METHODS[method.name] = method
-    _ORIGIN[method.name] = origin
-    return method
+    if method.name not in _METHODS:  # the same method again (its module imported twice) keeps its origin
+        _METHODS[method.name] = method
+        _ORIGIN[method.name] = origin
+    return _METHODS[method.name]
+
+
+def implementation(name: str) -> str:
+    """A fingerprint of method ``name``'s code: SHA-256 (hex) of the source files of the modules
+    that registered it and define its ``score`` and ``resolve`` (a plug-in's module, or jaxanom's
+    own ``*methods.py``; a module without a file counts by its name only), and, for a composed
+    ``"NAME+POST"``, those defining each post's ``apply``. Another plug-in
+    registering the name, or an edit of its module (a default option included), changes it."""
+    method = get(name)
+    base, *post_names = name.split("+")  # a composed method: its base's code and each post's
+    modules = {_ORIGIN[base]}
+    for function in (_METHODS[base].score, method.resolve, *(_POSTS[p].apply for p in post_names)):
+        while isinstance(function, functools.partial):
+            function = function.func
+        if function is not None:
+            modules.add(getattr(function, "__module__", None) or type(function).__module__)
+    digest = hashlib.sha256()
+    for module in sorted(modules):
+        file = getattr(sys.modules.get(module), "__file__", None)
+        digest.update(f"{module}\n".encode())
+        if file and Path(file).is_file():
+            digest.update(Path(file).read_bytes())
+    return digest.hexdigest()
 
 
 def get(name: str) -> Method:
-    """The method called ``name``; ValueError naming it and the known names otherwise."""
+    """The method called ``name`` (registered, or composed ``"NAME+POST"``); ValueError naming it
+    and the known names otherwise."""
     _load()
-    if name not in _METHODS:
-        raise InputError("methods", f": expected names from {', '.join(_METHODS)}; got unknown {name!r}")
-    return _METHODS[name]
+    method = _METHODS.get(name) or _composed(name)
+    if method is None:
+        raise InputError("methods", f": expected names from {', '.join(_METHODS)} (each may end in "
+                                    f"{', '.join('+' + p for p in _POSTS)}); got unknown {name!r}{_broken()}")
+    return method
 
 
 def names() -> tuple[str, ...]:
@@ -120,12 +225,14 @@ def check(method_names: Iterable[str], provided: Iterable[str], options: Options
     """
     selected = tuple(method_names)
     _load()
-    unknown = [n for n in selected if n not in _METHODS]
-    if unknown or not selected:
-        raise InputError("methods", f": expected names from {', '.join(_METHODS)}; got {list(selected)}")
+    methods = {n: _METHODS.get(n) or _composed(n) for n in selected}
+    if None in methods.values() or not selected:
+        raise InputError("methods", f": expected names from {', '.join(_METHODS)} (each may end in "
+                                    f"{', '.join('+' + p for p in _POSTS)}); got {list(selected)}"
+                                    f"{_broken() if None in methods.values() else ''}")
     provided = set(provided)
     for key in INPUTS:  # the first missing input, with every method that needs it
-        if key not in provided and (missing := [n for n in selected if key in _METHODS[n].needs]):
+        if key not in provided and (missing := [n for n in selected if key in methods[n].needs]):
             raise InputError("methods", f"{missing} need {INPUTS[key]}; none were given")
     declared = {k for m in _METHODS.values() for k in m.defaults}
     if stray := sorted(set(options or {}) - declared):
@@ -140,7 +247,79 @@ def score(name: str, inputs: Inputs, options: Options | None = None):
     serve many methods)."""
     method = get(name)
     check((name,), given(inputs), options)
-    return method.score(inputs, method.options(inputs, options))
+    return call(method, inputs, options)[0]
+
+
+def call(method: Method, inputs: Inputs, options: Options | None = None) -> tuple[Any, dict]:
+    """``(scores, used)``: ``method``'s scores of ``inputs`` and its options (``Method.options`` of
+    ``options``), behind the boundary every command scores through: the method gets its own
+    shallow copy of ``inputs`` with read-only NumPy arrays (what one method does to them cannot
+    change the next one's scores), and what it returns is checked (``check_output``)."""
+    own = read_only(inputs)
+    used = method.options(own, options)
+    scores = method.score(own, used)
+    check_output(method.name, scores, inputs)
+    return scores, used
+
+
+def read_only(value):
+    """``value`` with every NumPy array in it (in dicts, lists, tuples) a read-only view, and its
+    dicts and lists copies; other values as they are (jax arrays are immutable)."""
+    import numpy as np
+
+    if isinstance(value, np.ndarray):
+        view = value.view()
+        view.flags.writeable = False
+        return view
+    if isinstance(value, Mapping):
+        return {key: read_only(item) for key, item in value.items()}
+    if type(value) in (tuple, list):
+        return type(value)(read_only(item) for item in value)
+    return value
+
+
+def check_output(name: str, scores, inputs: Inputs) -> None:
+    """InputError naming method ``name`` unless ``scores`` is an array (B, H, W) of the batch
+    ``inputs`` (the logits' first three sizes) with a floating dtype. Shapes and dtypes only: no
+    value is read, so it holds inside ``jax.jit``; finiteness is ``check_finite``'s, where the
+    values reach the host."""
+    import jax.numpy as jnp
+
+    if not (hasattr(scores, "shape") and hasattr(scores, "dtype")):
+        raise InputError("methods", f": method {name!r} returned {type(scores).__name__}; expected an array (B, H, W)")
+    logits = inputs.get("logits")
+    expected = tuple(logits.shape[:3]) if logits is not None else None
+    if len(scores.shape) != 3 or (expected is not None and tuple(scores.shape) != expected):
+        raise InputError("methods", f": method {name!r} returned scores of shape {tuple(scores.shape)}; expected "
+                         f"(B, H, W) = {expected or '3 dimensions'}, the batch's")
+    if not jnp.issubdtype(scores.dtype, jnp.floating):
+        raise InputError("methods", f": method {name!r} returned scores of dtype {scores.dtype}; expected a floating "
+                         "dtype (float32)")
+
+
+def check_finite(name: str, scores, labels=None, where: str = "") -> None:
+    """InputError naming method ``name`` when ``scores`` (B, H, W), NumPy or jax, hold NaN or
+    +-inf on pixels whose ``labels`` are not void (255), or on any pixel without ``labels``;
+    ``where``: the frames, for the message (e.g. ``" of frame 12"``). Reads one count from the
+    device for a jax array."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    xp = jnp if isinstance(scores, jax.Array) else np
+    bad = ~xp.isfinite(scores)
+    if labels is not None:
+        bad = bad & (xp.asarray(labels) != 255)
+    if count := int(bad.sum()):
+        pixels = "non-void pixels" if labels is not None else "pixels"
+        raise InputError("methods", f": method {name!r} returned {count} NaN or infinite scores on {pixels}{where}; "
+                         "expected finite scores")
+
+
+def posts() -> tuple[Post, ...]:
+    """Every registered post-processor (``"NAME+<post>"`` composes it with any method)."""
+    _load()
+    return tuple(_POSTS.values())
 
 
 def given(inputs: Inputs) -> set[str]:
@@ -166,11 +345,21 @@ def _load() -> None:
     builtins.load()
     from importlib.metadata import entry_points
 
-    for entry in entry_points(group=ENTRY_POINTS):
+    _BROKEN.clear()
+    for entry in () if os.environ.get(DISABLE_ENTRY_POINTS, "") not in ("", "0") else entry_points(group=ENTRY_POINTS):
         try:
             entry.load()
-        except Exception as error:
-            raise ImportError(f"the {ENTRY_POINTS} entry point {entry.name} = {entry.value} "
-                              f"({entry.dist.name if entry.dist else 'unknown distribution'}) failed to load: "
-                              f"{type(error).__name__}: {error}") from error
+        except Exception as error:  # noqa: BLE001  a broken installed plug-in: named when its names are needed
+            reason = str(error).strip().splitlines()[0] if str(error).strip() else ""
+            _BROKEN.append(f"the {ENTRY_POINTS} entry point {entry.name} = {entry.value} "
+                           f"({entry.dist.name if entry.dist else 'unknown distribution'}) failed to load "
+                           f"({type(error).__name__}: {reason})")
     _loaded = True
+
+
+def _broken() -> str:
+    """For an error about unknown names: the entry points that failed to load (which might have
+    provided them), or ""."""
+    if not _BROKEN:
+        return ""
+    return f"; {'; '.join(_BROKEN)} (fix or uninstall it, or set {DISABLE_ENTRY_POINTS}=1)"

@@ -13,7 +13,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_finite, check_rank, check_real, values_checked
+from jaxanom._validate import check_finite, check_rank, check_real, check_static, values_checked
+from jaxanom.errors import InputError
 
 
 def _checked(logits, *, batched: bool = False, min_classes: int = 1) -> jax.Array:
@@ -29,6 +30,10 @@ def _checked(logits, *, batched: bool = False, min_classes: int = 1) -> jax.Arra
 
 
 def _check_temperature(temperature) -> None:
+    """T > 0 where its value is on the host; a traced T (jit / vmap over a grid) is not read."""
+    if np.ndim(temperature) != 0:
+        raise InputError("temperature", f"must be a scalar (vmap over a grid of temperatures), got shape "
+                         f"{np.shape(temperature)}")
     if values_checked(temperature) and not temperature > 0:
         raise ValueError(f"temperature must be > 0, got {temperature}")
 
@@ -88,13 +93,15 @@ def entropy(logits, normalize: bool = False) -> jax.Array:
     """Softmax entropy ``-sum_c p_c log p_c`` in nats: ``(H, W, C) -> (H, W)``.
 
     ``normalize=True`` divides by ``log C`` (needs C >= 2), giving [0, 1]: MMF Eq. 1 normalised
-    to [0, 1] as the MMF paper asks (the logarithm's base cancels).
+    to [0, 1] as the MMF paper asks (the logarithm's base cancels). ``normalize`` is static.
     """
+    check_static("normalize", normalize, "chooses the formula")
     return _entropy_jit(_checked(logits, min_classes=2 if normalize else 1), normalize)
 
 
 def energy(logits, temperature: float = 1.0) -> jax.Array:
-    """Free energy ``-T logsumexp(F / T)`` (Liu et al. 2020), T > 0: ``(H, W, C) -> (H, W)``."""
+    """Free energy ``-T logsumexp(F / T)`` (Liu et al. 2020), T > 0: ``(H, W, C) -> (H, W)``.
+    ``temperature`` may be traced (``jax.jit`` / ``vmap`` over a grid of temperatures)."""
     _check_temperature(temperature)
     return _energy_jit(_checked(logits), jnp.float32(temperature))
 
@@ -120,6 +127,7 @@ def max_logit_batch(logits) -> jax.Array:
 
 def entropy_batch(logits, normalize: bool = False) -> jax.Array:
     """``entropy`` over a batch: ``(B, H, W, C) -> (B, H, W)``."""
+    check_static("normalize", normalize, "chooses the formula")
     return _entropy_batch(_checked(logits, batched=True, min_classes=2 if normalize else 1), normalize)
 
 

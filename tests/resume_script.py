@@ -1,7 +1,7 @@
 """A tiny CuDAM training run for the kill-and-resume test: ``python resume_script.py RUN_DIR DELAY_S``.
 
 Trains TinySegNet on 4 simulated CPU devices from a resumable input for STEPS steps, saving every
-SAVE_EVERY steps, and writes the final parameters to RUN_DIR/final.npz. DELAY_S slows each
+SAVE_EVERY steps and logging every step, and writes the final parameters to RUN_DIR/final.npz. DELAY_S slows each
 batch down so that the test can kill the process mid-run.
 """
 import sys
@@ -22,7 +22,7 @@ STEPS, SAVE_EVERY = 12, 3
 
 
 def main(run_dir: str, delay_s: float) -> None:
-    config = TrainConfig(run_dir=run_dir, steps=STEPS, save_every=SAVE_EVERY, keep=2, progress=False,
+    config = TrainConfig(run_dir=run_dir, steps=STEPS, save_every=SAVE_EVERY, log_every=1, keep=2, progress=False,
                          objective=CuDAM(), optim=OptimConfig(lr=0.05, warmup_steps=2))
     state = train(config, TinySegNet(head="cudam"), IndexedBatches(seed=0, delay_s=delay_s),
                   variables=init_variables("cudam"))

@@ -269,6 +269,11 @@ def test_set_indexes_tuples_of_configs():
     ("train.steps.every=1", "train.steps.every: train.steps is an integer, which has no member 'every'"),
     ("train.objective.tau=3", "train.objective.tau: unknown field of CrossEntropy"),
     ("train.objective=pebal", "train.objective.name: expected one of"),
+    ("train.objective.nme=cudam", r"train.objective.nme: unknown field of CrossEntropy; expected one of "
+                                  r"\['class_weights', 'name'\]"),
+    ("train.objective.name=cudam", r"train.objective.name: is fixed by the class \(CrossEntropy's is "
+                                   r"'cross_entropy'\); give train.objective whole to pick another, e.g. "
+                                   r"train.objective=NAME"),
     ("init_modules.0=backbone", "init_modules: is none; give it whole first"),
     ("crop.2=5", "crop.2: expected an index below 2 of crop"),
     ("train.optim=0.5", "train.optim: expected an object of OptimConfig fields, got '0.5'"),
@@ -403,3 +408,43 @@ def test_mmf_demo_config_round_trips_and_rejects_unknown_fields():
         decode(MMFDemoConfig, {"pipeline": {"dissim_stepz": 3}})
     with pytest.raises(ValueError, match="expected an object of MMFDemoConfig fields, got"):
         decode(MMFDemoConfig, [1, 2])
+
+
+@pytest.mark.parametrize("assignment", ["train.optim.clip_norm=nan", "train.optim.clip_norm=inf",
+                                        "train.optim.lr=-Infinity", "train.optim.momentum=NaN",
+                                        "scale_range=0.5,inf", 'train.optim={"weight_decay": NaN}'])
+def test_set_gives_no_field_nan_or_infinity(assignment):
+    with pytest.raises(ConfigError, match=r"expected a finite number, got (nan|inf|-inf)"):
+        override(Experiment(), [assignment])
+
+
+def test_config_files_give_no_field_nan_or_infinity(tmp_path):
+    config = tmp_path / "experiment.json"
+    config.write_text('{"train": {"optim": {"clip_norm": Infinity}}}')  # Python's json reads Infinity
+    with pytest.raises(ConfigError, match=r"experiment.json: train.optim.clip_norm: expected a finite number, got inf"):
+        load_config(config, Experiment)
+    script = tmp_path / "exp.py"  # a Python config that slips a NaN past the dataclass's own checks
+    script.write_text("from jaxanom.app.experiment import Experiment\nexperiment = Experiment()\n"
+                      "object.__setattr__(experiment, 'scale_range', (0.5, float('nan')))\n")
+    with pytest.raises(ConfigError, match=r"exp.py: scale_range.1: expected a finite number, got nan"):
+        load_config(script, Experiment, "experiment")
+
+
+def test_a_nan_clip_norm_is_refused_by_the_optimizer_config_and_experiment_json_holds_no_nan(tmp_path):
+    from jaxanom.io import write_json_atomic
+
+    with pytest.raises(ValueError, match="clip_norm must be a finite number"):
+        OptimConfig(clip_norm=float("nan"))
+    with pytest.raises(ValueError, match="Out of range float values are not JSON compliant"):
+        write_json_atomic(tmp_path / "experiment.json", {"clip_norm": float("nan")}, allow_nan=False)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_train_refuses_a_nan_clip_norm_in_one_line_before_any_work(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["train", "--out", str(out), "--steps", "1", "--set", "train.optim.clip_norm=nan",
+                 "--no-progress"]) == 2
+    error = capsys.readouterr().err.strip()
+    assert len(error.splitlines()) == 1 and "--set" in error and "train.optim.clip_norm: expected a finite number, got nan" \
+        in error, error
+    assert not out.exists()

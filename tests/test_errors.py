@@ -16,6 +16,8 @@ def test_the_argument_leads_unless_the_message_places_it():
     placed = InputError("min_count", "the run diverged; lower {min_count}")
     assert (str(placed), placed.render(FLAG)) == ("the run diverged; lower min_count", "the run diverged; lower --min-count")
     assert isinstance(error, ValueError) and error.argument == "out"
+    advice = InputError("min_count", ": 0 counts nothing; pass {min_count} 1")  # follows the name and repeats it
+    assert advice.render(FLAG) == "--min-count: 0 counts nothing; pass --min-count 1"
 
 
 def test_reading_names_the_argument_of_a_plain_value_error_and_passes_input_errors():
@@ -27,6 +29,10 @@ def test_reading_names_the_argument_of_a_plain_value_error_and_passes_input_erro
         with reading("out"):
             raise ValueError("out: cannot join")  # the reader named it already: not twice
     assert caught.value.render(FLAG) == "--out: cannot join"
+    with pytest.raises(InputError) as caught:
+        with reading("out", "/x"):
+            raise ValueError("/x: not a run folder")  # ... or the value
+    assert caught.value.render(FLAG) == "--out /x: not a run folder"
     original = InputError("min_count", ": must be >= 0")
     with pytest.raises(InputError) as caught:
         with reading("out", "/x"):

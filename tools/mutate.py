@@ -44,6 +44,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_OUT = Path(tempfile.gettempdir()) / "jaxanom-mutants.jsonl"  # results stay out of the checkout
 
 # Each module's test files: the ones that exercise it directly (a survivor here may still die
 # elsewhere in the suite; the report says so).
@@ -262,7 +263,7 @@ def main(argv=None):
     parser.add_argument("--timeout-factor", type=float, default=3.0)
     parser.add_argument("--list", action="store_true", help="print the sites and stop")
     parser.add_argument("--diff", action="store_true", help="print the diffs of --sites and stop")
-    parser.add_argument("--out", default="mutants.jsonl")
+    parser.add_argument("--out", default=str(DEFAULT_OUT), help=f"results, appended (default: {DEFAULT_OUT})")
     parser.add_argument("--summary", metavar="JSONL", help="tabulate a results file and stop")
     args = parser.parse_args(argv)
     if args.summary:

@@ -7,6 +7,8 @@
   a run's ``experiment.json`` is such a file, so ``train --config RUN/experiment.json`` repeats a run;
 - a Python file (config-as-code): run, it defines ``variable`` (a ``cls``).
 
+Either way no number field holds NaN or infinity (``config_codec``: none of them takes one).
+
 ``override(config, ["train.optim.lr=1e-3", ...])`` (``--set``) is ``config_codec.override``.
 """
 from __future__ import annotations
@@ -18,7 +20,7 @@ import runpy
 from pathlib import Path
 from typing import TypeVar
 
-from jaxanom.config_codec import ConfigError, decode, encode, override
+from jaxanom.config_codec import ConfigError, check_finite, decode, encode, override
 
 __all__ = ["ConfigError", "encode", "load_config", "override"]
 
@@ -70,4 +72,8 @@ def _run_python(path: Path, cls: type[T], variable: str) -> T:
     if not isinstance(value, cls):
         raise ConfigError("", f"expected it to define `{variable} = {cls.__name__}(...)`, found "
                           f"{type(value).__name__}", os.fspath(path))
+    try:  # what a JSON config's decoding refuses: NaN or infinity in a number field
+        check_finite(encode(value))
+    except ConfigError as error:
+        raise ConfigError(error.path, error.message, os.fspath(path)) from None
     return value

@@ -13,8 +13,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxanom.app.outputs import within
 from jaxanom.app.scoring import inputs_of, score_all
 from jaxanom.cudam.score import upsample_attention
+from jaxanom.method_registry import check_finite
 from jaxanom.metrics import anomaly_metrics, pr_curve, restrict_to_roi, roc_curve
 from jaxanom.metrics.evaluator import (Components, PixelAnomaly, Segmentation, SmiycPixels, run_evaluators,
                                        update_keyed)
@@ -74,24 +76,36 @@ def predictions(predict: Callable, batches: Iterable[dict]) -> Iterator[dict]:
         yield pending
 
 
-def protocol_predictions(predict: Callable, source, protocol, skipped: list | None = None) -> Iterator[dict]:
+def protocol_predictions(predict: Callable, source, protocol, skipped: list | None = None,
+                         check_size: Callable | None = None) -> Iterator[dict]:
     """One-frame batches of ``source`` (a frame reader) as ``protocol`` (``jaxanom.app.protocols``)
     counts them, with the network's outputs added: each frame resized to the protocol's size, the
-    frames it skips left out (their names appended to ``skipped``) before the network runs."""
+    frames it skips left out (their names appended to ``skipped``) before the network runs.
+    ``check_size((h, w), name)`` (``app.predict.size_check``) refuses a size before the network runs on it."""
     from jaxanom.data.pipeline import evaluation_batches
 
     for batch in evaluation_batches(protocol.source(source), batch_size=1):
         if protocol.counts(batch["label"]):
+            if check_size is not None:
+                check_size(batch["image"].shape[1:3], str(batch.get("name", ["?"])[0]))
             yield {**batch, **predict(batch["image"])}
         elif skipped is not None:
             skipped.extend(str(name) for name in batch.get("name", ["?"]))
 
 
-def class_statistics(predict: Callable, batches: Iterable[dict]):
-    """SML class statistics (Eqs. 3-4, a ``sml.ClassStats``) of the network's logits over ``batches``."""
+def class_statistics(predict: Callable, batches: Iterable[dict], drop_void: bool = False):
+    """SML class statistics (Eqs. 3-4, a ``sml.ClassStats``) of the network's logits over ``batches``;
+    ``drop_void``: of the logits without the void output (as a protocol that drops it scores them)."""
     from jaxanom import sml
+    from jaxanom.app.scoring import without_channel
 
-    return sml.fit_stats(out["logits"] for out in predictions(predict, batches))
+    return sml.fit_stats(without_channel(out["logits"]) if drop_void else out["logits"]
+                         for out in predictions(predict, batches))
+
+
+# what --convention smiyc moves from a method's metrics to its "exact": the exact curve's numbers and labels
+EXACT_KEYS = ("ap", "auroc", "fpr_at_tpr", "best_f1", "best_f1_threshold", "ap_convention", "fpr_convention",
+              "ap_conventions", "fpr_conventions")
 
 
 def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, options: dict | None = None,
@@ -119,16 +133,23 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
     ROI 255]}`` when ``keep_curves`` (it keeps every score on the host: small sets only).
     ``mode="binned"`` is not offered here because score ranges differ per method.
     ``convention="smiyc"``: AP / AUROC / FPR / best F1 and the component threshold and mask as
-    the official SegmentMeIfYouCan kit computes them (``jaxanom.metrics.smiyc``); the exact
-    values move to ``metrics[name]["exact"]``. Batches may carry finished score maps
+    the official SegmentMeIfYouCan kit computes them (``jaxanom.metrics.smiyc``), labelled
+    ``"convention": "smiyc"``; the exact values move to ``metrics[name]["exact"]`` with the
+    labels of the conventions that made them (``ap_convention``, ``fpr_convention`` and every
+    convention's value, ``ap_conventions`` / ``fpr_conventions``), so each number carries its own. Batches may carry finished score maps
     ``"maps": {name: (B, H, W)}`` instead of ``"logits"`` (``saved_map_batches``). ``drop_void``:
     the methods but ``void`` score the logits without a void channel (``app.scoring.score_all``).
+    A method's scores that are not finite on non-void pixels are refused naming it
+    (``method_registry.check_finite``, one count per map).
+    InputError naming ``path`` when the frames pool no anomaly or no normal pixel (each frame's
+    reason said), and naming ``methods`` when ``convention="smiyc"`` meets a score outside float16.
     """
     import tempfile
 
     if convention not in CONVENTIONS:
         raise ValueError(f"convention: expected one of {CONVENTIONS}, got {convention!r}")
     pixels, kept, used, frames, binned = {}, {}, {}, [], {}  # method -> (evaluator, state)
+    counted: list[tuple] = []  # (frame name, anomaly pixels, normal pixels)
     spill = (tempfile.TemporaryDirectory(prefix=".jaxanom-maps-", suffix=".tmp", dir=spill_dir)
              if track is not None else None)
     try:
@@ -145,9 +166,14 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
             labels = np.asarray(batch["label"])
             if "roi" in batch:  # evaluate inside the region of interest only (MMF: the road)
                 labels = restrict_to_roi(labels, batch["roi"])
+            where = f" of frame {', '.join(map(str, batch['name']))}" if "name" in batch else ""
+            for name, score in batch_scores.items():  # a count per map, read once the next batch is dispatched
+                check_finite(name, score, labels, where)
+            names_in_batch = batch.get("name", [None] * len(labels))
+            for index, label in enumerate(labels):  # what each frame adds to the pool, named if it adds no class
+                counted.append((names_in_batch[index], int((label == 1).sum()), int((label == 0).sum())))
             first = len(frames)
             if spill is not None:
-                names_in_batch = batch.get("name", [None] * len(labels))
                 for index, label in enumerate(labels):
                     name = names_in_batch[index]
                     frames.append({"name": str(name) if name is not None else str(first + index), "pixels": {}})
@@ -157,16 +183,16 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
                 update_keyed(pixels, name, lambda: PixelAnomaly(name, mode, fpr_convention, ap_convention,
                                                                 conventions=True), scored)
                 if convention == "smiyc":
+                    _check_kit_range(name, score, labels, names_in_batch)
                     update_keyed(binned, name, lambda: SmiycPixels(name), scored)
                 if keep_curves:
                     kept.setdefault(name, []).extend(zip(np.asarray(score), labels))
                 if spill is not None:
                     for index, (one, label) in enumerate(zip(np.asarray(score), labels)):
-                        np.save(Path(spill.name) / f"{name}_{first + index}.npy", one)
+                        np.save(within(spill.name, Path(spill.name) / f"{name}_{first + index}.npy"), one)
                         frames[first + index]["pixels"][name] = _frame_pixel_metrics(one, label, fpr_convention,
                                                                                       ap_convention)
-        if not pixels:
-            raise ValueError("outputs: expected at least one batch, got none")
+        _check_both_classes(counted)
     except BaseException:  # a refused frame mid-way leaves no spilled maps in --out
         if spill is not None:
             spill.cleanup()
@@ -175,9 +201,9 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
     for name, values in used.items():
         if values:
             metrics[name]["options"] = values
-    for name, (evaluator, state) in binned.items():
-        values = metrics[name]
-        values["exact"] = {key: values[key] for key in ("ap", "auroc", "fpr_at_tpr", "best_f1", "best_f1_threshold")}
+    for name, (evaluator, state) in binned.items():  # the kit's numbers on top, "convention": "smiyc"; the
+        values = metrics[name]  # exact ones move with the conventions that made them
+        values["exact"] = {key: values.pop(key) for key in EXACT_KEYS}
         values.update(evaluator.finalize(state))
     if spill is not None:
         with spill:
@@ -192,6 +218,42 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
         precision, recall, _ = pr_curve(scores, labels)
         curves[name] = {"roc": (fpr, tpr), "pr": (recall, precision), "scores": maps, "labels": truths}
     return metrics, curves
+
+
+def _check_both_classes(counted: list[tuple]) -> None:
+    """InputError naming ``path`` unless the frames ``(name, anomaly pixels, normal pixels)`` pool
+    pixels of both classes (AP, AUROC and FPR@95 need both), with each frame's reason."""
+    if not counted:
+        raise InputError("path", ": no frame to score")
+    if sum(c[1] for c in counted) and sum(c[2] for c in counted):
+        return
+    missing = "anomaly" if not sum(c[1] for c in counted) else "normal (non-anomaly, non-void)"
+
+    def reason(positives, negatives):
+        return "all void" if not positives + negatives else "no anomaly pixel" if not positives else "no normal pixel"
+
+    shown = [f"{'?' if name is None else name}: {reason(p, n)}" for name, p, n in counted[:5]]
+    more = f", and {len(counted) - 5} more" if len(counted) > 5 else ""
+    raise InputError("path", f": no {missing} pixel in any of the {len(counted)} frames scored ({'; '.join(shown)}"
+                     f"{more}); AP, AUROC and FPR@95 are undefined without both classes")
+
+
+def _check_kit_range(method: str, scores, labels: np.ndarray, names) -> None:
+    """InputError naming ``methods`` where a non-void score of ``method`` (``scores`` (B, H, W),
+    ``labels`` (B, H, W), frames ``names``) has no float16 value. The official SegmentMeIfYouCan
+    kit stores every map as float16 (``anomaly_p.astype(np.float16)`` in its ``save_output``),
+    which turns such a score into +-inf and its bin edges into infinite or NaN ones
+    (docs/decisions/smiyc-convention.md): no number of the kit's exists to reproduce."""
+    from jaxanom.metrics.smiyc import FLOAT16_MAX
+
+    for one, label, name in zip(np.asarray(scores), labels, names):
+        values = one[label != 255]
+        bad = values[~(np.abs(values) <= FLOAT16_MAX)]  # NaN included
+        if bad.size:
+            raise InputError("methods", f": {method}'s scores of frame {name} reach {bad[0]:g}, outside float16's "
+                             f"range (|score| <= {FLOAT16_MAX:g}); the official SegmentMeIfYouCan kit stores maps "
+                             "as float16, where such scores become inf and its bins undefined; use {convention} exact",
+                             mentions=("convention",))
 
 
 def _frame_pixel_metrics(score, label, fpr_convention: str, ap_convention: str) -> dict | None:
@@ -258,14 +320,23 @@ def dataset_reader(dataset: str, path: str, *, base: str | None = None, frames: 
     return reader(path, base)
 
 
-def saved_map_batches(folder: str | Path, source,
-                      methods: list[str] | None = None) -> tuple[list[str], Iterator[dict]]:
+# the SegmentMeIfYouCan dataset folders (``app.predict.SMIYC_DATASETS``) whose track is theirs alone;
+# the Lost and Found ones are scored with either track's rules (Fishyscapes: anomaly; the kit: obstacle)
+MAP_TRACKS = {"AnomalyTrack-all": "anomaly", "ObstacleTrack-all": "obstacle", "RoadObstacleWeather-v1": "obstacle",
+              "RoadObstacleExtra-v1": "obstacle", "SmallObstacleDataset-train": "obstacle",
+              "SmallObstacleDataset-val": "obstacle", "SmallObstacleDataset-test": "obstacle"}
+
+
+def saved_map_batches(folder: str | Path, source, methods: list[str] | None = None,
+                      track: str | None = None) -> tuple[list[str], Iterator[dict]]:
     """``(methods, batches)``: the score maps ``jaxanom predict --format smiyc`` wrote into ``folder``
     (``anomaly_p/<method>/<dataset>/<frame>.hdf5``, float16 HDF5 dataset ``value``: the official
     SegmentMeIfYouCan submission tree) as one-frame batches ``{"maps": {method: (1, H, W)},
     "label", "name"}`` for ``anomaly_results``, in the order of ``source`` (a ``FrameReader``
     whose frame names are the files' stems). ``methods``: default every method folder. Every file is
-    looked for before the first is read: FileNotFoundError naming what is missing."""
+    looked for before the first is read: FileNotFoundError naming what is missing. ``track``
+    (``"anomaly"`` / ``"obstacle"``: the component rules they will be scored with): InputError
+    naming ``maps`` and ``track`` when a dataset folder is the other track's (``MAP_TRACKS``)."""
     from jaxanom.app.predict import output_file
 
     root = Path(folder) / "anomaly_p"
@@ -280,6 +351,10 @@ def saved_map_batches(folder: str | Path, source,
         datasets = sorted(p.name for p in (root / method).iterdir() if p.is_dir()) if (root / method).is_dir() else []
         if len(datasets) != 1:
             raise FileNotFoundError(f"expected one dataset folder in {root / method}, found {datasets or 'none'}")
+        if track in ("anomaly", "obstacle") and MAP_TRACKS.get(datasets[0], track) != track:
+            raise InputError("maps", f": {root / method / datasets[0]} holds the {MAP_TRACKS[datasets[0]]} track's "
+                             f"maps, which {{track}} {track} would score with the {track} track's component rules; "
+                             f"pass {{track}} {MAP_TRACKS[datasets[0]]} (or none)", mentions=("track",))
         files[method] = [output_file(Path(folder), name, method, "smiyc", datasets[0]) for name in names]
         missing = [f.name for f in files[method] if not f.is_file()]
         if missing:

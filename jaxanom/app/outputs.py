@@ -62,6 +62,17 @@ def inside(path: Path, folder: Path) -> bool:
     return path == folder or folder in path.parents
 
 
+def within(out: str | Path, path: str | Path) -> Path:
+    """``path``, once proven to lie inside the output folder ``out``: its folder, symlinks resolved,
+    is ``out`` or under it, and its last part is a plain file name (a link there is replaced, not
+    followed, by the atomic writes of ``jaxanom.io`` and by ``unlink``). InputError naming ``out``
+    otherwise: a command writes and deletes inside its ``--out`` only."""
+    path = Path(path)
+    if path.name in ("", ".", "..") or not inside(path.parent, Path(out)):
+        raise InputError("out", f"{out}: refusing to write or remove {path}, which lies outside it")
+    return path
+
+
 def end_outputs(failed: bool) -> None:
     """When a command ends; if it ``failed``, remove the folders its ``out_folder`` calls created that
     stayed empty (``--out`` itself, or e.g. ``scores/`` of a ``score`` refused at its first image),

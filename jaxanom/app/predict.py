@@ -21,8 +21,10 @@ size and written in every requested format:
 Every file is written under a temporary name beside it and renamed, so a killed run leaves
 complete files only, and a rerun skips the frames whose files all exist (and removes the
 temporary files a kill left). ``settings.json`` in ``out`` records the settings and the
-fingerprints of the network and statistics the maps were made with (``settings_record``); a
-rerun that would make other maps is refused (``check_resumable``).
+fingerprints of the methods' code and options, the network and the statistics the maps were
+made with (``settings_record``); a rerun that would make other maps is refused
+(``check_resumable``). Every file written or removed is proven inside ``out``
+(``app.outputs.within``).
 
 With ``threads`` > 1 the host work runs beside the device's: a pool decodes the next frames
 ahead, in order, and a pool of writers resizes, checks and writes each frame's maps under
@@ -46,7 +48,7 @@ from typing import Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
-from jaxanom.app.outputs import inside
+from jaxanom.app.outputs import inside, within
 from jaxanom.config_codec import encode
 from jaxanom.errors import InputError
 
@@ -63,6 +65,7 @@ FLOAT16_MAX = float(np.finfo(np.float16).max)
 # the maps predict writes (``output_file``), found in a folder without knowing its settings
 MAP_PATTERNS = ("npy/*/*.npy", "png/*/*.png", "anomaly_p/*/*/*.hdf5")
 READ_FROM = "read_from"  # the record's paths of the run and statistics: where, not what (not compared)
+METHOD_CODE = "method_code"  # the record's fingerprint and options of each method (compared last)
 # settings that change how fast the maps are made, not what they hold: left out of the record
 SPEED_ONLY = ("batch_size", "threads")
 
@@ -133,9 +136,9 @@ class PredictSettings:
                                                    and self.unit_interval[1] > 0):
             raise InputError("unit_interval", f": expected (center, scale > 0), finite, got {self.unit_interval}")
 
-
-def _plain_name(name) -> bool:
-    return isinstance(name, str) and name not in ("", ".", "..") and "/" not in name and "\\" not in name
+    def options(self) -> dict:
+        """The methods' options these settings give (``method_registry.Method.options``)."""
+        return {"cudam_sigma": self.cudam_sigma, "slic_step": self.slic_step}
 
 
 def list_images(inputs: Sequence[str], out: Path | None = None) -> tuple[list[Path], int]:
@@ -215,13 +218,20 @@ def fingerprint(tree) -> str:
 
 
 def settings_record(settings: PredictSettings, *, network: str, statistics: str | None, read_from: dict) -> dict:
-    """What decides the maps: ``settings`` (but ``SPEED_ONLY``, which do not change them), the
-    ``fingerprint`` of the network (its experiment and the variables restored) and of the
-    statistics (mean and std; None without), and, for the reader only, where they were read."""
+    """What decides the maps: ``settings`` (but ``SPEED_ONLY``, which do not change them), each
+    method's code and options (``METHOD_CODE``: ``method_registry.implementation`` and its
+    options before a frame resolves them), the ``fingerprint`` of the network (its experiment
+    and the variables restored) and of the statistics (mean and std; None without), and, for
+    the reader only, where they were read."""
+    from jaxanom.method_registry import get, implementation
+
     record = encode(settings)
     for name in SPEED_ONLY:
         del record[name]
-    return {**record, "network": network, "statistics": statistics, READ_FROM: read_from}
+    code = {name: {"code": implementation(name), "options": get(name).unresolved(settings.options())}
+            for name in settings.methods}
+    return {**record, METHOD_CODE: json.loads(json.dumps(code, default=repr)), "network": network,
+            "statistics": statistics, READ_FROM: read_from}
 
 
 def existing_maps(out: Path) -> list[Path]:
@@ -244,10 +254,12 @@ def _difference(earlier: dict | None, record: dict) -> str | None:
         return f"and no readable {SETTINGS_FILE} saying how they were made"
     if "network" not in earlier:
         return "made by an older jaxanom, which did not record their network and statistics"
-    for key in sorted((set(earlier) | set(record)) - {READ_FROM}):
+    for key in sorted((set(earlier) | set(record)) - {READ_FROM}, key=lambda k: (k == METHOD_CODE, k)):
         before, now = earlier.get(key), record.get(key)
         if before == now:
             continue
+        if key == METHOD_CODE:
+            return _method_difference(before, now)
         if key == "network":
             return f"made with another network (weights or experiment) than {{run}} {record[READ_FROM]['run']} holds now"
         if key == "statistics" and before and now:
@@ -257,6 +269,20 @@ def _difference(earlier: dict | None, record: dict) -> str | None:
                 f"made without statistics, now with {{stats}} {record[READ_FROM]['stats']}"
         return f"made with {key}={before!r}, now {key}={now!r}"
     return None
+
+
+def _method_difference(before: dict | None, now: dict) -> str:
+    """How the ``METHOD_CODE`` entries of two records with the same methods differ, in words."""
+    if not isinstance(before, dict):
+        return "made by an older jaxanom, which did not record its methods' code and options"
+    for name, entry in now.items():
+        earlier = before.get(name) or {}
+        if earlier.get("code") != entry["code"]:
+            return (f"of method {name!r} made by other code (its module's source changed, or another plug-in "
+                    "registers that name)")
+        if earlier.get("options") != entry["options"]:
+            return f"of method {name!r} made with options {earlier.get('options')}, now {entry['options']}"
+    return f"made with {METHOD_CODE}={before!r}"
 
 
 def check_resumable(out: Path, record: dict) -> bool:
@@ -284,7 +310,7 @@ def remove_other_maps(out: Path, record: dict, settings: PredictSettings) -> int
         for fmt in settings.formats:
             pattern = output_file(out, "*", method, fmt, settings.dataset)
             for path in pattern.parent.glob(pattern.name):
-                if path.is_file():
+                if within(out, path).is_file():
                     path.unlink()
                     removed += 1
     return removed
@@ -376,8 +402,8 @@ class Scorer:
             self.check_size(shape, frame["name"])
             self._checked.add(shape)
         out = self.predict(images)
-        options = {"cudam_sigma": self.settings.cudam_sigma, "slic_step": self.settings.slic_step}
-        maps = score_all(self.settings.methods, inputs_of({**out, "image": images}, self.stats), options)[0]
+        maps = score_all(self.settings.methods, inputs_of({**out, "image": images}, self.stats),
+                         self.settings.options())[0]
         if self.settings.unit_interval is None:
             return maps
         from jaxanom.metrics.smiyc import to_unit_interval
@@ -409,18 +435,20 @@ def stage_frame(out: Path, frame: dict, maps: dict, settings: PredictSettings) -
     in the order ``write_frame`` writes them; ``error``: the exception that stopped staging (the
     files before it are staged, as ``write_frame`` would have written them), or None."""
     from jaxanom.io import png_bytes, write_synced, write_temporary
+    from jaxanom.method_registry import check_finite
 
     staged: list[tuple[str, Path]] = []
     try:
         for method, score in maps.items():
+            check_finite(method, score, where=f" of {frame['name']}")
             half = None
             if {"npy", "smiyc"} & set(settings.formats):
-                if not (np.isfinite(score).all() and np.abs(score).max(initial=0.0) <= FLOAT16_MAX):
-                    raise InputError("method", f"{method}: scores of {frame['name']} are not finite in float16 "
-                                     f"(|score| <= {FLOAT16_MAX:g}); the npy and smiyc formats store float16")
+                if np.abs(score).max(initial=0.0) > FLOAT16_MAX:
+                    raise InputError("methods", f": method {method!r}: scores of {frame['name']} are not finite in "
+                                     f"float16 (|score| <= {FLOAT16_MAX:g}); the npy and smiyc formats store float16")
                 half = score.astype(np.float16)
             for fmt in settings.formats:
-                path = output_file(out, frame["name"], method, fmt, settings.dataset)
+                path = within(out, output_file(out, frame["name"], method, fmt, settings.dataset))
                 if fmt == "npy":
                     buffer = io.BytesIO()
                     np.save(buffer, half)
@@ -537,7 +565,7 @@ def predict_images(paths: Sequence[Path], out: Path, scorer: Scorer, *, progress
     threads = default_threads() if settings.threads is None else settings.threads
     for root in {"npy": out / "npy", "png": out / "png", "smiyc": out / "anomaly_p"}.values():
         for stale in root.rglob(".*.tmp") if root.is_dir() else ():  # a killed run's unfinished files
-            stale.unlink(missing_ok=True)
+            within(out, stale).unlink(missing_ok=True)
     todo = [p for p in paths if redo or not all(f.is_file() for f in output_files(out, p.stem, settings))]
     bar = tqdm(total=len(todo), unit="image", desc="predict", disable=not progress)
     pending = at = None
@@ -595,20 +623,27 @@ def logits_shape(model, variables, size: tuple[int, int]) -> tuple[int, ...]:
     return tuple(jax.eval_shape(lambda v, x: model.apply(v, x, train=False), variables, spec)["logits"].shape)
 
 
-def size_check(model, variables) -> Callable[[tuple[int, int], str], None]:
-    """``check((h, w), frame)``: ValueError unless ``model`` takes (1, h, w, 3) images and returns
-    logits of that size (shapes only)."""
+def size_check(model, variables, argument: str = "size",
+               advice: str = "; choose a working size it takes ({size})") -> Callable[[tuple[int, int], str], None]:
+    """``check((h, w), frame)``: InputError naming ``argument`` (followed by ``advice``) unless
+    ``model`` takes (1, h, w, 3) images and returns logits of that size (shapes only; each size
+    is checked once)."""
+    checked: set = set()
 
     def check(shape: tuple[int, int], frame: str) -> None:
+        shape = tuple(int(n) for n in shape)
+        if shape in checked:
+            return
         try:
-            logits = logits_shape(model, variables, tuple(shape))
+            logits = logits_shape(model, variables, shape)
         except Exception as error:  # flax / XLA shape errors of many types: one line naming the size
             reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-            raise InputError("size", f": the network does not run on {shape[0]}x{shape[1]} images ({frame}): "
-                             f"{reason}; choose a working size it takes ({{size}})") from None
-        if logits[1:3] != tuple(shape):
-            raise InputError("size", f": the network's logits are {logits[1:3]} for {shape[0]}x{shape[1]} images "
+            raise InputError(argument, f": the network does not run on {shape[0]}x{shape[1]} images ({frame}): "
+                             f"{reason}{advice}", mentions=("size",)) from None
+        if logits[1:3] != shape:
+            raise InputError(argument, f": the network's logits are {logits[1:3]} for {shape[0]}x{shape[1]} images "
                              f"({frame}); expected the input's size")
+        checked.add(shape)
 
     return check
 

@@ -46,6 +46,33 @@ class Protocol:
         "name"?}``) with every frame resized to ``size`` when read, or ``source`` itself."""
         return source if self.size is None else _Resized(source, self.size)
 
+    def images(self, source: Sequence[Mapping]) -> Sequence[dict]:
+        """``source``'s frames as ``{"image", "name"?}``, resized as ``Protocol.source`` resizes them:
+        what fitting statistics reads (a training frame's label, depth and ROI left out)."""
+        return source if self.size is None else _Resized(source, self.size, images_only=True)
+
+    def classes(self, outputs: int) -> int:
+        """How many classes the methods (but ``void``) see of a network with ``outputs`` channels:
+        one fewer where the protocol drops a void output (``app.scoring.VOID_CHANNEL``)."""
+        from jaxanom.app.scoring import VOID_CHANNEL
+
+        return outputs - 1 if self.drop_void and outputs == VOID_CHANNEL + 1 else outputs
+
+    def outputs(self, predict):
+        """``predict`` (images -> ``{"logits", ...}``) whose logits are those the methods (but
+        ``void``) see: without the void output where the protocol drops it."""
+        if not self.drop_void:
+            return predict
+        from jaxanom.app.scoring import without_channel
+
+        def call(images):
+            out = predict(images)
+            if self.classes(out["logits"].shape[-1]) == out["logits"].shape[-1]:
+                return out
+            return {**out, "logits": without_channel(out["logits"])}
+
+        return call
+
     def counts(self, label) -> bool:
         """Whether a frame of (resized) ``label`` counts: not when the protocol skips frames
         without an anomaly pixel (1) and it has none."""
@@ -60,33 +87,39 @@ class Protocol:
 
 
 class _Resized:
-    """A frame source read through ``resize_frame`` (lazily: one frame in memory at a time)."""
+    """A frame source read through ``resize_frame`` (lazily: one frame in memory at a time);
+    ``images_only``: its frames' images and names only."""
 
-    def __init__(self, source: Sequence[Mapping], size: tuple[int, int]):
-        self._source, self._size = source, size
+    def __init__(self, source: Sequence[Mapping], size: tuple[int, int], images_only: bool = False):
+        self._source, self._size, self._images_only = source, size, images_only
 
     def __len__(self) -> int:
         return len(self._source)
 
     def __getitem__(self, index: int) -> dict:
-        return resize_frame(self._source[index], self._size)
+        record = self._source[index]
+        if self._images_only:
+            record = {key: record[key] for key in ("image", "name") if key in record}
+        return resize_frame(record, self._size)
 
 
 def resize_frame(record: Mapping, size: tuple[int, int]) -> dict:
-    """``record`` with its image resized antialiased and its label by nearest neighbour to
-    ``size`` (H, W), both as PIL does (``jaxanom.data.resize``); ValueError for a record with
-    other pixel maps (depth, ROI), which these protocols do not define."""
+    """``record`` with its image resized antialiased and its label (if any) by nearest neighbour to
+    ``size`` (H, W), both by PIL (``jaxanom.data.resize``); ValueError for a record with other
+    pixel maps (depth, ROI), which these protocols do not define."""
     if extra := sorted(set(record) & {"depth", "disparity", "roi"}):
         raise ValueError(f"record: a resizing protocol reads image and label only, got {extra} too")
-    return {**record, "image": resize_image_antialiased(record["image"], size),
-            "label": resize_labels_nearest(record["label"], size)}
+    resized = {**record, "image": resize_image_antialiased(record["image"], size)}
+    if "label" in record:
+        resized["label"] = resize_labels_nearest(record["label"], size)
+    return resized
 
 
 PROTOCOLS: dict[str, Protocol] = {
     "native": Protocol("native", "each image at its own size, every channel, every frame, FPR at the first "
                        "point with TPR >= 95 percent (jaxanom's default)"),
     "erfnet-community": Protocol(
-        "erfnet-community", "512x1024 PIL-style resize of images (antialiased) and labels (nearest), void channel "
+        "erfnet-community", "512x1024 PIL resize of images (antialiased bilinear) and labels (nearest), void channel "
         "dropped, frames without anomalies skipped, interpolated FPR95 (the public ERFNet evaluations)",
         size=(512, 1024), drop_void=True, skip_frames_without_anomaly=True, fpr_convention="interp"),
 }

@@ -39,7 +39,7 @@ def write_run(folder: str | os.PathLike, preset: str, model, variables: dict):
         network["output_stride"] = model.output_stride
     experiment = Experiment(model=preset, num_classes=model.num_classes, **network)
     folder = Path(folder)
-    write_json_atomic(folder / "experiment.json", jsonable(experiment))
+    write_json_atomic(folder / "experiment.json", jsonable(experiment), allow_nan=False)
     tx, _ = make_optimizer(experiment.train.optim, experiment.train.steps)
     state = TrainState.create(jax.tree.map(np.asarray, variables), tx, jax.random.key(0))
     check_space(folder, state, "the converted run")  # before orbax starts any background writer

@@ -12,10 +12,10 @@ from typing import Iterable, Mapping
 import numpy as np
 
 from jaxanom.data.cityscapes_labels import NUM_CLASSES
-from jaxanom.method_registry import INPUTS, check, get, given, load_plugin, names
+from jaxanom.method_registry import INPUTS, call, check, get, given, load_plugin, names, posts
 
 __all__ = ["INPUTS", "check", "describe", "get", "inputs_of", "load_plugin", "names", "provided", "run_inputs",
-           "score_all"]
+           "score_all", "without_channel"]
 
 
 # A network with one output more than Cityscapes' 19 trainIds carries a void class there (the ESPNet
@@ -66,31 +66,40 @@ def score_all(method_names: Iterable[str], inputs: Mapping, options: Mapping | N
     """``(scores, used)``: each method's scores (B, H, W) of ``inputs`` and the options it used
     (``Method.options``: defaults, ``options``, resolved for this batch). ``drop_void``: the
     methods that do not read the void channel score the logits without it (a protocol's choice,
-    ``jaxanom.app.protocols``); the ``void`` method still reads every channel."""
+    ``jaxanom.app.protocols``); the ``void`` method still reads every channel. Each method is
+    called through ``method_registry.call`` (its own read-only copy of the inputs; its output's
+    shape and dtype checked); the caller checks the values where it reads them
+    (``method_registry.check_finite``)."""
     method_names = check(method_names, given(inputs), options)
     without_void = _without_void(inputs) if drop_void and inputs.get("void_channel") is not None else inputs
     scores, used = {}, {}
     for name in method_names:
         method = get(name)
         method_inputs = inputs if "void_channel" in method.needs else without_void
-        used[name] = method.options(method_inputs, options)
-        scores[name] = method.score(method_inputs, used[name])
+        scores[name], used[name] = call(method, method_inputs, options)
     return scores, used
 
 
 def _without_void(inputs: Mapping) -> dict:
     """``inputs`` whose logits lack the void channel (and so no ``void_channel``)."""
+    return {**{k: v for k, v in inputs.items() if k != "void_channel"},
+            "logits": without_channel(inputs["logits"], int(inputs["void_channel"]))}
+
+
+def without_channel(logits, channel: int = VOID_CHANNEL):
+    """``logits`` (..., C) -> (..., C - 1) without ``channel`` (default: the void output)."""
     import jax.numpy as jnp
 
-    channel = int(inputs["void_channel"])
-    logits = jnp.asarray(inputs["logits"])
-    kept = jnp.concatenate([logits[..., :channel], logits[..., channel + 1:]], axis=-1)
-    return {**{k: v for k, v in inputs.items() if k != "void_channel"}, "logits": kept}
+    logits = jnp.asarray(logits)
+    return jnp.concatenate([logits[..., :channel], logits[..., channel + 1:]], axis=-1)
 
 
 def describe(unavailable: Iterable[str] = ()) -> str:
     """Every method, one per line: its name and description (the commands' ``--help``), but those
-    that need an input of ``unavailable``."""
-    known = [name for name in names() if not get(name).needs & set(unavailable)]
-    width = max(map(len, known))
-    return "\n".join(f"  {name.ljust(width)}  {get(name).description}" for name in known)
+    that need an input of ``unavailable``; then the post-processors any method composes with."""
+    unavailable = set(unavailable)
+    rows = [(name, get(name).description) for name in names() if not get(name).needs & unavailable]
+    rows += [(f"NAME+{post.name}", f"any method NAME, then {post.description}") for post in posts()
+             if not post.needs & unavailable]
+    width = max(len(name) for name, _ in rows)
+    return "\n".join(f"  {name.ljust(width)}  {text}" for name, text in rows)

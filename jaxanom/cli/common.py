@@ -42,14 +42,15 @@ def size_hw(text: str | None) -> tuple[int, int] | None:
     return int(parts[0]), int(parts[1])
 
 
-def add_config(parser, config_help: str | None = None) -> None:
-    """``--set NAME=VALUE`` (repeatable; the app function's ``overrides``) and, with ``config_help``,
-    ``--config FILE``."""
+def add_config(parser, example: str, config_help: str | None = None) -> None:
+    """``--set NAME=VALUE`` (repeatable; the app function's ``overrides``), its help showing
+    ``--set example`` (a field of this command's configuration), and, with ``config_help``,
+    ``--config FILE``. Help texts write examples as whole flags in backticks, which a test runs."""
     if config_help:
         parser.add_argument("--config", help=config_help)
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="set one field of the configuration by its dotted name, after --config and the other "
-                        "flags, e.g. --set train.optim.lr=1e-3; VALUE is read as the field's type (none, true / "
+                        f"flags, e.g. `--set {example}`; VALUE is read as the field's type (none, true / "
                         "false, comma-separated lists, JSON); repeatable")
 
 
@@ -72,7 +73,9 @@ class _KeepIndented(argparse.HelpFormatter):
 
 def add_methods(parser, unavailable: tuple[str, ...] = ()) -> None:
     """``--methods`` (the registered methods listed with their descriptions under the help, but those
-    needing an input of ``unavailable``) and ``--plugin``."""
+    needing an input of ``unavailable``) and ``--plugin``. The listing is made when the help is
+    shown: building the parsers loads no method, so a broken installed plug-in breaks no other
+    command's help or run."""
     from jaxanom.app.scoring import describe
 
     parser.add_argument("--methods", type=method_list, help=f"comma-separated names of the methods listed below "
@@ -80,7 +83,13 @@ def add_methods(parser, unavailable: tuple[str, ...] = ()) -> None:
     parser.add_argument("--plugin", action="append", default=[], metavar="MODULE",
                         help="import this Python module first, which registers its own methods (repeatable)")
     parser.formatter_class = _KeepIndented
-    parser.epilog = "methods (plug-ins add theirs):\n" + describe(unavailable)
+    format_help = parser.format_help
+
+    def with_methods() -> str:
+        parser.epilog = "methods (plug-ins add theirs):\n" + describe(unavailable)
+        return format_help()
+
+    parser.format_help = with_methods
 
 
 def add_scoring(parser) -> None:

@@ -22,8 +22,8 @@ def add_parser(commands) -> None:
     parser.add_argument("--num-classes", type=int, default=None, help="classes of the DeepLabV3+ (default: "
                         f"{DEEPLAB_CLASSES}); espnet-cityscapes and erfnet-cityscapes take the checkpoint's, and "
                         "refuse another count")
-    parser.add_argument("--output-stride", type=int, choices=[8, 16], default=8,
-                        help="DeepLabV3+ output stride (default: %(default)s)")
+    parser.add_argument("--output-stride", type=int, choices=[8, 16],
+                        help="DeepLabV3+ output stride (default: 8); the other kinds refuse it")
     parser.add_argument("--seed", type=nonnegative_int, default=0,
                         help="seed of the head of torchvision-resnet* (default: %(default)s)")
     add_common(parser, progress=False)

@@ -19,7 +19,7 @@ def add_parser(commands) -> None:
     parser.add_argument("--steps", type=positive_int, help="training steps (default: 1500; --quick: 3)")
     parser.add_argument("--synthesizer", choices=["class_mean", "spade"],
                         help="mmf: the resynthesis (default: class_mean)")
-    add_config(parser, "the demo's configuration (DemoConfig, MMFDemoConfig or OffroadDemoConfig): a JSON file of "
+    add_config(parser, "experiment.train.optim.lr=1e-3", "the demo's configuration (DemoConfig, MMFDemoConfig or OffroadDemoConfig): a JSON file of "
                "any of its fields, e.g. a results.json of the same demo, or a Python file defining `config`")
     add_common(parser, progress=True)
     parser.set_defaults(handler=run, aliases={"overrides": "set"})

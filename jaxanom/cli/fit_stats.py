@@ -5,6 +5,8 @@ from jaxanom.cli.common import add_common, positive_int, size_hw
 
 
 def add_parser(commands) -> None:
+    from jaxanom.app.protocols import PROTOCOLS
+
     parser = commands.add_parser("fit-stats", help="fit SML class statistics of a trained run",
                                  description="Stream a trained network's logits over training frames and write the "
                                  "per-class max-logit mean / std (SML Eqs. 3-4) as .npz. Prints a per-class table "
@@ -14,9 +16,13 @@ def add_parser(commands) -> None:
                         help="training frames to use, at most the run's (default: %(default)s)")
     parser.add_argument("--cityscapes", metavar="DIR",
                         help="fit on the train split of this Cityscapes folder (official layout; its leftImg8bit/ "
-                        "only: the statistics need no labels) instead of the run's training data, e.g. for a network "
-                        "from convert-weights")
-    parser.add_argument("--size", help="HxW the frames are resized to first, e.g. 512x1024 (default: as read)")
+                        "only: the statistics need no labels) instead of the run's training data; needed for a "
+                        "network from convert-weights, which has none")
+    parser.add_argument("--size", help="HxW the frames are resized to first, e.g. `--size 512x1024` (default: as read)")
+    parser.add_argument("--protocol", choices=list(PROTOCOLS), default="native",
+                        help="fit as evaluate --protocol scores: erfnet-community resizes the frames to 512x1024 "
+                        "(PIL's bilinear filter) and drops a void output, so the statistics have one class per "
+                        "output the methods see (default: %(default)s)")
     parser.add_argument("--out", required=True, help="output .npz file")
     parser.add_argument("--missing", choices=["error", "pooled"], default="error",
                         help="policy none: classes never predicted fail, or use the pooled statistics "
@@ -46,4 +52,4 @@ def run(args) -> None:
 
     fit_stats(run=args.run, out=args.out, frames=args.frames, cityscapes=args.cityscapes, size=size_hw(args.size),
               missing=args.missing, policy=args.policy, min_count=args.min_count, strength=args.strength,
-              overwrite=args.overwrite)
+              protocol=args.protocol, overwrite=args.overwrite)

@@ -24,23 +24,23 @@ def add_parser(commands) -> None:
     parser.add_argument("--stats", help="SML statistics .npz (from fit-stats); needed by the sml* and cudam methods")
     parser.add_argument("--format", default="npy", help=f"comma-separated, from {', '.join(FORMATS)} "
                         "(default: %(default)s)")
-    parser.add_argument("--size", help="working size HxW the network sees, e.g. 512x1024 (default: each image's "
-                        "own size); maps are resized back to the image's size")
+    parser.add_argument("--size", help="working size HxW the network sees, e.g. `--size 512x1024` (default: each "
+                        "image's own size); maps are resized back to the image's size")
     parser.add_argument("--batch-size", type=positive_int, default=1,
                         help="images sent to the device before the first is read back; each is scored alone, so "
                         "the maps do not depend on it (default: 1)")
     parser.add_argument("--threads", type=positive_int,
                         help="host threads decoding the next images and as many writing maps, beside the device; "
                         "1 does all in one thread; the maps do not depend on it (default: half the CPUs, at most 8)")
-    parser.add_argument("--dataset", help=f"SegmentMeIfYouCan dataset name for --format smiyc, e.g. "
-                        f"{', '.join(SMIYC_DATASETS)}")
+    parser.add_argument("--dataset", help="SegmentMeIfYouCan dataset name for --format smiyc, e.g. "
+                        "`--format smiyc --dataset AnomalyTrack-all`; one of " + ", ".join(SMIYC_DATASETS))
     parser.add_argument("--slic-step", type=positive_int,
                         help="SLIC grid step of the *_superpixel methods (default: ~2048 superpixels per image)")
     parser.add_argument("--cudam-sigma", type=float, help="CuDAM ensemble weight (default: paper-equivalent)")
     parser.add_argument("--unit-interval", metavar="CENTER,SCALE",
                         help="write 1 / (1 + exp(-(score - CENTER) / SCALE)) in [0, 1] instead of each score (the "
                         "benchmark documents scores in [0, 1]); AP / AUROC / FPR keep their values, float16 ties do not")
-    add_config(parser)  # the PredictSettings, e.g. --set size=512,1024
+    add_config(parser, "batch_size=2")  # the PredictSettings
     add_common(parser, progress=True)
     parser.set_defaults(handler=run, aliases={"formats": "format", "plugins": "plugin", "overrides": "set"})
 

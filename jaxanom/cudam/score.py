@@ -25,7 +25,8 @@ def cudam_score(anomaly_score, attention_up, sigma: float = 2e4) -> jax.Array:
     """CuDAM ensemble (Eq. 10): ``P_ano = K + sigma * up(M_att)``, float32, higher = more anomalous.
 
     ``anomaly_score`` K (any score: SML, MSP, max logit) and ``attention_up`` share one shape,
-    ``(H, W)`` for an image or ``(B, H, W)`` for a batch (the sum is elementwise).
+    ``(H, W)`` for an image or ``(B, H, W)`` for a batch (the sum is elementwise). ``sigma`` may
+    be traced (``jax.jit`` / ``vmap`` over a grid of sigmas).
     """
     anomaly_score = jnp.asarray(anomaly_score, jnp.float32)
     attention_up = jnp.asarray(attention_up, jnp.float32)

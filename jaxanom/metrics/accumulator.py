@@ -15,7 +15,6 @@ can be from the exact ones, from the histograms alone (see ``binned_error_bounds
 from __future__ import annotations
 
 import copy
-from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -23,6 +22,7 @@ import numpy as np
 
 from jaxanom.metrics.anomaly import (check_conventions, check_scores_labels, require_both_classes,
                                      summary_to_metrics)
+from jaxanom.metrics.binned import binned_error_bounds, score_histogram
 from jaxanom.metrics.curve import curve_summary
 from jaxanom.metrics.ranking import POSITIVE, VOID, sort_pixels
 from jaxanom.shapes import padded_size
@@ -131,50 +131,14 @@ class AnomalyMetricAccumulator:
             edge = lambda key: low + (self.num_bins - 1 - int(key)) * (high - low) / self.num_bins  # noqa: E731
             metrics["threshold_at_tpr"] = edge(summary["first_key"])
             metrics["best_f1_threshold"] = edge(summary["best_f1_key"])
-            metrics.update(binned_error_bounds(positives, negatives, tpr, fpr_convention, ap_convention))
+            with jax.enable_x64(True):
+                bounds = binned_error_bounds(positives, negatives, tpr, fpr_convention, ap_convention)
+            metrics.update({name: float(value) for name, value in bounds.items()})
         return metrics
 
     def _count_dtype(self):
         """int32 for the cumulative counts below 2**31 non-void pixels (as ``anomaly_metrics``), else int64."""
         return np.int32 if self.counts["num_positives"] + self.counts["num_negatives"] < 2**31 else np.int64
-
-
-def binned_error_bounds(positives: np.ndarray, negatives: np.ndarray, tpr: float,
-                        fpr_convention: str, ap_convention: str = "step") -> dict:
-    """Bounds on |binned - exact| from per-bin counts ordered from the highest bin down.
-
-    Bin edges are exact curve points; inside bin b (n+_b positives, n-_b negatives, counts
-    TP_s, FP_s before it and TP_e, FP_e after it) the exact curve stays in the box the bin
-    spans, whose precision lies in [L_b, U_b] = [TP_s / (TP_s + FP_e), TP_e / (TP_e + FP_s)]
-    ([0, 1] for the first non-empty bin). Hence
-    - AP (step or trapz): sum_b (n+_b / P) (U_b - L_b);
-    - AP envelope: sum_b (n+_b / P) (M_b - E_b), with E_b the largest bin-end precision at or
-      after b (the binned envelope, a lower bound of the exact one there) and M_b the largest
-      U_b' at or after b (an upper bound);
-    - AUROC: sum_b (n-_b / N) (n+_b / P) / 2 (a staircase against the box's diagonal);
-    - FPR ("first", "interp", "strict"): n-_b / N of the bin in which the TPR crosses tpr.
-    """
-    keep = (positives + negatives) > 0
-    pos, neg = positives[keep].astype(np.float64), negatives[keep].astype(np.float64)
-    tp_end, fp_end = np.cumsum(pos), np.cumsum(neg)
-    tp_start, fp_start = tp_end - pos, fp_end - neg
-    p, n = tp_end[-1], fp_end[-1]
-    first = np.arange(pos.size) == 0
-    with np.errstate(invalid="ignore", divide="ignore"):
-        upper = np.where(first, 1.0, tp_end / (tp_end + fp_start))
-        lower = np.where(first, 0.0, tp_start / (tp_start + fp_end))
-    tpr_end = tp_end / p
-    crossed = tpr_end > tpr if fpr_convention == "strict" else tpr_end >= tpr
-    fpr_bound = neg[np.argmax(crossed)] / n if crossed.any() else 0.0
-    if ap_convention == "envelope":
-        ends = np.maximum.accumulate((tp_end / np.maximum(tp_end + fp_end, 1))[::-1])[::-1]
-        highest = np.maximum.accumulate(upper[::-1])[::-1]
-        ap_bound = np.sum(pos / p * (highest - ends))
-    else:
-        ap_bound = np.sum(pos / p * (upper - lower))
-    return {"ap_error_bound": float(ap_bound),
-            "auroc_error_bound": float(np.sum(neg / n * pos / p) / 2),
-            "fpr_error_bound": float(fpr_bound)}
 
 
 def _merge(images):
@@ -207,11 +171,4 @@ def _non_void_range(scores, labels):
     return (jnp.min(jnp.where(void, jnp.inf, scores)), jnp.max(jnp.where(void, -jnp.inf, scores)))
 
 
-@partial(jax.jit, static_argnames="num_bins")
-def _histogram(scores, labels, low, high, num_bins):
-    """(num_bins, 2) int32 counts of negative / positive pixels per uniform score bin."""
-    work = scores.dtype if scores.dtype == jnp.float64 else jnp.float32
-    scaled = (scores.astype(work) - jnp.asarray(low, work)) * jnp.asarray(num_bins / (high - low), work)
-    bins = jnp.clip(jnp.floor(scaled), 0, num_bins - 1).astype(jnp.int32)
-    index = jnp.where(labels == 255, 2 * num_bins, 2 * bins + labels.astype(jnp.int32))
-    return jnp.bincount(index, length=2 * num_bins + 1)[:-1].reshape(num_bins, 2)
+_histogram = jax.jit(score_histogram, static_argnames=("low", "high", "num_bins"))  # its scale in float64

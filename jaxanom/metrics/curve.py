@@ -3,7 +3,9 @@
 Input: entries sorted by ``keys`` ascending (= score descending), each carrying a number of
 positive and negative pixels (one pixel per entry, or run-length / histogram counts). Entries
 with equal keys are one threshold (ties as scikit-learn); entries with no pixel are skipped.
-Counts are exact integers; every rate and sum is float64. Call inside ``jax.enable_x64(True)``.
+Counts are exact integers; every rate and sum is in the float dtype of ``tpr``: float64 for the
+exact metrics (call inside ``jax.enable_x64(True)``), float32 for ``binned``'s metrics inside a
+caller's jit without 64-bit mode.
 
 With thresholds k = 1..K from high to low, TP_k / FP_k the pixels at or above threshold k,
 R_k = TP_k / P, Prec_k = TP_k / (TP_k + FP_k), TPR_k = R_k, FPR_k = FP_k / N and point 0 the
@@ -51,7 +53,8 @@ def curve_points(keys, pos, neg):
 def curve_summary(keys, pos, neg, tpr):
     """AP, AUROC, FPR at TPR ``tpr`` (every convention) and best F1, as float64 / int scalars.
 
-    keys, pos, neg as in ``curve_points``; tpr a float64 scalar in (0, 1]. FPR at TPR t:
+    keys, pos, neg as in ``curve_points``; tpr a float scalar in (0, 1], float64 for exact
+    rates (its dtype is the one every rate and sum is computed in). FPR at TPR t:
     - "first":   FPR of the first point with TPR >= t (Fishyscapes, SMIYC);
     - "interp":  linear between the last point with TPR < t (the origin at worst) and the first
       with TPR >= t; a point with TPR == t exactly is taken as is (SML, Mask2Anomaly);
@@ -64,19 +67,21 @@ def curve_summary(keys, pos, neg, tpr):
     tp, fp, end, tp_prev, fp_prev = curve_points(keys, pos, neg)
     size = keys.shape[0]
     index = entry_index(size)
-    f64 = jnp.float64
+    f64 = tpr.dtype
     p, n = tp[-1].astype(f64), fp[-1].astype(f64)
     tpf, fpf, tpp, fpp = (x.astype(f64) for x in (tp, fp, tp_prev, fp_prev))
+    # differences of the integer counts (exact; float64 gives the same, float32 would cancel)
+    d_tp, d_fp = (tp - tp_prev).astype(f64), (fp - fp_prev).astype(f64)
     precision = tpf / jnp.maximum(tpf + fpf, 1.0)
     precision_prev = tpp / jnp.maximum(tpp + fpp, 1.0)
-    d_recall = (tpf - tpp) / p
+    d_recall = d_tp / p
     tpr_k = tpf / p
     distance = jnp.abs(tpr_k - tpr)
     envelope = lax.cummax(jnp.where(end, precision, -jnp.inf), reverse=True)
     per_entry = (  # one term per point; all reduced in a single pass (see _combine)
         jnp.where(end, d_recall * precision, 0.0),
         jnp.where(end & (tpp + fpp > 0), d_recall * (precision + precision_prev) / 2, 0.0),
-        jnp.where(end, (fpf - fpp) * (tpf + tpp), 0.0),
+        jnp.where(end, d_fp * (tpf + tpp), 0.0),
         end.astype(index.dtype),
         jnp.where(end & (tpr_k >= tpr), index, size - 1),
         jnp.where(end & (tpr_k > tpr), index, size),

@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxanom import superpixels
+from jaxanom._validate import check_static
 from jaxanom.method_registry import Method, register
 from jaxanom.mmf.postprocess import superpixel_score_batch
 from jaxanom.mmf.uncertainty import uncertainty_maps_batch
@@ -54,6 +55,7 @@ def _on_superpixels(uncertainty: str):
 
 
 def _scaled_step(inputs, options):
+    check_static("slic_step", options["slic_step"], "sets the number of superpixels")
     if options["slic_step"] is not None:
         return {**options, "slic_step": int(options["slic_step"])}
     return {**options, "slic_step": superpixels.scaled_step(tuple(np.shape(inputs["logits"])[1:3]))}

@@ -5,7 +5,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxanom._validate import check_finite, check_integer, check_positive, check_rank, check_real
+from jaxanom._validate import check_finite, check_integer, check_positive, check_rank, check_real, check_static
 from jaxanom.sml.boundaries import check_prediction
 from jaxanom.sml.postprocessing import (
     _smooth,
@@ -13,6 +13,7 @@ from jaxanom.sml.postprocessing import (
     check_score,
     check_smoothing,
     check_suppression,
+    smoothing_weights,
 )
 
 
@@ -23,33 +24,33 @@ def _standardized_max_logit(logits, mean, std):
     return sml, prediction
 
 
-def _postprocess(score, prediction, *, suppress, smooth, width, iterations, border, kernel_size, sigma,
-                 dilation):
+def _postprocess(score, prediction, weights, *, suppress, smooth, width, iterations, border, dilation):
     out = score.astype(jnp.float32)
     if suppress:
         out = _suppress(out, prediction, width, iterations, border)
     if smooth:
-        out = _smooth(out, kernel_size, sigma, dilation)
+        out = _smooth(out, weights, dilation)
     return out
 
 
-def _sml_score(logits, mean, std, **options):
+def _sml_score(logits, mean, std, weights, **options):
     sml, prediction = _standardized_max_logit(logits, mean, std)
-    return -_postprocess(sml, prediction, **options)
+    return -_postprocess(sml, prediction, weights, **options)
 
 
-_OPTIONS = ("suppress", "smooth", "width", "iterations", "border", "kernel_size", "sigma", "dilation")
+_OPTIONS = ("suppress", "smooth", "width", "iterations", "border", "dilation")
 
 
-def _sml_score_batch_impl(logits, mean, std, **options):
-    return jax.vmap(lambda one: _sml_score(one, mean, std, **options))(logits)
+def _sml_score_batch_impl(logits, mean, std, weights, **options):
+    return jax.vmap(lambda one: _sml_score(one, mean, std, weights, **options))(logits)
 
 
-def _postprocess_batch_impl(score, prediction, **options):
-    return jax.vmap(lambda s, p: _postprocess(s, p, **options))(score, prediction)
+def _postprocess_batch_impl(score, prediction, weights, **options):
+    return jax.vmap(lambda s, p: _postprocess(s, p, weights, **options))(score, prediction)
 
 
-# Built once at import; options are static, so each (shape, options) pair compiles once.
+# Built once at import; the options that set shapes and loops are static, so each (shape,
+# options) pair compiles once; the smoothing's weights (from sigma) are an argument.
 _standardized_max_logit_jit = jax.jit(_standardized_max_logit)
 _postprocess_jit = jax.jit(_postprocess, static_argnames=_OPTIONS)
 _postprocess_batch = jax.jit(_postprocess_batch_impl, static_argnames=_OPTIONS)
@@ -57,11 +58,15 @@ _sml_score_jit = jax.jit(_sml_score, static_argnames=_OPTIONS)
 _sml_score_batch = jax.jit(_sml_score_batch_impl, static_argnames=_OPTIONS)
 
 
-def _checked_options(suppress, smooth, width, iterations, border, kernel_size, sigma, dilation) -> dict:
+def _checked_options(suppress, smooth, width, iterations, border, kernel_size, sigma, dilation) -> tuple:
+    """(the smoothing's weights, the static options); ValueError / InputError on bad ones."""
+    check_static("suppress", suppress, "chooses whether the suppression runs")
+    check_static("smooth", smooth, "chooses whether the smoothing runs")
     check_suppression(width, iterations, border)
     check_smoothing(kernel_size, sigma, dilation)
-    return dict(suppress=bool(suppress), smooth=bool(smooth), width=int(width), iterations=int(iterations),
-                border=border, kernel_size=int(kernel_size), sigma=float(sigma), dilation=int(dilation))
+    return smoothing_weights(int(kernel_size), sigma), dict(
+        suppress=bool(suppress), smooth=bool(smooth), width=int(width), iterations=int(iterations), border=border,
+        dilation=int(dilation))
 
 
 def _check_logits_stats(logits, mean, std, batched: bool) -> None:
@@ -93,11 +98,12 @@ def postprocess(score, prediction, *, suppress=True, smooth=True, width=4, itera
     ``prediction`` int ``(H, W)`` gives the class boundaries. ``suppress`` / ``smooth`` toggle
     the two steps (the paper's Tables 3 and 7); the other options are those of
     ``suppress_boundaries`` and ``dilated_smoothing``. Turning both off returns the score.
+    ``sigma`` may be traced (jit / vmap over a grid); every other option is static.
     """
     check_score(score)
     check_prediction(prediction, np.shape(score))
-    options = _checked_options(suppress, smooth, width, iterations, border, kernel_size, sigma, dilation)
-    return _postprocess_jit(jnp.asarray(score), jnp.asarray(prediction), **options)
+    weights, options = _checked_options(suppress, smooth, width, iterations, border, kernel_size, sigma, dilation)
+    return _postprocess_jit(jnp.asarray(score), jnp.asarray(prediction), weights, **options)
 
 
 def postprocess_batch(score, prediction, *, suppress=True, smooth=True, width=4, iterations=4, border="geodesic",
@@ -110,8 +116,8 @@ def postprocess_batch(score, prediction, *, suppress=True, smooth=True, width=4,
     check_integer("prediction", prediction)
     if np.shape(prediction) != np.shape(score):
         raise ValueError(f"prediction must have the score's shape {np.shape(score)}, got {np.shape(prediction)}")
-    options = _checked_options(suppress, smooth, width, iterations, border, kernel_size, sigma, dilation)
-    return _postprocess_batch(jnp.asarray(score), jnp.asarray(prediction), **options)
+    weights, options = _checked_options(suppress, smooth, width, iterations, border, kernel_size, sigma, dilation)
+    return _postprocess_batch(jnp.asarray(score), jnp.asarray(prediction), weights, **options)
 
 
 def sml_score(logits, mean, std, *, suppress=True, smooth=True, width=4, iterations=4, border="geodesic",
@@ -121,13 +127,13 @@ def sml_score(logits, mean, std, *, suppress=True, smooth=True, width=4, iterati
     mean/std float ``(C,)`` from ``stats_finalize``; options as in ``postprocess``.
     """
     _check_logits_stats(logits, mean, std, batched=False)
-    options = _checked_options(suppress, smooth, width, iterations, border, kernel_size, sigma, dilation)
-    return _sml_score_jit(jnp.asarray(logits), jnp.asarray(mean, jnp.float32), jnp.asarray(std, jnp.float32), **options)
+    weights, options = _checked_options(suppress, smooth, width, iterations, border, kernel_size, sigma, dilation)
+    return _sml_score_jit(jnp.asarray(logits), jnp.asarray(mean, jnp.float32), jnp.asarray(std, jnp.float32), weights, **options)
 
 
 def sml_score_batch(logits, mean, std, *, suppress=True, smooth=True, width=4, iterations=4, border="geodesic",
                     kernel_size=7, sigma=1.0, dilation=6) -> jax.Array:
     """``sml_score`` over a batch: logits ``(B, H, W, C)`` -> float32 ``(B, H, W)``; one compile per shape and options."""
     _check_logits_stats(logits, mean, std, batched=True)
-    options = _checked_options(suppress, smooth, width, iterations, border, kernel_size, sigma, dilation)
-    return _sml_score_batch(jnp.asarray(logits), jnp.asarray(mean, jnp.float32), jnp.asarray(std, jnp.float32), **options)
+    weights, options = _checked_options(suppress, smooth, width, iterations, border, kernel_size, sigma, dilation)
+    return _sml_score_batch(jnp.asarray(logits), jnp.asarray(mean, jnp.float32), jnp.asarray(std, jnp.float32), weights, **options)

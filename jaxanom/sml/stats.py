@@ -170,11 +170,16 @@ def stats_finalize_report(stats: ClassStats, *, missing: str = "error", policy: 
     return finalize(count, mean, m2, policy=policy, min_count=min_count, strength=strength, missing=missing)
 
 
-def save_stats(path, mean, std, counts, *, status=None, policy: dict | None = None) -> None:
+def save_stats(path, mean, std, counts, *, status=None, policy: dict | None = None,
+               channels: dict | None = None, frames: dict | None = None) -> None:
     """Write ``mean``, ``std``, ``counts`` (each ``(C,)``) to an ``.npz`` file, atomically.
 
-    Optional: ``status`` ``(C,)`` strings (``FinalizedStats.status``) and ``policy`` (a JSON-able
-    dict, e.g. ``{"policy": "shrink", "strength": 1e4}``); ``load_stats_info`` reads them back.
+    Optional: ``status`` ``(C,)`` strings (``FinalizedStats.status``), ``policy`` (a JSON-able
+    dict, e.g. ``{"policy": "shrink", "strength": 1e4}``), ``channels`` (a JSON-able dict: which
+    of the network's outputs the C classes are, e.g. ``{"network_outputs": 20, "void_dropped":
+    true}``) and ``frames`` (a JSON-able dict: the frames the statistics were fitted on, e.g.
+    ``{"set": "cityscapes train", "folder": ..., "count": 200, "size": [512, 1024]}``);
+    ``load_stats_info`` reads them back.
     """
     arrays = {"mean": np.asarray(mean, np.float32), "std": np.asarray(std, np.float32),
               "counts": np.rint(np.asarray(counts, np.float64)).astype(np.int64)}
@@ -186,8 +191,9 @@ def save_stats(path, mean, std, counts, *, status=None, policy: dict | None = No
     if not os.path.isdir(os.path.dirname(os.path.abspath(path))):
         raise ValueError(f"path must be in an existing folder, got {str(path)!r}")
     _check_saved_stats(f"statistics for {str(path)!r}", arrays["mean"], arrays["std"], arrays["counts"])
-    if policy is not None:
-        arrays["policy"] = np.asarray(json.dumps(policy))
+    for name, record in (("policy", policy), ("channels", channels), ("frames", frames)):
+        if record is not None:
+            arrays[name] = np.asarray(json.dumps(record))
     buffer = io.BytesIO()
     np.savez(buffer, **arrays)
     write_bytes_atomic(path, buffer.getvalue())
@@ -221,15 +227,18 @@ def load_stats(path) -> tuple[jax.Array, jax.Array, np.ndarray]:
 
 
 def load_stats_info(path) -> dict:
-    """How the statistics in ``path`` were finalised: ``{"status": [C strings] | None, "policy": dict | None}``.
+    """How, of which outputs and on what frames the statistics in ``path`` were fitted:
+    ``{"status": [C strings] | None, "policy": dict | None, "channels": dict | None, "frames":
+    dict | None}`` (``save_stats``).
 
     Files written without that information (older ones, or ``save_stats`` without it) give None.
     """
     load_stats(path)  # the same checks
     with np.load(path, allow_pickle=False) as data:
         status = data["status"].tolist() if "status" in data.files else None
-        policy = json.loads(str(data["policy"])) if "policy" in data.files else None
-    return {"status": status, "policy": policy}
+        records = {name: json.loads(str(data[name])) if name in data.files else None
+                   for name in ("policy", "channels", "frames")}
+    return {"status": status, **records}
 
 
 def _check_saved_stats(path: str, mean, std, counts) -> None:

@@ -19,7 +19,8 @@ The metrics stay on the device until a logging step (every ``log_every`` steps, 
 evaluates or saves, and the last): reading them back every step would make the host wait for each
 step before it dispatches the next (big_vision's loop reads them the same way). They are then read
 in one transfer and checked for NaN/Inf before anything is saved: a non-finite one stops the run
-with NonFiniteLossError, the last good checkpoint kept.
+with NonFiniteLossError, the last good checkpoint kept. Before each save and at the last step, the
+state itself is checked too (one boolean read): finite metrics do not prove finite weights.
 
 Resuming: when the iterator of ``batches`` has ``get_state`` / ``set_state`` (grain's
 ``DatasetIterator`` has them), its position is saved with each checkpoint as JSON and restored;
@@ -36,6 +37,7 @@ import time
 from typing import Any, Callable, Iterable, Sequence
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from jaxanom._validate import check_count
@@ -78,13 +80,15 @@ def run_loop(step: Callable[[Any, Any], tuple[Any, dict]], init: Callable[..., A
     then the state needs a ``step`` field (the steps it has taken). ``first``: a batch the caller
     already took from ``batches``' iterator (to check it or to shape the state); a fresh run steps
     on it first. ``log_every``: ``None`` reads the metrics at the last step (and at evaluations and
-    saves) only. ``finite``: the metrics that must stay finite (``None``: all). ``examples(batch)``:
-    its number of examples, for ``on_log``'s throughput (``None`` without it).
+    saves) only. ``finite``: the metrics that must stay finite (``None``: all; empty: none, and
+    the state is not checked either). ``examples(batch)``: its number of examples, for ``on_log``'s
+    throughput (``None`` without it).
     """
     check_count("steps", steps)
     for name, value in (("log_every", log_every), ("eval_every", eval_every)):
         if value is not None:
             check_count(name, value)
+    watched = finite is None or len(finite) > 0
     source = iter(batches)
     resumable = hasattr(source, "get_state") and hasattr(source, "set_state")
     pending = [] if first is None else [first]
@@ -126,6 +130,8 @@ def run_loop(step: Callable[[Any, Any], tuple[Any, dict]], init: Callable[..., A
             if summary and hasattr(numbers, "set_postfix"):
                 numbers.set_postfix(summary)
             unread, seen = [], 0
+            if (saves or number == steps) and watched:  # one read per save: no checkpoint, nor a finished run, of NaN
+                _check_finite_state(state, number, checkpointer)
             if evaluates:
                 evaluate(number, state)
             if saves:
@@ -158,14 +164,35 @@ def _read(unread: list, finite: Sequence[str] | None, checkpointer: Checkpointer
         names = list(metrics) if finite is None else finite
         if all(np.all(np.isfinite(metrics[name])) for name in names):
             continue
-        if checkpointer is None:
-            kept = "nothing was saved"
-        else:
-            checkpointer.wait()
-            kept = f"last good checkpoint: step {checkpointer.latest_step()} in {checkpointer.directory}"
         shown = ", ".join(f"{name} {metrics[name]}" for name in names)
-        raise NonFiniteLossError(f"{shown} at step {number}: training stopped; {kept}")
+        raise NonFiniteLossError(f"{shown} at step {number}: training stopped; {_kept(checkpointer)}")
     return [(number, metrics) for (number, _), metrics in zip(unread, values)]
+
+
+@jax.jit
+def _all_finite(state) -> jax.Array:
+    """Whether every floating-point leaf of ``state`` is finite: one boolean, computed on the device."""
+    leaves = [jnp.isfinite(x).all() for x in jax.tree.leaves(state) if jnp.issubdtype(x.dtype, jnp.inexact)]
+    return jnp.stack(leaves).all() if leaves else jnp.bool_(True)
+
+
+def _check_finite_state(state, number: int, checkpointer: Checkpointer | None) -> None:
+    """NonFiniteLossError when ``state`` (weights, optimizer moments) holds NaN or Inf after step
+    ``number``: finite metrics do not prove finite weights (a NaN clip norm scales the update, not
+    the loss it was computed from)."""
+    if not bool(_all_finite(state)):
+        raise NonFiniteLossError(f"the weights or optimizer state hold NaN or Inf after step {number}: training "
+                                 f"stopped; {_kept(checkpointer)}")
+
+
+def _kept(checkpointer: Checkpointer | None) -> str:
+    """What a stopped run leaves: its newest checkpoint (after pending saves finish), or that there is none."""
+    if checkpointer is None:
+        return "nothing was saved"
+    checkpointer.wait()
+    step = checkpointer.latest_step()
+    return (f"no checkpoint was saved before (none in {checkpointer.directory})" if step is None
+            else f"last good checkpoint: step {step} in {checkpointer.directory}")
 
 
 def _data_state(batches) -> Any:

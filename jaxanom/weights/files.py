@@ -115,19 +115,31 @@ def _read_torch(file: Path) -> Mapping:
                                     r"deprecated)", category=UserWarning)
             return torch.load(file, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as error:  # objects only unpickling (running code) builds, or damage
-        text = _plain(error)
-        found = re.search(r"Unsupported global: \S+ \S+", text)
-        if found:
-            raise ValueError(f"weights file {file}: refused: it holds Python objects besides tensors "
-                             f"({found.group(0)}), and jaxanom never runs code from a weights file; save the state "
-                             "dict alone (torch.save(model.state_dict(), path)) or as .safetensors") from None
-        detail = re.search(r"WeightsUnpickler error:\s*(\S[^\n]*)", text)
+        unsafe = _unsafe_globals(file)
+        if unsafe:
+            raise ValueError(f"weights file {file}: refused: it holds Python objects besides tensors (globals "
+                             f"{', '.join(unsafe[:5])}), and jaxanom never runs code from a weights file; save the "
+                             "state dict alone (torch.save(model.state_dict(), path)) or as .safetensors") from None
+        detail = re.search(r"WeightsUnpickler error:\s*(\S[^\n]*)", _plain(error))
         raise ValueError(f"weights file {file}: not a readable PyTorch checkpoint (damaged, or not a weights file: "
                          f"{detail.group(1) if detail else 'UnpicklingError'})") from None
     except Exception as error:  # RuntimeError / EOFError (damaged, truncated)
         first = _plain(error).splitlines()[0] if _plain(error) else ""
         raise ValueError(f"weights file {file}: not a readable PyTorch checkpoint ({type(error).__name__}: {first})"
                          ) from None
+
+
+def _unsafe_globals(file: Path) -> list[str]:
+    """The globals (``module.name``) that the pickle of the ``torch.save`` file ``file`` references
+    and ``torch.load(weights_only=True)`` does not build: torch's own scan of the pickle's opcodes,
+    nothing run, so a refusal is told from damage whatever torch's message says. [] where the scan
+    cannot read the file (damaged, or torch's legacy non-zip format)."""
+    from torch.serialization import get_unsafe_globals_in_checkpoint
+
+    try:
+        return get_unsafe_globals_in_checkpoint(file)
+    except Exception:  # ValueError (not a zip checkpoint), RuntimeError / pickle errors (damage)
+        return []
 
 
 def _plain(error: Exception) -> str:

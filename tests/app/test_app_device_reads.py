@@ -1,6 +1,6 @@
 """The batch loops of ``predict`` and ``evaluate`` read nothing back from the device but what they
-write: no value check waits for a batch's computation, so on an accelerator the next batch is
-decoded and dispatched while the device works. Reads are counted with ``host_reads`` (the CPU
+write and check: no read waits for a batch's computation before the next batch is dispatched, so
+on an accelerator the next batch is decoded and dispatched while the device works. Reads are counted with ``host_reads`` (the CPU
 backend does not enforce ``jax.transfer_guard`` for them)."""
 from collections import Counter
 
@@ -85,9 +85,11 @@ def test_evaluate_reads_the_device_only_to_accumulate_metrics_after_the_next_bat
 
     reads = count_host_reads(monkeypatch, lambda: (phase[0], dispatched[0]))
     anomaly_results(predictions(counted_predict, batches), METHODS, stats=stats)
-    assert {where for where, _ in reads} == {"update", "compute"}, Counter(reads)
-    # batch k's scores are read once batch k + 1 is on the device (the last batch's after it)
-    assert {at for where, at in reads if where == "update"} == set(range(2, FRAMES + 1)), Counter(reads)
+    assert {where for where, _ in reads} == {"loop", "update", "compute"}, Counter(reads)
+    # batch k's scores are read once batch k + 1 is on the device (the last batch's after it): in the loop,
+    # one count of non-finite scores per map (method_registry.check_finite), then by the accumulators
+    assert {at for where, at in reads if where != "compute"} == set(range(2, FRAMES + 1)), Counter(reads)
+    assert Counter(where for where, _ in reads)["loop"] == FRAMES * len(METHODS), Counter(reads)
 
 
 def test_predictions_keep_the_order_and_run_one_batch_ahead():

@@ -99,7 +99,7 @@ def test_a_map_float16_cannot_hold_stops_at_its_frame_with_any_threads(tmp_path,
     paths = write_frames(tmp_path / "images")
     serial = run(paths, tmp_path / "serial", MapScorer(1, 1, huge={"f2"}))
     threaded = run(paths, tmp_path / "threaded", MapScorer(threads, batch_size, huge={"f2"}))
-    assert serial[0][0] is InputError and "energy: scores of f2 are not finite in float16" in serial[0][1]
+    assert serial[0][0] is InputError and "method 'energy': scores of f2 are not finite in float16" in serial[0][1]
     assert threaded[0] == serial[0]
     # the frames before, and f2's map of the method before the one that failed; nothing after
     assert sorted(serial[1]) == ["npy/energy/f0.npy", "npy/energy/f1.npy", "npy/msp/f0.npy", "npy/msp/f1.npy",

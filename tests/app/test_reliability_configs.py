@@ -37,7 +37,7 @@ def _refused_at_once(capsys, argv, *fragments, out=None):
     ({"pipeline": {"rgbd_channels": 0}}, ["rgbd_channels must be >= 1"]),
     ({"pipeline": {"rgbd_steps": 2.5}}, ["pipeline.rgbd_steps: expected an integer, got 2.5"]),
     ({"pipeline": {"dissim_lr": "abc"}}, ["pipeline.dissim_lr: expected a number, got 'abc'"]),
-    ({"pipeline": {"dissim_lr": math.nan}}, ["dissim_lr must be a finite number"]),
+    ({"pipeline": {"dissim_lr": math.nan}}, ["pipeline.dissim_lr: expected a finite number, got nan"]),
     ({"pipeline": {"slic_step": 0}}, ["slic_step must be >= 1"]),
     ({"pipeline": {"dissim_width": 0}}, ["dissim_width"]),
     ({"pipeline": {"dissim_width": -0.5}}, ["dissim_width"]),
@@ -64,7 +64,7 @@ def test_a_segmenter_with_a_nan_learning_rate_is_refused(tmp_path, capsys):
     file = tmp_path / "mmf.json"
     file.write_text(json.dumps({"pipeline": {"segmenter": segmenter}}))
     _refused_at_once(capsys, ["demo", "mmf", "--config", str(file), "--out", str(tmp_path / "o")],
-                     "lr must be a finite number")
+                     "train.optim.lr: expected a finite number, got nan")
 
 
 @pytest.mark.parametrize("config, fragment", [

@@ -11,7 +11,7 @@ import pytest
 import jaxanom.app.evaluate
 from jaxanom.cli import main
 from jaxanom.app.outputs import CLAIM, claim, release_claims
-from converted_run import tiny_run  # noqa: F401  (a module-scoped fixture: a converted tiny DeepLabV3+)
+from converted_run import tiny_run, write_tiny_cityscapes  # noqa: F401  (tiny_run: a module-scoped fixture, a converted tiny DeepLabV3+)
 
 
 def _tree(folder: Path) -> dict:
@@ -79,22 +79,8 @@ def test_reading_a_run_logs_no_warning(tiny_run, caplog):
     assert [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING] == []
 
 
-def _cityscapes(root: Path, sizes, labels: bool) -> Path:
-    rng = np.random.default_rng(2)
-    for index, (height, width) in enumerate(sizes):
-        name = f"city_000000_00000{index}"
-        path = root / "leftImg8bit" / "train" / "city" / f"{name}_leftImg8bit.png"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        cv2.imwrite(str(path), rng.integers(0, 256, (height, width, 3), dtype=np.uint8))
-        if labels:
-            label = root / "gtFine" / "train" / "city" / f"{name}_gtFine_labelIds.png"
-            label.parent.mkdir(parents=True, exist_ok=True)
-            cv2.imwrite(str(label), np.full((height, width), 7, np.uint8))
-    return root
-
-
 def test_fit_stats_on_cityscapes_frames_of_two_sizes_suggests_size(tiny_run, tmp_path, capsys):
-    mixed = _cityscapes(tmp_path / "mixed", [(32, 64), (48, 64)], labels=True)
+    mixed = write_tiny_cityscapes(tmp_path / "mixed", [(32, 64), (48, 64)], labels=True)
     _one_line(capsys, main(["fit-stats", "--run", str(tiny_run), "--cityscapes", str(mixed), "--out",
                             str(tmp_path / "a.npz")]),
               "frames differ in size", "city_000000_000000 is 32x64", "city_000000_000001 is 48x64", "--size")
@@ -102,7 +88,43 @@ def test_fit_stats_on_cityscapes_frames_of_two_sizes_suggests_size(tiny_run, tmp
 
 
 def test_fit_stats_on_cityscapes_needs_no_labels(tiny_run, tmp_path):
-    images = _cityscapes(tmp_path / "images", [(32, 64), (48, 64)], labels=False)
+    images = write_tiny_cityscapes(tmp_path / "images", [(32, 64), (48, 64)], labels=False)
     assert main(["fit-stats", "--run", str(tiny_run), "--cityscapes", str(images), "--size", "32x64",
                  "--missing", "pooled", "--out", str(tmp_path / "b.npz")]) == 0
     assert (tmp_path / "b.npz").is_file()
+
+
+def test_fit_stats_refuses_a_converted_run_without_frames(tiny_run, tmp_path, capsys):
+    """A converted run's experiment.json says ``data: synthetic`` (jaxanom's default), yet its network
+    never saw synthetic scenes: fitting on them would be silently wrong."""
+    out = tmp_path / "s.npz"
+    _one_line(capsys, main(["fit-stats", "--run", str(tiny_run), "--frames", "2", "--missing", "pooled",
+                            "--out", str(out)]), "error: --cityscapes DIR needed", "step 0", "convert-weights")
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_statistics_name_their_frames_in_every_command_that_reads_them(tiny_run, tmp_path, capsys):
+    import json
+
+    from jaxanom import sml
+
+    images = write_tiny_cityscapes(tmp_path / "cs", [(40, 72), (40, 72)], labels=False)
+    stats = tmp_path / "s.npz"
+    assert main(["fit-stats", "--run", str(tiny_run), "--cityscapes", str(images), "--size", "32x64",
+                 "--missing", "pooled", "--out", str(stats)]) == 0
+    record = {"set": "cityscapes train", "folder": str(images.resolve()), "count": 2, "size": [32, 64]}
+    assert sml.load_stats_info(stats)["frames"] == record
+    line = f"fitted on 2 frames of cityscapes train in {images.resolve()} at 32x64"
+    assert line in (printed := capsys.readouterr().out), printed
+    old = tmp_path / "old.npz"  # a file written before the record: still read, and said so
+    sml.save_stats(old, *sml.load_stats(stats))
+    smiyc = _smiyc(tmp_path / "t")
+    for file, said, frames in ((stats, line, record), (old, "frames not recorded", "not recorded")):
+        out = tmp_path / f"eval_{file.stem}"
+        assert main(["evaluate", "--run", str(tiny_run), "--dataset", "smiyc", "--path", str(smiyc), "--track", "none",
+                     "--methods", "sml", "--stats", str(file), "--out", str(out)]) == 0
+        assert said in capsys.readouterr().out
+        assert json.loads((out / "metrics.json").read_text())["sml_statistics"]["frames"] == frames
+        assert main(["predict", str(smiyc / "images"), "--run", str(tiny_run), "--methods", "sml", "--stats", str(file),
+                     "--out", str(tmp_path / f"predict_{file.stem}")]) == 0
+        assert said in capsys.readouterr().out

@@ -135,20 +135,21 @@ def test_experiment_json_of_the_earlier_version_loads_as_the_same_training(tmp_p
 def test_a_different_experiment_names_the_field_and_steps_grow_only_on_a_flat_schedule(tmp_path):
     stored = Experiment(train=TrainConfig(run_dir="", steps=6))
     with pytest.raises(ValueError, match=r"holds a run of a different experiment: train.optim.lr is 0.01 there, "
-                                         r"0.02 here; choose another folder"):
+                                         r"0.02 here; resume continues that run with its own settings"):
         check_same_run(stored, dataclasses.replace(stored, train=dataclasses.replace(
             stored.train, optim=OptimConfig(lr=0.02))), tmp_path)
     with pytest.raises(ValueError, match=r"different experiment: attention is None there, 'cudam' here \(and 1 more\)"):
         check_same_run(stored, dataclasses.replace(stored, batch_size=4, attention="cudam"), tmp_path)
     longer = dataclasses.replace(stored, train=dataclasses.replace(stored.train, steps=9))
+    check_same_run(stored, longer, tmp_path)  # no checkpoint yet: no step was trained on the old schedule
+    with Checkpointer(tmp_path / "checkpoints") as checkpointer:
+        checkpointer.save(6, {"x": np.zeros(2, np.float32)})
     with pytest.raises(ValueError, match=r"train.steps: the run in .* has 6 steps and its learning rate decays to 0 "
                                          r"at the last one \(poly_power 0.9\), so 9 steps would not continue it"):
         check_same_run(stored, longer, tmp_path)
     flat = dataclasses.replace(stored.train, optim=OptimConfig(poly_power=0.0))
     check_same_run(dataclasses.replace(stored, train=flat),
                    dataclasses.replace(stored, train=dataclasses.replace(flat, steps=9)), tmp_path)
-    with Checkpointer(tmp_path / "checkpoints") as checkpointer:
-        checkpointer.save(6, {"x": np.zeros(2, np.float32)})
     with pytest.raises(ValueError, match=r"train.steps: expected at least the 6 steps the run in .* has trained, got 5"):
         check_same_run(dataclasses.replace(stored, train=flat),
                        dataclasses.replace(stored, train=dataclasses.replace(flat, steps=5)), tmp_path)

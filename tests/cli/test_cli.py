@@ -123,6 +123,7 @@ def test_score_reports_the_envelope_ap(tmp_path):
 def test_score_bad_input_is_one_line(tmp_path, capsys, problem, message):
     logits = np.zeros((2, 3, 4, 5), np.float32)
     labels = np.zeros((2, 4, 5), np.uint8)
+    labels[:, 0, 0] = 1  # both classes: the metrics are defined
     args = ["--methods", "msp"]
     if problem == "nan":
         logits[0, 0, 0, 0] = np.nan
@@ -150,7 +151,7 @@ def test_train_resume_continues_its_own_run(tmp_path, capsys):
     assert main(["train", "--config", str(config), "--out", str(run), "--no-progress"]) == 2
     assert "not empty" in capsys.readouterr().err
     assert main(["train", "--resume", "--out", str(run), "--steps", "4", "--no-progress"]) == 2
-    assert "train.steps: the run in" in capsys.readouterr().err  # its poly schedule ends at step 3
+    assert "--steps: the run in" in capsys.readouterr().err  # its poly schedule ends at step 3
     assert main(["train", "--resume", "--out", str(run), "--no-progress"]) == 0
     lines = (run / "log.jsonl").read_text().splitlines()
     assert [json.loads(line)["step"] for line in lines if "train/loss" in line] == [1, 2, 3]

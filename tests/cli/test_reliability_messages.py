@@ -3,6 +3,7 @@ run, images above OpenCV's pixel limit, empty --methods, statistics files, a ful
 progress bars drawn where no terminal reads them."""
 import errno
 import io
+import json
 import os
 import struct
 import time
@@ -12,9 +13,12 @@ import numpy as np
 import pytest
 
 from jaxanom import sml
+from jaxanom.app.commands.inputs import with_overrides
+from jaxanom.app.experiment import Experiment, jsonable
 from jaxanom.cli import _parser, main
 from jaxanom.data.image_io import read_rgb
 from jaxanom.io import write_bytes_atomic, write_json_atomic
+from jaxanom.train.checkpoint import Checkpointer
 from jaxanom.train.sharding import initialize_distributed
 
 
@@ -152,3 +156,89 @@ def test_a_library_bug_keeps_its_traceback_and_bad_input_names_the_flag(monkeypa
     assert capsys.readouterr().err.strip() == "jaxanom score: error: --any-layout: not with --layout NHWC; see --plugin"
     assert str(InputError("any_layout", ": not with {layout} NHWC", mentions=("layout",))) == \
         "any_layout: not with layout NHWC"
+
+
+@pytest.mark.parametrize("setting, message", [
+    ("train.ignore=300", "experiment: train.ignore: the synthetic data marks void pixels 255; expected 255, got 300"),
+    ("train.ignore=3", "train.ignore: the synthetic data marks void pixels 255; expected 255, got 3"),
+    ("num_classes=3", "num_classes: the synthetic data has 19 classes (0..18); expected >= 19, got 3"),
+])
+def test_train_values_that_do_not_fit_the_data_are_refused_before_anything_is_written(tmp_path, capsys, setting,
+                                                                                      message):
+    run = tmp_path / "run"
+    assert main(["train", "--out", str(run), "--steps", "2", "--set", setting, "--no-progress"]) == 2
+    error = capsys.readouterr().err.strip()
+    assert message in error and len(error.splitlines()) == 1, error
+    assert not run.exists()
+    run.mkdir()  # a folder an earlier version left: its experiment.json alone, with the value in it
+    (run / "experiment.json").write_text(json.dumps(jsonable(with_overrides(Experiment(), [setting]))))
+    assert main(["train", "--out", str(run), "--resume", "--no-progress"]) == 2
+    assert message in capsys.readouterr().err
+    assert main(["train", "--out", str(run), "--steps", "2", "--no-progress"]) == 2  # fixed: names what differs
+    error = capsys.readouterr().err
+    assert "never reached its first checkpoint" in error and "--resume" not in error, error
+
+
+def test_a_start_that_ended_before_its_first_checkpoint_does_not_block_its_rerun(tmp_path, monkeypatch, capsys):
+    import jaxanom.app.experiment as app
+
+    def crash(experiment, out, **_):  # a start killed after writing experiment.json
+        write_json_atomic(out / "experiment.json", jsonable(experiment))
+        raise KeyboardInterrupt
+
+    run, argv = tmp_path / "run", ["train", "--out", str(tmp_path / "run"), "--steps", "2", "--no-progress"]
+    monkeypatch.setattr(app, "run_training", crash)
+    assert main(argv) == 130 and [p.name for p in run.iterdir()] == ["experiment.json"]
+    handed = []
+    monkeypatch.setattr(app, "run_training", lambda experiment, out, **_: handed.append(experiment))
+    assert main([*argv, "--batch-size", "4"]) == 2  # another experiment: not started over the file
+    error = capsys.readouterr().err.strip()
+    assert ("--out " in error and "never reached its first checkpoint" in error and "batch_size is 8 there, 4 here"
+            in error and "--resume starts that one" in error), error
+    assert main([*argv, "--steps", "3"]) == 0 and handed[-1].train.steps == 3  # the same command: a fresh start
+    (run / "notes.txt").write_text("mine")
+    assert main(argv) == 2 and "not empty" in capsys.readouterr().err  # nothing but the run's own file
+
+
+def test_resume_errors_name_the_flags_and_advise_resume(tmp_path, capsys):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "experiment.json").write_text(json.dumps(jsonable(with_overrides(Experiment(), ["train.steps=6"]))))
+    with Checkpointer(run / "checkpoints") as checkpointer:  # 3 steps trained on the schedule of 6
+        checkpointer.save(3, {"x": np.zeros(2, np.float32)})
+    assert main(["train", "--out", str(run), "--resume", "--batch-size", "4", "--no-progress"]) == 2
+    error = capsys.readouterr().err.strip()
+    assert error.startswith(f"jaxanom train: error: --out: {run} holds a run of a different experiment: batch_size "
+                            "is 8 there, 4 here; --resume continues that run with its own settings"), error
+    assert main(["train", "--out", str(run), "--resume", "--steps", "9", "--no-progress"]) == 2
+    error = capsys.readouterr().err.strip()
+    assert error.startswith(f"jaxanom train: error: --steps: the run in {run} has 6 steps") and "run_dir" not in error
+    assert f"resume it with 6 steps, start a new run from its weights (--init-from {run})" in error, error
+    assert main(["train", "--out", str(tmp_path / "none"), "--resume", "--no-progress"]) == 2
+    assert capsys.readouterr().err.strip() == (f"jaxanom train: error: --out {tmp_path / 'none'}: holds no run to "
+                                               "resume (no experiment.json); start one there without --resume")
+    (tmp_path / "empty").mkdir()
+    assert main(["evaluate", "--run", str(tmp_path / "empty"), "--dataset", "synthetic", "--path", "anomaly", "--out",
+                 str(tmp_path / "o")]) == 2
+    assert (f"error: --run {tmp_path / 'empty'}: not a run folder: it holds no experiment.json"
+            in capsys.readouterr().err)
+
+
+def test_init_modules_need_init_from_which_is_stored_absolute_however_given(tmp_path, monkeypatch, capsys):
+    import jaxanom.app.experiment as app
+
+    handed = []
+    monkeypatch.setattr(app, "run_training", lambda experiment, out, **_: handed.append(experiment))
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "source").mkdir()
+    (tmp_path / "source" / "experiment.json").write_text(json.dumps(jsonable(Experiment())))
+    for flags in (["--init-modules", "backbone"], ["--set", "init_modules=backbone"]):
+        assert main(["train", "--out", "a", *flags, "--no-progress"]) == 2
+        assert ("error: --init-modules takes modules from the run of --init-from, which is not given"
+                in capsys.readouterr().err)
+        assert not (tmp_path / "a").exists() and handed == []
+    for k, flags in enumerate((["--init-from", "source"], ["--set", "init_from=source"])):
+        assert main(["train", "--out", f"b{k}", *flags, "--init-modules", "backbone", "--no-progress"]) == 0
+        assert (handed[-1].init_from, handed[-1].init_modules) == (str(tmp_path / "source"), ("backbone",))
+    assert main(["train", "--out", "c", "--set", "init_from=nowhere", "--no-progress"]) == 2
+    assert "error: --init-from nowhere: " in capsys.readouterr().err

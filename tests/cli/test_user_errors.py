@@ -88,9 +88,36 @@ def _mmf_folder_without_networks(root):
     return str(root)
 
 
+def _cityscapes_frame(root):
+    """One training frame in Cityscapes' layout (no labels: fit-stats reads none)."""
+    (root / "leftImg8bit/train/city").mkdir(parents=True)
+    image = np.random.default_rng(0).integers(0, 256, (H, W, 3), dtype=np.uint8)
+    cv2.imwrite(str(root / "leftImg8bit/train/city/city_000000_000000_leftImg8bit.png"), image)
+    return str(root)
+
+
 def _train_config(root):
     (root / "exp.py").write_text(TRAIN)
     return str(root / "exp.py")
+
+
+def _smiyc(root, label: int, size=(H, W)):
+    """Two frames in SegmentMeIfYouCan's layout whose labels are all ``label``."""
+    for folder in ("images", "labels_masks"):
+        (root / folder).mkdir(parents=True)
+    for name in ("f0", "f1"):
+        cv2.imwrite(str(root / "images" / f"{name}.png"), np.full((*size, 3), 90, np.uint8))
+        cv2.imwrite(str(root / "labels_masks" / f"{name}_labels_semantic.png"), np.full(size, label, np.uint8))
+    return str(root)
+
+
+def _array(path, values):
+    np.save(path, values)
+    return str(path)
+
+
+def _evaluate_smiyc(run, path, *flags):
+    return ["evaluate", "--run", str(run), "--dataset", "smiyc", "--path", path, "--methods", "msp", *flags]
 
 
 OUT = "<out>"  # where a case names its output itself; the others get --out <out>
@@ -109,16 +136,40 @@ CASES = {
     "evaluate: statistics of another class count": lambda tmp, run: (
         ["evaluate", "--run", str(run), "--dataset", "road-anomaly", "--methods", "sml",
          "--stats", _three_class_stats(tmp), "--path", str(_road_anomaly(tmp / "ra"))], "--stats "),
+    "evaluate: frames without an anomaly pixel": lambda tmp, run: (
+        _evaluate_smiyc(run, _smiyc(tmp / "d", 0), "--track", "anomaly"),
+        "error: --path: no anomaly pixel in any of the 2 frames scored (f0: no anomaly pixel; f1: no anomaly pixel)"),
+    "evaluate: frames without an anomaly pixel, smiyc convention": lambda tmp, run: (
+        _evaluate_smiyc(run, _smiyc(tmp / "d", 0), "--track", "anomaly", "--convention", "smiyc"),
+        "--path: no anomaly pixel in any of the 2 frames"),
+    "evaluate: all-void frames, no track": lambda tmp, run: (
+        _evaluate_smiyc(run, _smiyc(tmp / "d", 255), "--track", "none"), "(f0: all void; f1: all void)"),
+    "evaluate: every frame skipped by the protocol": lambda tmp, run: (
+        _evaluate_smiyc(run, _smiyc(tmp / "d", 0), "--track", "anomaly", "--protocol", "erfnet-community"),
+        "--path: no frame to score; the erfnet-community protocol skipped 2 frames without anomaly pixels (f0, f1)"),
+    "evaluate: smiyc without its track": lambda tmp, run: (
+        _evaluate_smiyc(run, _smiyc(tmp / "d", 0)), "error: --track: the smiyc dataset holds either track"),
+    "score: labels without an anomaly pixel": lambda tmp, run: (
+        ["score", "--logits", _array(tmp / "logits.npy", np.ones((2, 3, 4, 5), np.float32)), "--labels",
+         _array(tmp / "labels.npy", np.zeros((2, 4, 5), np.uint8)), "--methods", "msp"],
+        f"error: --labels {tmp / 'labels.npy'}: no anomaly (1) pixel outside void (255) in any of its 2 images; AP, "
+        "AUROC and FPR@95 need both classes (leave --labels out for the score maps alone)"),
     "evaluate: an MMF folder without its networks": lambda tmp, run: (
         ["evaluate", "--mmf", _mmf_folder_without_networks(tmp / "mmf"), "--dataset", "synthetic", "--path", "anomaly",
          "--frames", "1"], "--mmf "),
     "fit-stats: frames too small to pool": lambda tmp, run: (
         ["fit-stats", "--run", str(run), "--frames", "1", "--size", "3x3", "--policy", "shrink",
-         "--out", f"{OUT}/stats.npz"],
+         "--cityscapes", _cityscapes_frame(tmp / "cs"), "--out", f"{OUT}/stats.npz"],
         "stats has only 9 counted pixel(s)"),
+    "fit-stats: a converted run without frames": lambda tmp, run: (
+        ["fit-stats", "--run", str(run), "--frames", "2", "--missing", "pooled", "--out", f"{OUT}/stats.npz"],
+        "--cityscapes DIR needed"),
     "convert-weights: a checkpoint of another network": lambda tmp, run: (
         ["convert-weights", "--from", "erfnet-cityscapes", _checkpoint_of_other_keys(tmp), OUT],
         "IN: state dict does not match erfnet-cityscapes"),
+    "convert-weights: an output stride for ESPNet": lambda tmp, run: (
+        ["convert-weights", "--from", "espnet-cityscapes", _checkpoint_of_other_keys(tmp), OUT, "--output-stride", "8"],
+        "error: --output-stride: espnet-cityscapes is no DeepLabV3+ and has no output stride to set; got 8"),
     "train: warm-up longer than the run": lambda tmp, run: (
         ["train", "--config", _train_config(tmp), "--set", "train.optim.warmup_steps=50", "--no-progress"],
         "warmup_steps=50"),
@@ -176,3 +227,96 @@ def test_a_library_bug_while_reading_a_dataset_keeps_its_traceback(tiny_run, tmp
     with pytest.raises(ValueError, match="a bug of ours"):
         main(["evaluate", "--run", str(tiny_run), "--dataset", "road-anomaly", "--methods", "msp",
               "--path", str(_road_anomaly(tmp_path / "ra")), "--out", str(tmp_path / "out")])
+
+
+@pytest.fixture(scope="module")
+def espnet_run(tmp_path_factory):
+    """An ESPNet run (constant weights): a network that takes sizes in multiples of 8 only."""
+    import jax
+
+    from jaxanom.app.runs import write_run
+    from jaxanom.models import build_model
+
+    model = build_model("espnet_p2_q8", num_classes=19)
+    shapes = jax.eval_shape(lambda x: model.init(jax.random.key(0), x, train=False), np.zeros((1, 32, 32, 3)))
+    folder = tmp_path_factory.mktemp("espnet") / "run"
+    write_run(folder, "espnet_p2_q8", model, jax.tree_util.tree_map(lambda l: np.full(l.shape, 0.01, l.dtype), shapes))
+    return folder
+
+
+def _image(root, height, width):
+    root.mkdir()
+    cv2.imwrite(str(root / "odd.png"), np.zeros((height, width, 3), np.uint8))
+    return str(root / "odd.png")
+
+
+SIZE_CASES = {  # sizes the network does not take: one line naming the flag, as predict's
+    "evaluate: 1x1 frames": lambda tmp, run: (
+        _evaluate_smiyc(run, _smiyc(tmp / "d", 1, (1, 1)), "--track", "anomaly"),
+        "error: --path: the network does not run on 1x1 images (f0): images: expected H and W multiples of 8"),
+    "fit-stats: --size 1x1": lambda tmp, run: (
+        ["fit-stats", "--run", str(run), "--frames", "1", "--size", "1x1", "--cityscapes",
+         _cityscapes_frame(tmp / "cs"), "--out", f"{OUT}/stats.npz"],
+        "error: --size: the network does not run on 1x1 images (the working size)"),
+    "predict: a 33x65 image": lambda tmp, run: (
+        ["predict", _image(tmp / "images", 33, 65), "--run", str(run), "--methods", "msp"],
+        "error: --size: the network does not run on 33x65 images (odd): "),
+}
+
+
+@pytest.mark.parametrize("case", SIZE_CASES)
+def test_a_size_the_network_does_not_take_is_one_line_naming_the_flag(case, espnet_run, tmp_path, capsys):
+    argv, named = SIZE_CASES[case](tmp_path, espnet_run)
+    out = tmp_path / "out"
+    out.mkdir()
+    argv = [a.replace(OUT, str(out)) for a in argv] if any(OUT in a for a in argv) else [*argv, "--out", str(out)]
+    assert main(argv) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and named in lines[0], lines
+    assert [p.name for p in out.iterdir()] == (["settings.json"] if argv[0] == "predict" else [])  # predict resumes
+
+
+def _huge_logits(model, variables):
+    """A stand-in for ``app.evaluate.predictor``: logits 1e5, and 2e5 on the left half, at any size."""
+    def call(images):
+        logits = np.zeros((*images.shape[:3], 19), np.float32)
+        logits[..., 0], logits[:, :, :images.shape[2] // 2, 1] = 1e5, 2e5
+        return {"logits": logits}
+    return call
+
+
+def _one_anomalous_frame(tmp_path):
+    """_smiyc's frames, f1 with anomaly pixels in its top rows."""
+    path = _smiyc(tmp_path / "d", 0)
+    cv2.imwrite(str(tmp_path / "d" / "labels_masks" / "f1_labels_semantic.png"),
+                np.where(np.arange(H)[:, None] < 2, 1, 0).repeat(W, 1).astype(np.uint8))
+    return path
+
+
+def test_scores_the_kit_cannot_store_are_one_line_naming_the_method(tiny_run, tmp_path, capsys,  # noqa: F811
+                                                                      monkeypatch):
+    """The official kit casts maps to float16: a max_logit of -2e5 has no kit number (inf there)."""
+    import jaxanom.app.evaluate
+
+    monkeypatch.setattr(jaxanom.app.evaluate, "predictor", _huge_logits)
+    path = _one_anomalous_frame(tmp_path)
+    argv = _evaluate_smiyc(tiny_run, path, "--methods", "msp,max_logit", "--track", "anomaly")
+    assert main([*argv, "--convention", "smiyc", "--out", str(tmp_path / "o")]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines == ["jaxanom evaluate: error: --methods: max_logit's scores of frame f0 reach -200000, outside "
+                     "float16's range (|score| <= 65504); the official SegmentMeIfYouCan kit stores maps as float16, "
+                     "where such scores become inf and its bins undefined; use --convention exact"]
+    assert not (tmp_path / "o").exists()
+    assert main([*argv, "--out", str(tmp_path / "o")]) == 0  # the exact curves take any float
+
+
+def test_the_frames_a_protocol_skips_are_named(tiny_run, tmp_path, capsys, monkeypatch):  # noqa: F811
+    import jaxanom.app.evaluate
+
+    monkeypatch.setattr(jaxanom.app.evaluate, "predictor", _huge_logits)
+    argv = _evaluate_smiyc(tiny_run, _one_anomalous_frame(tmp_path), "--track", "none", "--protocol",
+                           "erfnet-community", "--out", str(tmp_path / "o"))
+    assert main(argv) == 0
+    assert ("jaxanom evaluate: the erfnet-community protocol skipped 1 of 2 frames, which have no anomaly pixel: f0 "
+            "(metrics.json: frames_skipped)") in capsys.readouterr().out
+    assert json.loads((tmp_path / "o" / "metrics.json").read_text())["frames_skipped"] == ["f0"]

@@ -110,3 +110,18 @@ def test_take_modules_refuses_what_does_not_fit():
     with pytest.raises(ValueError, match=r"params/backbone/v \(not in the network\)"):
         take_modules(fresh, {**source, "params": {**source["params"], "backbone": {"w": np.ones((3, 4)),
                                                                                    "v": np.ones(1)}}}, ["backbone"])
+
+
+def test_take_modules_keeps_the_layers_it_is_told():
+    fresh = {"params": {"decoder": {"up": {"w": np.zeros(3)}, "head": {"kernel": np.zeros((4, 2))}}},
+             "batch_stats": {"decoder": {"up": {"mean": np.zeros(3)}}}}
+    source = {"params": {"decoder": {"up": {"w": np.ones(3)}, "head": {"kernel": np.ones((4, 5))}}},
+              "batch_stats": {"decoder": {"up": {"mean": np.ones(3)}}}}
+    out = take_modules(fresh, source, keep=["decoder/head"])
+    assert out["params"]["decoder"]["up"]["w"].sum() == 3 and out["batch_stats"]["decoder"]["up"]["mean"].sum() == 3
+    head = out["params"]["decoder"]["head"]["kernel"]
+    assert head.shape == (4, 2) and head.sum() == 0
+    with pytest.raises(ValueError, match=r"decoder/hea \(kept, not a layer of the network\)"):
+        take_modules(fresh, source, keep=["decoder/hea"])
+    with pytest.raises(ValueError, match=r"params/decoder/head/kernel: source \(4, 5\), network \(4, 2\)"):
+        take_modules(fresh, source, keep=["decoder/up"])

@@ -1,5 +1,6 @@
-"""``python -m experiments``'s command line: bad flags refused before any work, and a smoke run
-never overwrites the results of a full run."""
+"""``python -m experiments``'s command line: bad flags refused before any work, and smoke and full
+runs never share a folder (a smoke run never overwrites a full run's results, a full run never
+mixes its tables with a smoke run's)."""
 import json
 
 import pytest
@@ -9,7 +10,8 @@ from experiments.common import HERE
 
 
 @pytest.mark.parametrize("flags, flag", [(["--size", "0", "0"], "--size"), (["--size", "60", "128"], "--size"),
-                                         (["--steps", "0"], "--steps"), (["--train-frames", "-1"], "--train-frames"),
+                                         (["--steps", "0"], "--steps"), (["--steps", "1"], "--steps"),
+                                         (["--train-frames", "-1"], "--train-frames"),
                                          (["--anomaly", "bogus"], "--anomaly"),
                                          (["--anomaly", "smiyc:/no/such/track"], "--anomaly"),
                                          (["--cityscapes", "/no/such/root"], "--cityscapes")])
@@ -33,6 +35,9 @@ def test_a_smoke_run_writes_elsewhere_and_refuses_a_folder_of_full_results(tmp_p
     assert runner.parse_args(["--out", str(full)]).out == full  # a full run may rewrite them
     (full / runner.MADE_BY).write_text(json.dumps({"smoke": True}))
     assert runner.parse_args(["--smoke", "--out", str(full)]).out == full  # a smoke run's own results
+    with pytest.raises(SystemExit):  # a full run would mix its tables with a smoke run's
+        runner.parse_args(["--only", "sml_table3_table7", "--out", str(full)])
+    assert "holds the results of a smoke run" in capsys.readouterr().err
     (full / runner.MADE_BY).write_text(json.dumps({"smoke": False}))
     with pytest.raises(SystemExit):
         runner.parse_args(["--smoke", "--out", str(full)])
@@ -50,10 +55,16 @@ def test_the_runner_records_how_its_results_were_made(tmp_path, monkeypatch):
         assert runner.main(["--smoke", "--only", "cudam_table2", "--out", str(out), "--runs", str(tmp_path)]) == 0
         assert tables == ["cudam_table2"] and json.loads((out / runner.MADE_BY).read_text())["smoke"] is True
         assert (out / "RESULTS.md").read_text().startswith("> **A smoke run**")
-        assert runner.main(["--only", "cudam_table2", "--out", str(out), "--runs", str(tmp_path)]) == 0
-        assert json.loads((out / runner.MADE_BY).read_text())["smoke"] is False  # now a full run's: kept from smoke
-        assert not (out / "RESULTS.md").read_text().startswith("> **A smoke run**")
+        with pytest.raises(SystemExit):  # refused before any work: the smoke label and banner stay true
+            runner.main(["--only", "msaam_table6", "--out", str(out), "--runs", str(tmp_path)])
+        assert tables == ["cudam_table2"] and json.loads((out / runner.MADE_BY).read_text())["smoke"] is True
+        assert (out / "RESULTS.md").read_text().startswith("> **A smoke run**")
+        full = tmp_path / "full"
+        assert runner.main(["--only", "cudam_table2", "--out", str(full), "--runs", str(tmp_path)]) == 0
+        assert json.loads((full / runner.MADE_BY).read_text())["smoke"] is False
+        assert not (full / "RESULTS.md").read_text().startswith("> **A smoke run**")
     finally:
         jax.config.update("jax_compilation_cache_dir", cache)
+    assert runner.parse_args(["--smoke", "--out", str(out)]).out == out  # a later smoke run may go on there
     with pytest.raises(SystemExit):
-        runner.parse_args(["--smoke", "--out", str(out)])
+        runner.parse_args(["--smoke", "--out", str(full)])

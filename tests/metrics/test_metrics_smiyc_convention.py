@@ -218,20 +218,9 @@ def test_bad_input_names_the_argument():
 def test_evaluate_maps_from_predicts_tree_equal_the_kit(tmp_path, capsys):
     """``jaxanom evaluate --maps`` on the tree ``predict --format smiyc`` writes (float16 HDF5 maps)
     with ``--convention smiyc``: the kit's numbers, the exact ones kept beside them."""
-    import cv2
-
-    from jaxanom.app.predict import _write_hdf5, output_file
     from jaxanom.cli import main
 
-    root = tmp_path / "track"
-    for folder in ("images", "labels_masks"):
-        (root / folder).mkdir(parents=True)
-    for index, (scores, labels) in enumerate(synthetic_frames()):
-        cv2.imwrite(str(root / "images" / f"{index}.png"), np.zeros((*labels.shape, 3), np.uint8))
-        cv2.imwrite(str(root / "labels_masks" / f"{index}_labels_semantic.png"), labels)
-        path = output_file(tmp_path / "pred", str(index), "synthetic", "smiyc", "ObstacleTrack-all")
-        path.parent.mkdir(parents=True, exist_ok=True)
-        _write_hdf5(str(path), scores.astype(np.float16))
+    root = _obstacle_track_and_maps(tmp_path)
     out = tmp_path / "eval"
     assert main(["evaluate", "--maps", str(tmp_path / "pred"), "--dataset", "smiyc", "--path", str(root),
                  "--track", "obstacle", "--convention", "smiyc", "--out", str(out)]) == 0
@@ -243,8 +232,55 @@ def test_evaluate_maps_from_predicts_tree_equal_the_kit(tmp_path, capsys):
     assert pixel_numbers(m) == pytest.approx(KIT_SYNTHETIC["pixels"], rel=1e-12)
     assert m["components"]["threshold"] == KIT_SYNTHETIC["pixels"][5]
     assert component_numbers(m["components"]) == pytest.approx(KIT_SYNTHETIC["obstacle"], rel=1e-12)
-    assert set(m["exact"]) == {"ap", "auroc", "fpr_at_tpr", "best_f1", "best_f1_threshold"}
-    assert m["exact"]["ap"] != m["ap"] and m["ap_conventions"]["step"] == m["exact"]["ap"]
+    assert set(m["exact"]) == {"ap", "auroc", "fpr_at_tpr", "best_f1", "best_f1_threshold", "ap_convention",
+                               "fpr_convention", "ap_conventions", "fpr_conventions"}
+    assert m["exact"]["ap"] != m["ap"] and m["exact"]["ap_conventions"]["step"] == m["exact"]["ap"]
+
+
+def _obstacle_track_and_maps(tmp_path):
+    """``synthetic_frames()`` as a RoadObstacle21 folder (returned) and its maps in ``tmp_path / "pred"``."""
+    import cv2
+
+    from jaxanom.app.predict import _write_hdf5, output_file
+
+    root = tmp_path / "track"
+    for folder in ("images", "labels_masks"):
+        (root / folder).mkdir(parents=True)
+    for index, (scores, labels) in enumerate(synthetic_frames()):
+        cv2.imwrite(str(root / "images" / f"{index}.png"), np.zeros((*labels.shape, 3), np.uint8))
+        cv2.imwrite(str(root / "labels_masks" / f"{index}_labels_semantic.png"), labels)
+        path = output_file(tmp_path / "pred", str(index), "synthetic", "smiyc", "ObstacleTrack-all")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        _write_hdf5(str(path), scores.astype(np.float16))
+    return root
+
+
+def test_every_number_of_metrics_json_carries_the_convention_that_made_it(tmp_path, capsys):
+    """Every combination of --convention, --ap-convention and --fpr-convention: the top-level AP and
+    FPR are the kit's under smiyc (labelled so, KIT_SYNTHETIC's) and the chosen exact conventions'
+    otherwise; the exact numbers sit beside the labels of the conventions that made them."""
+    from jaxanom.cli import main
+    from jaxanom.metrics.anomaly import AP_CONVENTIONS, FPR_CONVENTIONS
+
+    root = _obstacle_track_and_maps(tmp_path)
+    for convention in ("exact", "smiyc"):
+        for ap in AP_CONVENTIONS:
+            for fpr in ("first", "interp"):
+                out = tmp_path / f"{convention}_{ap}_{fpr}"
+                assert main(["evaluate", "--maps", str(tmp_path / "pred"), "--dataset", "smiyc", "--path", str(root),
+                             "--track", "none", "--convention", convention, "--ap-convention", ap,
+                             "--fpr-convention", fpr, "--out", str(out)]) == 0
+                m = json.loads((out / "metrics.json").read_text())["metrics"]["synthetic"]
+                exact = m["exact"] if convention == "smiyc" else m
+                assert (exact["ap_convention"], exact["fpr_convention"]) == (ap, fpr)
+                assert set(exact["ap_conventions"]) == set(AP_CONVENTIONS)
+                assert set(exact["fpr_conventions"]) == set(FPR_CONVENTIONS)
+                assert exact["ap"] == exact["ap_conventions"][ap] and exact["fpr_at_tpr"] == exact["fpr_conventions"][fpr]
+                if convention == "smiyc":  # the kit's numbers whatever the exact conventions, and no other label
+                    assert m["convention"] == "smiyc"
+                    assert pixel_numbers(m) == pytest.approx(KIT_SYNTHETIC["pixels"], rel=1e-12)
+                    assert not {"ap_convention", "fpr_convention", "ap_conventions", "fpr_conventions"} & set(m)
+    capsys.readouterr()
 
 
 def test_evaluate_maps_names_what_is_missing(tmp_path, capsys):
@@ -303,3 +339,28 @@ def test_predict_writes_the_unit_interval_map():
     for bad in ((0.0, 0.0), (0.0,), (np.nan, 1.0)):
         with pytest.raises(ValueError, match="unit_interval: expected"):
             PredictSettings(methods=("msp",), unit_interval=bad)
+
+
+def test_evaluate_maps_refuses_the_other_tracks_maps_and_statistics(tmp_path, capsys):
+    """One track's maps scored with the other's component rules, or statistics that cannot change
+    finished maps, are one line each, before anything is written."""
+    from jaxanom.cli import main
+
+    root = _obstacle_track_and_maps(tmp_path)
+    common = ["evaluate", "--maps", str(tmp_path / "pred"), "--dataset", "smiyc", "--path", str(root)]
+    stats = tmp_path / "stats.npz"
+    stats.write_bytes(b"")  # never read: refused first
+    for extra, named in ((["--track", "anomaly"], ["--maps: ", "ObstacleTrack-all holds the obstacle track's maps",
+                                                   "--track anomaly would score", "pass --track obstacle"]),
+                         (["--track", "obstacle", "--stats", str(stats)],
+                          [f"--stats {stats}: --maps reads finished score maps"])):
+        out = tmp_path / "o"
+        assert main([*common, *extra, "--out", str(out)]) == 2
+        error = capsys.readouterr().err.strip()
+        assert len(error.splitlines()) == 1 and all(part in error for part in named), error
+        assert not out.exists()
+    (tmp_path / "pred" / "anomaly_p" / "synthetic" / "ObstacleTrack-all").rename(
+        tmp_path / "pred" / "anomaly_p" / "synthetic" / "AnomalyTrack-all")
+    assert main([*common, "--track", "obstacle", "--out", str(tmp_path / "o")]) == 2
+    assert "AnomalyTrack-all holds the anomaly track's maps" in capsys.readouterr().err
+    assert main([*common, "--track", "none", "--out", str(tmp_path / "o")]) == 0  # pixel metrics only: no rules

@@ -176,12 +176,15 @@ def test_bad_policy_arguments(kwargs, match):
         sml.stats_finalize(sml.stats_init(2), **kwargs)
 
 
-def test_status_and_policy_round_trip_through_the_file(tmp_path):
+def test_status_policy_channels_and_frames_round_trip_through_the_file(tmp_path):
     path = tmp_path / "stats.npz"
+    frames = {"set": "cityscapes train", "folder": "/data/cityscapes", "count": 2, "size": [32, 64]}
     sml.save_stats(path, [1.0, 2.0], [0.5, 0.7], [10, 3], status=("fitted", "pooled"),
-                   policy={"policy": "min_count", "min_count": 5})
+                   policy={"policy": "min_count", "min_count": 5}, channels={"network_outputs": 3, "void_dropped": True},
+                   frames=frames)
     assert sml.load_stats_info(path) == {"status": ["fitted", "pooled"],
-                                         "policy": {"policy": "min_count", "min_count": 5}}
+                                         "policy": {"policy": "min_count", "min_count": 5},
+                                         "channels": {"network_outputs": 3, "void_dropped": True}, "frames": frames}
     sml.save_stats(path, [1.0], [0.5], [10])
-    assert sml.load_stats_info(path) == {"status": None, "policy": None}
+    assert sml.load_stats_info(path) == {"status": None, "policy": None, "channels": None, "frames": None}
     assert len(sml.load_stats(path)) == 3

@@ -151,7 +151,9 @@ def test_sigkill_and_resume_ends_with_bitwise_equal_parameters(tmp_path):
     victim = run_script(tmp_path / "killed", 0.25, env)
     checkpoints = tmp_path / "killed" / "checkpoints"
     deadline = time.monotonic() + 240
-    while not (checkpoints.is_dir() and steps_on_disk(checkpoints)):
+    # killed once it has logged a step past its newest checkpoint: the resumed run logs that step again
+    while not (checkpoints.is_dir() and steps_on_disk(checkpoints)
+               and max(logged_steps(tmp_path / "killed"), default=0) > steps_on_disk(checkpoints)[-1]):
         assert victim.poll() is None, victim.communicate()[0].decode()
         assert time.monotonic() < deadline, "no checkpoint appeared"
         time.sleep(0.05)
@@ -160,7 +162,7 @@ def test_sigkill_and_resume_ends_with_bitwise_equal_parameters(tmp_path):
     assert victim.returncode == -signal.SIGKILL
     assert not (tmp_path / "killed" / "final.npz").exists()
     killed_at = steps_on_disk(checkpoints)
-    assert killed_at[-1] < 12
+    assert killed_at[-1] < 12 and max(logged_steps(tmp_path / "killed")) > killed_at[-1]
 
     resumed = run_script(tmp_path / "killed", 0.0, env)
     output = resumed.communicate(timeout=300)[0].decode()
@@ -169,6 +171,22 @@ def test_sigkill_and_resume_ends_with_bitwise_equal_parameters(tmp_path):
     assert sorted(expected.files) == sorted(got.files)
     for name in expected.files:
         np.testing.assert_array_equal(got[name], expected[name], err_msg=name)
+    # the resumed run's log is the uninterrupted run's: each step once, the same values (bar time and speed)
+    want, have = (log_lines(tmp_path / name) for name in ("full", "killed"))
+    assert [line["step"] for line in have] == [line["step"] for line in want] == list(range(1, 13))
+    assert [_timeless(line) for line in have] == [_timeless(line) for line in want]
+
+
+def logged_steps(run_dir):
+    return [line["step"] for line in log_lines(run_dir)] if (Path(run_dir) / "log.jsonl").is_file() else []
+
+
+def log_lines(run_dir):
+    return [json.loads(line) for line in (Path(run_dir) / "log.jsonl").read_text().splitlines() if line.endswith("}")]
+
+
+def _timeless(line):
+    return {k: v for k, v in line.items() if k not in ("time", "train/images_per_s")}
 
 
 @pytest.mark.parametrize("change, message", [

@@ -177,3 +177,36 @@ def test_evaluation_steps_and_the_progress_wrapper():
     assert [bar.numbers for bar in bars] == [range(1, 8)] and bars[0].closed
     assert [summary["last"] for summary in summaries] == [3, 5, 6, 7]  # logging steps: evaluations, every 5, the last
     assert all(summary["per_s"] > 0 for summary in summaries)
+
+
+def test_non_finite_weights_under_finite_metrics_stop_the_run_before_they_are_saved(tmp_path):
+    """A step whose metrics stay finite while the state does not (a NaN clip norm scales the update,
+    not the loss): the state is checked before each save and at the last step, and a run that
+    saved nothing says so (not "step None")."""
+    @jax.jit
+    def poisoning(state, batch):
+        new, metrics = step(state, batch)
+        return new.replace(w=jnp.where(new.step >= 3, jnp.nan, new.w)), {"loss": jnp.sum(batch)}
+
+    def go(steps, **kwargs):
+        return run_loop(poisoning, fresh, Batches(), steps, **kwargs)
+
+    with pytest.raises(NonFiniteLossError, match=r"hold NaN or Inf after step 4: training stopped; last good "
+                                                 r"checkpoint: step 2 in .*checkpoints"):
+        go(6, checkpoints=Checkpoints(str(tmp_path), every=2))
+    assert saved_steps(tmp_path) == [2]
+    with pytest.raises(NonFiniteLossError, match=r"after step 3: training stopped; no checkpoint was saved before"):
+        go(3, checkpoints=Checkpoints(str(tmp_path / "none")))
+    assert saved_steps(tmp_path / "none") == []
+    with pytest.raises(NonFiniteLossError, match="after step 3: training stopped; nothing was saved"):
+        go(3)
+    assert np.isnan(jax.device_get(go(3, finite=()).w)).all()  # nothing watched: the caller judges
+
+
+def test_a_run_that_saved_nothing_says_so_when_its_loss_turns_non_finite(tmp_path):
+    def poisoned():
+        for index in range(3):
+            yield np.full(3, np.nan, np.float32) if index == 1 else batch(index)
+
+    with pytest.raises(NonFiniteLossError, match=r"at step 2: training stopped; no checkpoint was saved before"):
+        run(3, poisoned(), checkpoints=Checkpoints(str(tmp_path)))

@@ -1,5 +1,7 @@
 """jaxanom.weights: PyTorch networks with random weights (and random BatchNorm statistics) give the
 same outputs once imported, at odd input sizes; bad files and mismatched checkpoints are refused."""
+import os
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -195,10 +197,27 @@ class NotATensor:
     pass
 
 
+class RunsACommand:
+    def __init__(self, marker):
+        self.marker = marker
+
+    def __reduce__(self):  # unpickling calls os.system (posix.system): code run by reading the file
+        return os.system, (f"touch {self.marker}",)
+
+
 def test_unsafe_and_damaged_files_are_refused(tmp_path):
     torch.save({"state_dict": {"w": torch.ones(2)}, "extra": NotATensor()}, tmp_path / "pickled.pth")
     with pytest.raises(ValueError, match="refused: it holds Python objects besides tensors .*NotATensor"):
         read_state_dict(tmp_path / "pickled.pth")
+    # told by what the pickle references (torch's scan), whatever torch's message: a function, a whole module
+    torch.save({"w": torch.ones(2), "x": RunsACommand(tmp_path / "ran")}, tmp_path / "system.pth")
+    with pytest.raises(ValueError, match=r"refused: it holds Python objects besides tensors \(globals "
+                                         rf"{os.system.__module__}\.system\)"):
+        read_state_dict(tmp_path / "system.pth")
+    assert not (tmp_path / "ran").exists()
+    torch.save(torch.nn.Conv2d(1, 1, 1), tmp_path / "module.pth")
+    with pytest.raises(ValueError, match=r"refused: .*\(globals torch\.nn\.modules\.conv\.Conv2d"):
+        read_state_dict(tmp_path / "module.pth")
     for name in ("damaged.pth", "damaged.npz", "damaged.safetensors"):
         (tmp_path / name).write_bytes(b"\x80\x02not a checkpoint" * 7)
         with pytest.raises(ValueError, match="not a readable"):

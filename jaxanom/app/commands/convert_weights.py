@@ -17,18 +17,22 @@ __all__ = ["DEEPLAB_CLASSES", "KINDS", "convert_weights"]
 DEEPLAB_CLASSES = 19
 
 
-def convert_weights(*, kind: str, input: str, out: str, num_classes: int | None = None, output_stride: int = 8,
-                    seed: int = 0, overwrite: bool = False) -> Path:
+def convert_weights(*, kind: str, input: str, out: str, num_classes: int | None = None,
+                    output_stride: int | None = None, seed: int = 0, overwrite: bool = False) -> Path:
     """Read the checkpoint ``input`` holding ``kind`` (``jaxanom.weights.KINDS``) and write it into
     the new or empty folder ``out``: a run folder that ``evaluate --run`` and ``train --init-from``
-    read, or ``vgg.npz`` + ``vgg.json``. ``num_classes`` sets a DeepLabV3+'s classes (default 19);
-    ESPNet and ERFNet take the checkpoint's. Returns ``out``."""
+    read, or ``vgg.npz`` + ``vgg.json``. ``num_classes`` and ``output_stride`` (default 19 and 8)
+    configure a DeepLabV3+; ESPNet and ERFNet take the checkpoint's classes and have no output
+    stride to set. Returns ``out``."""
     import jax
 
     from jaxanom.app.runs import write_run
-    from jaxanom.weights import RUN_KINDS, from_torch, read_state_dict, run_preset, write_vgg
+    from jaxanom.weights import PRESETS, RUN_KINDS, from_torch, read_state_dict, run_preset, write_vgg
     from jaxanom.weights.store import VGG_CONFIG, VGG_FILE
 
+    if output_stride is not None and kind not in PRESETS:  # refused before any folder is made
+        raise InputError("output_stride", f": {kind} is no DeepLabV3+ and has no output stride to set; got "
+                         f"{output_stride} (leave it out)")
     out_dir = out_folder(out, overwrite)
     held = [name for name in ("experiment.json", "checkpoints") if (out_dir / name).exists()]
     if held and kind in RUN_KINDS:  # a run's checkpoints would outlive the new experiment.json, or hide step 0
@@ -39,7 +43,7 @@ def convert_weights(*, kind: str, input: str, out: str, num_classes: int | None 
     classes = DEEPLAB_CLASSES if num_classes is None else num_classes
     with reading("input"):  # a checkpoint that is unreadable, or not of ``kind``
         state = read_state_dict(input)
-        model, variables = from_torch(state, kind, classes, key=jax.random.key(seed), output_stride=output_stride)
+        model, variables = from_torch(state, kind, classes, key=jax.random.key(seed), output_stride=output_stride or 8)
     if num_classes is not None and model.num_classes != num_classes:  # the checkpoint fixed the count
         raise InputError("num_classes", f": {kind} takes its class count from the checkpoint "
                          f"({model.num_classes}); got {num_classes} (leave it out)")

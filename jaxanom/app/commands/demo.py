@@ -52,11 +52,12 @@ def _settings(cls, quick: bool, config: str | None):
 def _check_training(experiment, field: str) -> None:
     """The checks a training run makes when it starts, made before ``out`` is claimed: InputError
     naming the config's ``field`` (the experiment within it) and the field that does not fit."""
-    from jaxanom.app.experiment import check_objective, check_schedule
+    from jaxanom.app.experiment import check_data, check_objective, check_schedule
 
     with reading(field):
         check_objective(experiment)
         check_schedule(experiment)
+        check_data(experiment)
 
 
 def _mmf(out, quick, steps, config, synthesizer, overrides, overwrite, progress) -> None:

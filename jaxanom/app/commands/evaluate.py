@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from jaxanom.app.commands.inputs import (DEFAULT_METHODS, check_stats_classes, load_plugins, method_names,
                                          read_stats)
-from jaxanom.app.outputs import check_out_outside, out_folder
+from jaxanom.app.outputs import check_out_outside, out_folder, within
 from jaxanom.app.protocols import PROTOCOLS
 from jaxanom.errors import InputError, reading
 
@@ -32,6 +32,7 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
     from jaxanom.app.evaluate import anomaly_results, dataset_reader, predictor, protocol_predictions, saved_map_batches
     from jaxanom.app.experiment import build_network, load_experiment, load_variables
     from jaxanom.app.mmf_experiment import mmf_scored_batches
+    from jaxanom.app.predict import size_check
     from jaxanom.app.protocols import get_protocol
     from jaxanom.app.reports import conventions_table, results_table
     from jaxanom.io import write_json_atomic
@@ -49,6 +50,9 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
     if protocol_.name != "native" and not run:
         raise InputError("protocol", f" {protocol_.name}: resizes the frames the network sees, so it needs {{run}}",
                          mentions=("run",))
+    if maps and stats:  # the maps are finished scores: statistics would change nothing, silently
+        raise InputError("stats", f" {stats}: {{maps}} reads finished score maps, which no statistics change; "
+                         "leave it out", mentions=("maps",))
     load_plugins(plugins)
     mean_std = read_stats(stats)
     if cudam_sigma is not None:
@@ -62,7 +66,7 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
         with reading("path", path):  # a folder that does not hold the dataset
             source = dataset_reader(dataset, path, base=base, frames=frames, depth=depth)
         try:
-            names, batches = saved_map_batches(maps, source, methods.split(",") if methods else None)
+            names, batches = saved_map_batches(maps, source, method_names(methods, ()) or None, track)
         except FileNotFoundError as error:
             raise InputError("maps", f": {error}") from None
     else:  # the frames' images come with every batch (evaluation_batches)
@@ -76,16 +80,28 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
             experiment, variables = load_variables(run)
         network = build_network(experiment)
         if mean_std is not None:  # refused before the first frame is scored
-            check_stats_classes(mean_std, stats, network, variables, experiment.crop)
+            check_stats_classes(mean_std, stats, network, variables, experiment.crop, protocol_)
         predict = predictor(network, variables)
     skipped: list[str] = []
     if run:
-        batches = protocol_predictions(predict, source, protocol_, skipped)
+        batches = protocol_predictions(predict, source, protocol_, skipped,
+                                       check_size=size_check(network, variables, "path", advice=""))
     out_dir = out_folder(out, overwrite)
-    metrics, _ = anomaly_results(batches, names, stats=mean_std, options=options,
-                                 fpr_convention=fpr_convention or protocol_.fpr_convention,
-                                 ap_convention=ap_convention, track=None if track == "none" else track,
-                                 spill_dir=out_dir, convention=convention, drop_void=protocol_.drop_void)
+    try:
+        metrics, _ = anomaly_results(batches, names, stats=mean_std, options=options,
+                                     fpr_convention=fpr_convention or protocol_.fpr_convention,
+                                     ap_convention=ap_convention, track=None if track == "none" else track,
+                                     spill_dir=out_dir, convention=convention, drop_void=protocol_.drop_void)
+    except InputError as error:  # no frame, or no class, left to score: say which frames the protocol skipped
+        if error.argument != "path" or not skipped:
+            raise
+        raise InputError("path", f"{error.message.rstrip('.')}; the {protocol_.name} protocol skipped "
+                         f"{len(skipped)} frames without anomaly pixels ({', '.join(skipped[:5])}"
+                         f"{', ...' if len(skipped) > 5 else ''})") from None
+    if skipped:
+        print(f"jaxanom evaluate: the {protocol_.name} protocol skipped {len(skipped)} of {len(source)} frames, "
+              f"which have no anomaly pixel: {', '.join(skipped[:10])}{', ...' if len(skipped) > 10 else ''} "
+              "(metrics.json: frames_skipped)")
     record = {"dataset": dataset, "path": path, "frames": len(source), "convention": convention,
               "protocol": protocol_.name, "metrics": metrics}
     if skipped:
@@ -99,13 +115,16 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
     for method_metrics in metrics.values():  # each option the methods resolved, and whether it was given
         for option, values in method_metrics.get("options", {}).items():
             record[option] = {"values": values, "source": "given" if options.get(option) is not None else "default"}
-    write_json_atomic(out_dir / "metrics.json", record)
+    write_json_atomic(within(out_dir, out_dir / "metrics.json"), record)
     if pictures and run:  # MMF's pictures: jaxanom demo mmf; maps': jaxanom predict --format png
         from jaxanom.app.reports import write_pictures
 
-        write_pictures(out_dir, predict, source, mean_std, pictures)
+        # the frames and logits as the protocol scores them (the statistics describe those logits)
+        write_pictures(out_dir, protocol_.outputs(predict), protocol_.source(source), mean_std, pictures,
+                       experiment.data)
     if convention == "smiyc":
-        print("The official SegmentMeIfYouCan kit's numbers (binned; the exact ones: metrics.json, \"exact\"):")
+        print("The official SegmentMeIfYouCan kit's numbers (binned; the exact ones, AP "
+              f"{ap_convention} and FPR@95 {fpr_convention or protocol_.fpr_convention}: metrics.json, \"exact\"):")
     print(results_table(metrics))
     if all_conventions:
         print("\n" + conventions_table(metrics))
@@ -113,11 +132,14 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
 
 
 def statistics_record(path: str) -> dict:
-    """What ``metrics.json`` says about the SML statistics: file, policy, counts, pooled and shrunk classes."""
+    """What ``metrics.json`` says about the SML statistics: file, the frames they were fitted on (or
+    "not recorded"), policy, the outputs they describe, counts, pooled and shrunk classes."""
     from jaxanom.sml import load_stats, load_stats_info
 
     info = load_stats_info(path)
-    record = {"file": path, "policy": info["policy"], "counts": load_stats(path)[2].tolist()}
+    record = {"file": path, "frames": info["frames"] or "not recorded", "policy": info["policy"],
+              "channels": info["channels"],
+              "counts": load_stats(path)[2].tolist()}
     if info["status"] is None:
         record["classes"] = "unknown: the file has no per-class status (written without a policy)"
     else:

@@ -2,38 +2,76 @@
 files and ``NAME=VALUE`` overrides of a config's fields."""
 from __future__ import annotations
 
+from pathlib import Path
+
 from jaxanom.errors import InputError, reading
 
 DEFAULT_METHODS = ("msp", "max_logit", "entropy", "energy", "sml", "sml_post")
 
 
 def method_names(methods: str | None, default: tuple[str, ...] = DEFAULT_METHODS) -> tuple[str, ...]:
-    """Comma-separated ``methods`` as a tuple (None: ``default``)."""
-    return tuple(methods.split(",")) if methods else tuple(default)
+    """Comma-separated ``methods`` as a tuple (None: ``default``); InputError naming ``methods`` for
+    one that is not a name (``method_registry.NAME_RULE``): names become output paths."""
+    from jaxanom.method_registry import NAME_RULE, is_name
+
+    names = tuple(methods.split(",")) if methods else tuple(default)
+    if bad := [name for name in names if not is_name(name)]:
+        raise InputError("methods", f": expected names of {NAME_RULE}, never a path; got {', '.join(map(repr, bad))}")
+    return names
 
 
 def load_plugins(plugins) -> None:
-    """Import the plug-in modules (their methods are registered on import)."""
+    """Import the plug-in modules (their methods are registered on import). InputError naming
+    ``plugins`` and the module, in one line, for: a name that is not a module's dotted name (a
+    file path, ""), a module not found, one whose import raises (a name it registers already
+    taken, a built-in's included; a dependency missing; any bug), with where it raised."""
+    import traceback
+
     from jaxanom.app.scoring import load_plugin
 
     for module in plugins:
+        if not (isinstance(module, str) and all(part.isidentifier() for part in module.split("."))):
+            file = Path(str(module))
+            hint = (f" (for this file: PYTHONPATH={file.parent} and {{plugins}} {file.stem})"
+                    if file.suffix == ".py" and file.stem.isidentifier() else "")
+            raise InputError("plugins", f" {module!r}: expected a module's dotted name (e.g. my_scores or "
+                             f"package.module), importable from the Python path; not a file{hint}",
+                             mentions=("plugins",))
         try:
             load_plugin(module)
         except ModuleNotFoundError as error:
             if error.name is None or not (module + ".").startswith(error.name + "."):
-                raise  # the plug-in itself imports something missing: its traceback says what
-            raise InputError("plugin", f"{module}: no module named {error.name!r} on the Python path") from None
+                raise InputError("plugins", f" {module}: importing it failed: {error}") from None
+            raise InputError("plugins", f" {module}: no module named {error.name!r} on the Python path") from None
+        except Exception as error:  # noqa: BLE001  a plug-in's own failure: one line naming it and where
+            frames = traceback.extract_tb(error.__traceback__)
+            package = str(Path(__file__).parents[2])  # the plug-in's own line, not jaxanom's nor importlib's
+            frame = next((f for f in reversed(frames) if not f.filename.startswith((package, "<"))), frames[-1])
+            raise InputError("plugins", f" {module}: importing it raised {type(error).__name__}: "
+                             f"{str(error).splitlines()[0] if str(error) else ''} ({frame.filename}, line "
+                             f"{frame.lineno})") from None
 
 
 def read_stats(path: str | None):
-    """``(mean, std)`` from a statistics .npz, or None for None."""
+    """``(mean, std)`` from a statistics .npz, or None for None; prints the frames they were fitted on."""
     if path is None:
         return None
-    from jaxanom.sml import load_stats as load
+    from jaxanom.sml import load_stats as load, load_stats_info
 
     with reading("stats", path):
         mean, std, _ = load(path)
+        frames = load_stats_info(path)["frames"]
+    print(f"SML statistics {path}: {fitted_on(frames)}")
     return mean, std
+
+
+def fitted_on(frames: dict | None) -> str:
+    """The frames a statistics file records (``sml.save_stats``'s ``frames``), in words."""
+    if frames is None:
+        return "frames not recorded (a file written before fit-stats recorded them)"
+    where = f" in {frames['folder']}" if frames.get("folder") else ""
+    height, width = frames["size"]
+    return f"fitted on {frames['count']} frames of {frames['set']}{where} at {height}x{width}"
 
 
 def read_config(path: str, cls, variable: str = "config"):
@@ -58,11 +96,24 @@ def with_overrides(config, overrides=()):
         raise InputError("overrides", str(error)) from None
 
 
-def check_stats_classes(mean_std, stats: str, network, variables, size) -> None:
-    """InputError naming ``stats`` unless its statistics have one class per logit of ``network``
-    (``size``: an (h, w) the network takes; shapes only), before the first frame is scored."""
+def check_stats_classes(mean_std, stats: str, network, variables, size, protocol=None) -> None:
+    """InputError naming ``stats`` unless its statistics have one class per logit the methods see:
+    every output of ``network`` (``size``: an (h, w) it takes; shapes only), or those ``protocol``
+    (a ``jaxanom.app.protocols.Protocol``) keeps; before the first frame is scored."""
     from jaxanom.app.predict import logits_shape
+    from jaxanom.sml import load_stats_info
 
-    classes = logits_shape(network, variables, tuple(size))[-1]
-    if len(mean_std[0]) != classes:
-        raise InputError("stats", f"{stats}: has {len(mean_std[0])} classes, the network's logits {classes}")
+    outputs = logits_shape(network, variables, tuple(size))[-1]
+    seen, have = protocol.classes(outputs) if protocol else outputs, len(mean_std[0])
+    if have == seen:
+        return
+    fitted = load_stats_info(stats)["channels"] or {}
+    if seen < outputs:
+        raise InputError("stats", f"{stats}: has {have} classes, the methods see {seen} (the network's {outputs} "
+                         f"outputs less the void output, which protocol {protocol.name} drops); fit them with "
+                         f"fit-stats --protocol {protocol.name}")
+    if fitted.get("void_dropped"):
+        raise InputError("stats", f"{stats}: has {have} classes, fitted without the void output (fit-stats "
+                         f"--protocol {fitted['protocol']}), the methods see all {outputs} outputs here; use them with "
+                         f"evaluate --protocol {fitted['protocol']}, or fit them without --protocol")
+    raise InputError("stats", f"{stats}: has {have} classes, the network's logits {outputs}")

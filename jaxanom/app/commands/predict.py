@@ -6,7 +6,7 @@ from pathlib import Path
 
 from jaxanom.app.commands.inputs import (DEFAULT_METHODS, check_stats_classes, load_plugins, method_names,
                                          read_stats, with_overrides)
-from jaxanom.app.outputs import inside, out_folder
+from jaxanom.app.outputs import inside, out_folder, within
 from jaxanom.app.predict import FORMATS, SMIYC_DATASETS
 from jaxanom.errors import InputError, reading
 
@@ -73,7 +73,7 @@ def predict(images, *, run: str, out: str, methods: str | None = None, plugins=(
     out_dir = out_folder(out, overwrite or resuming, hint="pass {overwrite} (or rerun with its settings)")
     if overwrite and (removed := remove_other_maps(out_dir, record, settings)):
         print(f"jaxanom predict: removed {removed} maps of other settings, network or statistics from {out_dir}")
-    write_json_atomic(out_dir / "settings.json", record)
+    write_json_atomic(within(out_dir, out_dir / "settings.json"), record)
     scorer = Scorer(predictor(model, variables), settings, mean_std, check_size=None if settings.size else check)
     try:
         summary = predict_images(paths, out_dir, scorer, progress=progress, redo=overwrite)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import contextlib
 
 from jaxanom.app.commands.inputs import DEFAULT_METHODS, load_plugins, method_names, read_stats
-from jaxanom.app.outputs import out_folder
+from jaxanom.app.outputs import out_folder, within
 from jaxanom.app.streamed_array import StreamedArray
 from jaxanom.errors import InputError
 from jaxanom.metrics.anomaly import AP_CONVENTIONS
@@ -29,6 +29,7 @@ def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = Fal
     from jaxanom.app import scoring
     from jaxanom.app.reports import results_table
     from jaxanom.io import NpyWriter, write_json_atomic
+    from jaxanom.method_registry import check_finite
     from jaxanom.metrics import AnomalyMetricAccumulator
 
     load_plugins(plugins)
@@ -46,6 +47,12 @@ def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = Fal
     shape = (len(streamed), *size)
     if label_array is not None and label_array.shape != shape:
         raise InputError("labels", f": expected shape {shape} (N, H, W) to match the logits, got {label_array.shape}")
+    if label_array is not None:  # one pass over the (1 byte a pixel) labels before any work
+        pooled = np.sum([((label == 1).sum(), (label == 0).sum()) for label in label_array], axis=0)
+        if not pooled.all():
+            raise InputError("labels", f" {labels}: no {'anomaly (1)' if not pooled[0] else 'normal (0)'} pixel "
+                             f"outside void (255) in any of its {len(label_array)} images; AP, AUROC and FPR@95 "
+                             "need both classes (leave {labels} out for the score maps alone)")
     mean_std = read_stats(stats)
     if mean_std is not None and len(mean_std[0]) != classes:
         raise InputError("stats", f": has {len(mean_std[0])} classes, the logits have {classes}")
@@ -55,17 +62,20 @@ def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = Fal
     accumulators = {name: AnomalyMetricAccumulator() for name in names}
     label_images = iter(label_array if label_array is not None else ())
     with contextlib.ExitStack() as files:
-        writers = {name: files.enter_context(NpyWriter(out_dir / "scores" / f"{name}.npy", shape, np.float32))
-                   for name in names}
+        writers = {name: files.enter_context(NpyWriter(within(out_dir, out_dir / "scores" / f"{name}.npy"), shape,
+                                                       np.float32)) for name in names}
         for index, image in enumerate(streamed):
             image = np.moveaxis(image, 0, -1) if channels_first else image
             label = None if label_array is None else next(label_images)
             try:
                 scores, _ = scoring.score_all(names, scoring.inputs_of({"logits": image[None]}, mean_std))
                 scores = {name: np.asarray(value)[0] for name, value in scores.items()}
-                if label is not None:
-                    for name, value in scores.items():
+                for name, value in scores.items():
+                    check_finite(name, value, label, where=f" of image {index}")
+                    if label is not None:
                         accumulators[name].update(value, label)
+            except InputError:  # a method's output refused, naming it
+                raise
             except ValueError as error:  # the library's checks of this image's values (finite logits, labels)
                 raise InputError("image", f"{index}: {error}") from None
             for name, value in scores.items():
@@ -75,6 +85,6 @@ def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = Fal
         return None
     metrics = {name: accumulators.pop(name).compute(fpr_convention=fpr_convention or "first",  # freed in turn
                                                     ap_convention=ap_convention) for name in names}
-    write_json_atomic(out_dir / "metrics.json", {"metrics": metrics})
+    write_json_atomic(within(out_dir, out_dir / "metrics.json"), {"metrics": metrics})
     print(results_table(metrics))
     return metrics

@@ -27,8 +27,8 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
     ``distributed``: one process per host (``jax.distributed``)."""
     import jax
 
-    from jaxanom.app.experiment import (Experiment, attention_settings, check_objective, check_schedule,
-                                        load_experiment, output_shapes, run_training)
+    from jaxanom.app.experiment import (Experiment, attention_settings, check_data, check_objective,
+                                        check_schedule, load_experiment, output_shapes, run_training)
     from jaxanom.train.checkpoint import DamagedCheckpointError
     from jaxanom.train.loop import NonFiniteLossError
 
@@ -43,22 +43,28 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
         if config or init_from or init_modules:
             raise InputError("resume", " continues the run's own experiment.json; do not pass {config}, {init_from} "
                              "or {init_modules}", mentions=("config", "init_from", "init_modules"))
+        if not (out_dir / "experiment.json").is_file():
+            raise InputError("out", f"{out_dir}: holds no run to resume (no experiment.json); start one there "
+                             "without {resume}", mentions=("resume",))
         with reading("out", out_dir):
             experiment = load_experiment(out_dir)
         if lead:
             claim(out_dir / CLAIM, out_dir)
     else:
-        experiment = read_config(config, Experiment, "experiment") if config else _base_experiment(init_from)
+        experiment = read_config(config, Experiment, "experiment") if config else _base_experiment(init_from, data)
     with reading("experiment"):  # the fields' own checks (Experiment, TrainConfig, the objective)
         experiment = _override(experiment, model=model, attention=attention, data=data, data_root=data_root,
                                steps=steps, batch_size=batch_size, seed=seed, distributed=distributed,
                                init_from=init_from, init_modules=init_modules, cudam_position=cudam_position,
                                cudam_gate=cudam_gate, cudam_tau=cudam_tau)
         experiment = with_overrides(experiment, overrides)
+        if not resume:
+            experiment = _initial_weights(experiment)
         check_objective(experiment)
         check_schedule(experiment)
+        check_data(experiment)
     if lead and not resume:  # claimed once the whole experiment is checked: a refused one leaves no folder
-        out_folder(out, overwrite=False, hint="continue the run there with {resume}")
+        out_folder(out, overwrite=_unstarted(out_dir, experiment), hint="continue the run there with {resume}")
     line = experiment.train.objective.describe(output_shapes(experiment, *experiment.crop))
     if line:
         position, options = attention_settings(experiment)
@@ -77,15 +83,59 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
           f"processes); checkpoints in {out_dir / 'checkpoints'}")
 
 
-def _base_experiment(init_from: str | None):
-    """The default experiment, with the network of ``init_from``'s run when given."""
-    from jaxanom.app.experiment import Experiment, load_experiment
+def _unstarted(out_dir: Path, experiment) -> bool:
+    """Whether ``out_dir`` holds nothing but the experiment.json of a start of this very
+    ``experiment`` that ended before writing anything else (a crash, ``kill -9``): such a folder is
+    started afresh rather than refused. Another experiment's file is refused, naming the field."""
+    from jaxanom.app.experiment import changed_fields, check_data, describe_changes, load_experiment
 
+    if not out_dir.is_dir() or {p.name for p in out_dir.iterdir()} - {CLAIM} != {"experiment.json"}:
+        return False
+    with reading("out", out_dir):
+        stored = load_experiment(out_dir)
+    differences = changed_fields(stored, experiment)
+    if differences:
+        try:
+            check_data(stored)
+            resumable = "{resume} starts that one, or "
+        except ValueError:  # e.g. written by a version that checked train.ignore at the first batch only
+            resumable = ""
+        raise InputError("out", f"{out_dir}: holds the experiment.json of a run that never reached its first "
+                         f"checkpoint, of a different experiment ({describe_changes(differences)}); {resumable}"
+                         "delete the file, or choose another folder", mentions=("resume",))
+    return True
+
+
+def _initial_weights(experiment):
+    """``experiment`` with its ``init_from`` (given by flag, config or ``--set``) checked to be a run
+    and stored absolute, so the run records one folder wherever it is resumed from; InputError when
+    ``init_modules`` names modules to take from no ``init_from``."""
+    from jaxanom.app.experiment import load_experiment
+
+    if experiment.init_from is None:
+        if experiment.init_modules is not None:
+            raise InputError("init_modules", " takes modules from the run of {init_from}, which is not given",
+                             mentions=("init_from",))
+        return experiment
+    with reading("init_from", experiment.init_from):
+        load_experiment(experiment.init_from)
+    return dataclasses.replace(experiment, init_from=str(Path(experiment.init_from).resolve()))
+
+
+def _base_experiment(init_from: str | None, data: str | None):
+    """The default experiment, with the network of ``init_from``'s run when given. Its classes are
+    ``data``'s (when given), unless the run's network has those or those and a void output (the
+    Cityscapes ESPNet and ERFNet): a run fine-tuned on other classes gets a new head."""
+    from jaxanom.app.experiment import DATASETS, Experiment, load_experiment
+
+    classes = DATASETS.get(data, Experiment.num_classes)  # an unknown name is refused with the other fields
     if init_from is None:
-        return Experiment()
+        return Experiment(num_classes=classes)
     with reading("init_from", init_from):
         source = load_experiment(init_from)
-    return Experiment(model=source.model, output_stride=source.output_stride, num_classes=source.num_classes)
+    if data is None or source.num_classes in (classes, classes + 1):
+        classes = source.num_classes
+    return Experiment(model=source.model, output_stride=source.output_stride, num_classes=classes)
 
 
 def _override(experiment, *, model, attention, data, data_root, steps, batch_size, seed, distributed, init_from,
@@ -98,11 +148,7 @@ def _override(experiment, *, model, attention, data, data_root, steps, batch_siz
     fields = {"model": model, "data": data, "data_root": data_root, "batch_size": batch_size,
               "cudam_position": cudam_position, "cudam_gate": cudam_gate}
     if init_from is not None:
-        from jaxanom.app.experiment import load_experiment
-
-        with reading("init_from", init_from):
-            load_experiment(init_from)
-        fields["init_from"] = str(Path(init_from).resolve())
+        fields["init_from"] = init_from
     if init_modules is not None:
         fields["init_modules"] = tuple(name for name in init_modules.split(",") if name)
     train = {"steps": steps, "seed": seed, "distributed": distributed or None}

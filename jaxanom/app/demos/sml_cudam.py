@@ -19,7 +19,7 @@ from jaxanom.cudam.score import PAPER_TEST_POSITIONS, PAPER_TRAIN_POSITIONS, equ
 from jaxanom.data.synthetic import ANOMALY_SPLITS
 from jaxanom.app.evaluate import anomaly_results, class_statistics, predictions, predictor, segmentation_results
 from jaxanom.config_codec import encode
-from jaxanom.app.experiment import Experiment, build_network, frames, run_training
+from jaxanom.app.experiment import Experiment, build_network, frames, frames_record, run_training
 from jaxanom.app.reports import results_table, write_pictures
 from jaxanom.io import write_json_atomic
 from jaxanom.train.loop import TrainConfig
@@ -88,7 +88,9 @@ def run_demo(out_dir: str | Path, config: DemoConfig = DemoConfig(), *, progress
     train_frames = frames(experiment, "train", config.stats_frames)
     stats = class_statistics(predict, _batches(train_frames, batch))
     mean, std = sml.stats_finalize(stats, missing="pooled")
-    sml.save_stats(out_dir / "sml_stats.npz", mean, std, stats.count)
+    fitted_on = {**frames_record(experiment, "train"), "count": len(train_frames),
+                 "size": [experiment.height, experiment.width]}
+    sml.save_stats(out_dir / "sml_stats.npz", mean, std, stats.count, frames=fitted_on)
     never_predicted = np.flatnonzero(np.asarray(stats.count) < 2).tolist()
 
     log(f"[3/4] evaluating on {config.val_frames} validation and {config.anomaly_frames} anomaly frames")
