@@ -29,3 +29,11 @@ def load() -> None:
     """Import every module of ``MODULES`` (each registers its plug-ins; Python imports a module once)."""
     for module in MODULES:
         importlib.import_module(module)
+
+
+def in_order(names, module_of) -> tuple[str, ...]:
+    """``names`` (a registry's, in registration order) with jaxanom's own first, in the order of
+    ``MODULES`` (``module_of(name)``: the module that registered it), whichever module a caller
+    happened to import first; the others after them, as registered."""
+    rank = {module: index for index, module in enumerate(MODULES)}
+    return tuple(sorted(names, key=lambda name: rank.get(module_of(name), len(MODULES))))

@@ -36,6 +36,7 @@ import types
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
 
+from jaxanom import builtins
 from jaxanom.errors import InputError
 
 ENTRY_POINTS = "jaxanom.methods"
@@ -340,8 +341,6 @@ def _load() -> None:
     global _loaded
     if _loaded:
         return
-    from jaxanom import builtins
-
     builtins.load()
     from importlib.metadata import entry_points
 

@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, ClassVar
 
+from jaxanom import builtins
 from jaxanom.config_codec import decode
 
 _REGISTRY: dict[str, type["Objective"]] = {}
@@ -40,7 +41,7 @@ class Objective:
         ValueError listing the known names otherwise."""
         _load_builtins()
         if name not in _REGISTRY:
-            raise ValueError(f"expected one of {tuple(_REGISTRY)}, got {name!r}")
+            raise ValueError(f"expected one of {objective_names()}, got {name!r}")
         return _REGISTRY[name]
 
     def init_state(self, num_classes: int) -> Any:
@@ -83,15 +84,13 @@ def register(cls: type[Objective]) -> type[Objective]:
 
 
 def _load_builtins() -> None:
-    from jaxanom import builtins
-
     builtins.load()
 
 
 def objective_names() -> tuple[str, ...]:
     """The names of every registered objective, jaxanom's own first."""
     _load_builtins()
-    return tuple(_REGISTRY)
+    return builtins.in_order(_REGISTRY, lambda name: _REGISTRY[name].__module__)
 
 
 def objective_class(name: str) -> type[Objective]:

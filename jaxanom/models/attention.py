@@ -23,6 +23,8 @@ from typing import Any, Callable, Mapping
 
 import flax.linen as nn
 
+from jaxanom import builtins
+
 # one application of a module at a position: (module, features, taps) -> (features, outputs)
 Attend = Callable[[nn.Module, Any, Mapping[str, Any]], tuple[Any, dict]]
 
@@ -69,10 +71,8 @@ def register(module: AttentionModule) -> AttentionModule:
 
 def attention_names() -> tuple[str, ...]:
     """The names of every registered attention module, jaxanom's own first."""
-    from jaxanom import builtins
-
     builtins.load()
-    return tuple(_REGISTRY)
+    return builtins.in_order(_REGISTRY, lambda name: _REGISTRY[name].build.__module__)
 
 
 def get(name: str) -> AttentionModule:
