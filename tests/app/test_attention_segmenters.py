@@ -27,3 +27,21 @@ def test_cudam_on_erfnet_trains_and_evaluates_with_the_cudam_method(tmp_path, ca
     # evaluate's synthetic frames are 256 x 512; ERFNet's map is at stride 8: 32 x 64
     assert record["cudam_sigma"] == {"values": [2e4 * 32 * 64 / (256 * 512)], "source": "default"}
     assert load_experiment(run) == experiment
+
+
+def test_a_runs_recorded_cudam_settings_reach_its_network_and_are_recorded_as_before():
+    """CuDAM's position and gate stay in the experiment's fields cudam_position / cudam_gate (as every
+    earlier experiment.json has them); the network gets them as its attention position and option."""
+    from jaxanom.app.experiment import Experiment, build_network, jsonable
+    from jaxanom.config_codec import decode
+
+    experiment = Experiment(attention="cudam", cudam_position="output", cudam_gate="scale_free")
+    network = build_network(experiment)
+    assert (network.attention, network.attention_position, network.attention_options) == \
+        ("cudam", "output", (("gate", "scale_free"),))
+    values = jsonable(experiment)
+    assert (values["attention"], values["cudam_position"], values["cudam_gate"]) == ("cudam", "output", "scale_free")
+    assert decode(Experiment, values, "experiment") == experiment
+    # MSAAM reads neither field: its network is the same whatever they hold
+    msaam = Experiment(attention="msaam", cudam_position="output", cudam_gate="scale_free")
+    assert build_network(msaam) == build_network(Experiment(attention="msaam"))
