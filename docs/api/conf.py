@@ -4,6 +4,10 @@ Build: ``python -m sphinx -W -b html docs/api docs/api/_build`` (``tests/project
 builds it with warnings as errors), then open ``docs/api/_build/index.html``. The page of each
 public module is written here, into ``modules/`` (not committed), on every build: a new module
 is covered without editing anything.
+
+Sphinx rather than pdoc: the docstrings are reStructuredText (``literals``, lists, ``::`` blocks),
+which Sphinx parses and checks (docutils' warnings, errors here), with napoleon for the few
+Google-style ``Args:`` / ``Attributes:`` sections; pdoc would render them as Markdown without checking their markup.
 """
 import sys
 from pathlib import Path
@@ -16,6 +20,7 @@ project = "jaxanom"
 extensions = ["sphinx.ext.autodoc", "sphinx.ext.napoleon"]
 exclude_patterns = ["_build"]
 html_theme = "alabaster"
+smartquotes = False  # the docstrings' quotes and primes (U_b', "first") are code-like: kept as written
 autodoc_default_options = {"members": True, "show-inheritance": True}
 autodoc_member_order = "bysource"
 autodoc_typehints = "signature"
@@ -38,7 +43,7 @@ def public_modules() -> list[str]:
         name = ".".join(parts)
         if any(p.startswith("_") for p in parts) or name == "jaxanom.cli" or name.startswith("jaxanom.cli."):
             continue
-        if name.startswith("jaxanom.app.") and not name.startswith(APP_PUBLIC) or name == "jaxanom.app":
+        if name == "jaxanom.app" or (name.startswith("jaxanom.app.") and not name.startswith(APP_PUBLIC)):
             continue
         names.append(name)
     return sorted(names)
