@@ -55,8 +55,8 @@ class Experiment:
     Training crops are ``crop`` pixels after random scaling by ``scale_range``. ``train.seed`` seeds
     the network, the shuffling and the synthetic scenes; ``train.run_dir`` is set when a run
     starts. ``init_from``: a run folder (e.g. from ``jaxanom convert-weights``) whose modules
-    ``init_modules`` (default: all it has, e.g. ("backbone",) for an ImageNet trunk only) start a fresh run; the network's other modules
-    are initialised from ``train.seed``. A network of the same model with other classes (e.g. a
+    ``init_modules`` (default: all it has, e.g. ("backbone",) for an ImageNet trunk only) start a
+    fresh run; the network's other modules are initialised from ``train.seed``. A network of the same model with other classes (e.g. a
     Cityscapes run fine-tuned on CamVid) takes, by default, all but the layers whose shapes depend
     on the class count (the new head, ``class_layers``), which start from ``train.seed``.
     """

@@ -33,7 +33,8 @@ def test_a_page_runs_its_files_blocks_and_commands_and_refuses_a_line_it_would_n
     (tmp_path / "work").mkdir()
     page = tmp_path / "page.md"
     page.write_text("```python\n# file: doc_examples_probe/__init__.py\nVALUE = 3\n```\n"
-                    "```python\nimport pathlib\nfrom doc_examples_probe import VALUE\npathlib.Path('seen').write_text(str(VALUE))\n```\n"
+                    "```python\nimport pathlib\nfrom doc_examples_probe import VALUE\n"
+                    "pathlib.Path('seen').write_text(str(VALUE))\n```\n"
                     "```bash\nexport PYTHONPATH=$PWD\nls -l  # not a jaxanom command\n```\n")
     with pytest.raises(AssertionError, match=r"page.md block 2: not a jaxanom command: \['ls', '-l'\]"):
         run_page(page, tmp_path / "work")
