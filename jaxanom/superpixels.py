@@ -281,7 +281,7 @@ def slic(lab, step: int, compactness: float = 10.0, iterations: int = 10, tol: f
     Labels lie in ``[0, num_superpixels((H, W), step))``; every pixel has one. ``step`` S (grid
     step in pixels, 1 <= S <= min(H, W)) and ``iterations`` are static; ``compactness`` m weighs
     the spatial distance (``D = d_lab^2 + (m/S)^2 d_xy^2``). ``tol``: stop before ``iterations``
-    once the centres move by E = sum_k |dy_k| + |dx_k| <= tol (Algorithm 1's residual error);
+    once the centres move by ``E = sum_k |dy_k| + |dx_k| <= tol`` (Algorithm 1's residual error);
     None runs every iteration. ``connectivity`` (static; not in Algorithm 1): afterwards each
     superpixel keeps its largest 4-connected piece and the other pieces join a neighbouring
     superpixel, so every superpixel is connected and K is unchanged.

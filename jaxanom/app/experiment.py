@@ -62,7 +62,7 @@ class Experiment:
     ``max(batch_size, 8)`` frames of the validation split, CamVid's whole val split (``VAL_FRAMES``).
     Training crops are ``crop`` pixels
     after random scaling by ``scale_range``. ``train.seed`` seeds the network, the shuffling and
-the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``: a run folder
+    the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``: a run folder
     (e.g. from ``jaxanom convert-weights``) whose modules ``init_modules`` (default: all it has,
     e.g. ("backbone",) for an ImageNet trunk only) start a fresh run; the network's other modules
     are initialised from ``train.seed``. A network of the same model with other classes (e.g. a

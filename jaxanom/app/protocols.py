@@ -104,14 +104,15 @@ class _Resized:
 
 
 def resize_frame(record: Mapping, size: tuple[int, int]) -> dict:
-    """``record`` with its image resized antialiased and its label (if any) by nearest neighbour to
-    ``size`` (H, W), both by PIL (``jaxanom.data.resize``); ValueError for a record with other
-    pixel maps (depth, ROI), which these protocols do not define."""
-    if extra := sorted(set(record) & {"depth", "disparity", "roi"}):
-        raise ValueError(f"record: a resizing protocol reads image and label only, got {extra} too")
-    resized = {**record, "image": resize_image_antialiased(record["image"], size)}
-    if "label" in record:
-        resized["label"] = resize_labels_nearest(record["label"], size)
+    """``record`` at ``size`` (H, W), both by PIL (``jaxanom.data.resize``): its image antialiased,
+    its label and road region (``"roi"``, if any) by nearest neighbour as the labels; its depth or
+    disparity left out (the protocols' networks read the image only, and no such map is defined
+    at another size)."""
+    resized = {key: value for key, value in record.items() if key not in ("depth", "disparity")}
+    resized["image"] = resize_image_antialiased(record["image"], size)
+    for key in ("label", "roi"):
+        if key in record:
+            resized[key] = resize_labels_nearest(record[key], size)
     return resized
 
 

@@ -109,7 +109,7 @@ class AnomalyMetricAccumulator:
                 tpr: float = 0.95, conventions: bool = False) -> dict:
         """Metrics of all images so far, as ``anomaly_metrics`` returns them (``conventions``:
         with every AP / FPR convention's value too). Binned mode adds
-        ``ap_error_bound``, ``auroc_error_bound``, ``fpr_error_bound`` (|binned - exact| <= bound)
+        ``ap_error_bound``, ``auroc_error_bound``, ``fpr_error_bound`` (``|binned - exact| <= bound``)
         and has no "nearest" FPR; its thresholds are lower bin edges."""
         check_conventions(fpr_convention, ap_convention, tpr)
         require_both_classes(self.counts)

@@ -4,7 +4,7 @@ The scores are counted in ``num_bins`` uniform bins over a score range (two hist
 and negative pixels; void pixels weigh 0), and ``curve_summary`` gives the exact metrics of the
 binned scores: pixels of one bin tie. Binning is a non-decreasing map of the scores (scores out
 of the range fall in the end bins), so each bin's pixels form one stretch of the exact curve and
-the bin edges are exact curve points. ``binned_error_bounds`` bounds |binned - exact| from the
+the bin edges are exact curve points. ``binned_error_bounds`` bounds ``|binned - exact|`` from the
 histograms alone (docs/decisions/jit-metrics.md derives it):
 
 - AUROC: half the fraction of positive-negative pairs that share a bin, sum_b n+_b n-_b / (2 P N);
@@ -16,7 +16,7 @@ A bin whose pixels all have one score is a single point of the exact curve too a
 
 ``binned_anomaly_metrics`` adds to each bound the float rounding of its working precision (float32
 unless JAX's 64-bit mode is on: 2 (K' + 16) u for AP and AUROC, K' the non-empty bins, u the
-unit roundoff), so |returned - exact| <= returned bound, and returns NaN where a metric is
+unit roundoff), so ``|returned - exact| <= returned bound``, and returns NaN where a metric is
 undefined (no positive or no negative pixel, or a NaN score on a non-void pixel).
 ``AnomalyMetricAccumulator``'s binned mode uses the same histogram and bounds on the host.
 
@@ -78,12 +78,13 @@ def _tied_bins(scores, counted, low, high, num_bins: int) -> jax.Array:
 
 def binned_error_bounds(positives, negatives, tpr, fpr_convention: str = "first", ap_convention: str = "step",
                         margin: float = 0.0, tied=None) -> dict:
-    """Bounds on |binned - exact| from per-bin counts (K,) ordered from the highest bin down.
+    """Bounds on ``|binned - exact|`` from per-bin counts (K,) ordered from the highest bin down.
 
     Bin edges are exact curve points; inside bin b (n+_b positives, n-_b negatives, counts
     TP_s, FP_s before it and TP_e, FP_e after it) the exact curve stays in the box the bin
     spans, whose precision lies in [L_b, U_b] = [TP_s / (TP_s + FP_e), TP_e / (TP_e + FP_s)]
     ([0, 1] for the first non-empty bin). Hence
+
     - AP (step or trapz): sum_b (n+_b / P) (U_b - L_b);
     - AP envelope: sum_b (n+_b / P) (M_b - E_b), with E_b the largest bin-end precision at or
       after b (the binned envelope, a lower bound of the exact one there) and M_b the largest
@@ -93,6 +94,7 @@ def binned_error_bounds(positives, negatives, tpr, fpr_convention: str = "first"
       ``margin`` > 0, the negatives of every bin from the first whose end TPR reaches
       tpr - margin to the first that reaches tpr + margin (a crossing decided in another
       precision lies among them).
+
     ``tied`` (K,) bool, optional: bins whose pixels all share one score. The exact curve has a
     single point there, the bin's end, so such a bin adds nothing (its box shrinks to that point;
     its FPR term vanishes when the crossing is decided, ``margin`` apart, in it alone).
@@ -180,7 +182,7 @@ def binned_anomaly_metrics(scores, labels, *, num_bins: int = 4096, score_range=
 
     Returns a dict of scalars: ``ap``, ``auroc``, ``fpr_at_tpr``, ``threshold_at_tpr`` (the lower
     edge of the bin where the TPR reaches ``tpr``), ``ap_error_bound``, ``auroc_error_bound``,
-    ``fpr_error_bound`` (|metric - exact metric| <= bound, exact = ``anomaly_metrics`` of the
+    ``fpr_error_bound`` (``|metric - exact metric| <= bound``, exact = ``anomaly_metrics`` of the
     same pixels), ``num_positives``, ``num_negatives``. Every metric and bound is NaN where the
     exact metric is undefined: no positive or no negative pixel (an all-void map) or a NaN score
     on a non-void pixel. Works in float32 (float64 in 64-bit mode), counts in int32: up to 2**31

@@ -1,17 +1,19 @@
 """SMIYC component-level metrics: sIoU, PPV and F1 over connected components (docs/papers/anomaly-metrics.md#component-metrics).
 
 Follows the SegmentMeIfYouCan definitions (Chan et al., 2021) and their benchmark code:
+
 - anomaly mask = score >= threshold (default: the pixel threshold of best F1 over all images,
   the point of the exact PR curve), minus void pixels; 8-connected components (OpenCV);
 - predicted components under ``min_predicted`` pixels are dropped and ground-truth components
   (label 1) under ``min_ground_truth`` pixels become void: 500 / 100 ("anomaly" track),
   50 / 10 ("obstacle" track); then only non-void pixels count;
 - sIoU(k) of ground-truth component k, with K(k) the predicted components meeting k:
-  |k ∩ K(k)| / |(k ∪ K(k)) \\ A(k)|, A(k) the pixels of other ground-truth components, i.e.
-  |k ∩ K(k)| / (|k| + pixels of K(k) on no ground-truth component);
-- PPV(p) of predicted component p: |p ∩ ground truth| / |p|;
+  ``|k ∩ K(k)| / |(k ∪ K(k)) \\ A(k)|``, A(k) the pixels of other ground-truth components, i.e.
+  ``|k ∩ K(k)| / (|k| + pixels of K(k) on no ground-truth component)``;
+- PPV(p) of predicted component p: ``|p ∩ ground truth| / |p|``;
 - at t in linspace(0.25, 0.75, 11), pooled over images: TP = #{sIoU >= t}, FN = #{sIoU < t},
   FP = #{PPV < t}, F1 = 2 TP / (2 TP + FN + FP); ``f1_mean`` is their mean.
+
 Checked against the benchmark's code (github SegmentMeIfYouCan/road-anomaly-benchmark,
 ``road_anomaly_benchmark/metrics/instance_segmentation.py``: ``default_instancer``,
 ``segment_metrics``, ``MetricSegment`` configs ``SegEval-AnomalyTrack`` 500 / 100 and

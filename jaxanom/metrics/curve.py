@@ -10,6 +10,7 @@ caller's jit without 64-bit mode.
 With thresholds k = 1..K from high to low, TP_k / FP_k the pixels at or above threshold k,
 R_k = TP_k / P, Prec_k = TP_k / (TP_k + FP_k), TPR_k = R_k, FPR_k = FP_k / N and point 0 the
 origin (TP_0 = FP_0 = 0):
+
 - AP "step"  = sum_k (R_k - R_{k-1}) Prec_k                      (scikit-learn, Fishyscapes)
 - AP "trapz" = sum_{k>=2} (R_k - R_{k-1}) (Prec_k + Prec_{k-1}) / 2   (np.trapz over the
   curve's points, no artificial (0, 1) start: SMIYC before Aug 2023)
@@ -55,12 +56,14 @@ def curve_summary(keys, pos, neg, tpr):
 
     keys, pos, neg as in ``curve_points``; tpr a float scalar in (0, 1], float64 for exact
     rates (its dtype is the one every rate and sum is computed in). FPR at TPR t:
+
     - "first":   FPR of the first point with TPR >= t (Fishyscapes, SMIYC);
     - "interp":  linear between the last point with TPR < t (the origin at worst) and the first
       with TPR >= t; a point with TPR == t exactly is taken as is (SML, Mask2Anomaly);
-    - "nearest": the point whose |TPR - t| is least, ties to the largest FPR, candidates the
+    - "nearest": the point whose ``|TPR - t|`` is least, ties to the largest FPR, candidates the
       origin and the points up to the first with TPR = 1 (PEBAL's fpr_and_fdr_at_recall);
     - "strict":  FPR of the first point with TPR > t (RbA); NaN when there is none (t = 1).
+
     ``first_key`` / ``best_f1_key`` are the keys of the "first" point and of the point of
     highest pixel F1 (the highest such threshold on ties).
     """

@@ -1,6 +1,6 @@
 """The SPADE synthesizer's losses (docs/papers/mmf.md#spade-generator; hinge GAN of [34], feature matching of pix2pixHD).
 
-Discriminator outputs are lists over scales k = 1..K (``MultiscaleDiscriminator``):
+Discriminator outputs are lists over scales k = 1..K (``MultiscaleDiscriminator``)::
 
     hinge_discriminator_loss = 1/K sum_k [mean relu(1 - D_k(real)) + mean relu(1 + D_k(fake))]
     hinge_generator_loss     = 1/K sum_k  -mean D_k(fake)
@@ -40,7 +40,7 @@ def feature_matching_loss(real: Sequence[Sequence[jax.Array]], fake: Sequence[Se
 
 
 def l1_loss(generated: jax.Array, target: jax.Array) -> jax.Array:
-    """mean |generated - target| -> scalar (replaces [34]'s VGG loss)."""
+    """``mean |generated - target|`` -> scalar (replaces [34]'s VGG loss)."""
     return jnp.mean(jnp.abs(generated - target))
 
 

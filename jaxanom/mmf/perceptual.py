@@ -2,7 +2,7 @@
 
 Feature maps come from any extractor (VGG stages, the segmenter's ResNet stages) applied to the
 image x and to its resynthesis r: two lists of ``(h_i, w_i, C_i)`` arrays, layer i of both of the
-same shape. Per layer, d_i = sum_c |F_i(x) - F_i(r)| (``reduction="mean"``: the channel mean,
+same shape. Per layer, d_i = ``sum_c |F_i(x) - F_i(r)|`` (``reduction="mean"``: the channel mean,
 SynBoost's choice, an option), resized bilinearly (half-pixel centres, no antialiasing) to ``out_hw``;
 L = sum_i w_i d_i, min-max normalised over the image (0 where x and r agree everywhere).
 """

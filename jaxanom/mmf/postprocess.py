@@ -2,8 +2,8 @@
 
 With Omega_j the pixels of superpixel j of an (H, W) image (as read in docs/papers/mmf.md#superpixel-scores):
 
-- n_j = |Omega_j| / (H W), alpha_j = mean anomaly a over Omega_j, p_j = mean road probability
-  over Omega_j, c_j = centroid (y, x), r_ij = |c_i - c_j|;
+- n_j = ``|Omega_j| / (H W)``, alpha_j = mean anomaly a over Omega_j, p_j = mean road probability
+  over Omega_j, c_j = centroid (y, x), r_ij = ``|c_i - c_j|``;
 - omega = median of r_ij over the pairs i < j of non-empty superpixels (NumPy's median: the
   mean of the two middle values for an even count; found by radix selection, not a sort);
 - S_i = alpha_i sum_{j != i} p_j n_j exp(-r_ij^2 / (2 omega^2))  (j = i too with ``include_self``);

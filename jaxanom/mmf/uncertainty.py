@@ -1,6 +1,7 @@
 """MMF's segmentation-side maps (Eqs. 1-2, normalised to [0, 1]) and Eq. 6's road probability.
 
 ``uncertainty_maps(logits)`` gives, for logits (H, W, C):
+
 - ``"entropy"``  U = -sum_c p_c log2 p_c (Eq. 1), normalised by ``normalize``:
   ``"max"`` divides by log2 C (the largest entropy; scores.entropy(normalize=True)),
   ``"minmax"`` rescales the image's own range (SynBoost's code);

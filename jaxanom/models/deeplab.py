@@ -1,6 +1,6 @@
 """DeepLabV3+ (Chen et al. 2018) on a ResNet, with an optional attention module (CuDAM, MSAAM, ...).
 
-Contract (the training loop and the scorers rely on it):
+Contract (the training loop and the scorers rely on it)::
 
     model = DeepLabV3Plus(num_classes=19, backbone="resnet101", output_stride=8, attention="cudam")
     variables = model.init(key, images, train=False)        # {"params", "batch_stats"}
@@ -11,6 +11,7 @@ Contract (the training loop and the scorers rely on it):
 ``train`` is a Python bool (static under ``jax.jit``): True normalises with batch statistics and
 returns updated ``batch_stats`` (pass ``mutable=["batch_stats"]``), False uses running averages.
 ``out`` is a dict:
+
   * ``"logits"``: float32 (B, H, W, num_classes), bilinearly resized to the input size.
   * with an attention module, its outputs (``jaxanom.models.attention``): with ``"cudam"``,
     ``"attention"`` float32 (B, h, w), CuDAM's map M_att at the resolution of the features it

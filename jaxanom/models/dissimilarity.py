@@ -1,5 +1,7 @@
 """MMF's dissimilarity network (§III-A4; SynBoost's ``DissimNetPrior`` [29]): image vs resynthesis.
 
+::
+
     model = DissimilarityNet(num_classes=19)                  # the paper's widths
     out = model.apply(variables, images, resynthesis=r, semantic=s, semantic_depth=s_d,
                       uncertainty=u, train=False)             # {"logits": (B, H, W, 2)}

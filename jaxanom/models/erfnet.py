@@ -1,5 +1,7 @@
 """ERFNet (Romera et al., T-ITS 2018), as the authors' Cityscapes weights have it.
 
+::
+
     model = ERFNet(num_classes=20)
     out = model.apply(variables, normalize_erfnet(images_uint8_rgb), train=False)   # {"logits"}
 
@@ -16,6 +18,7 @@ fewer, narrower layers (tests, CPU demos).
 
 Architecture (paper Sec. III, Table I; layer names follow the authors' checkpoint, see
 ``jaxanom.weights.architectures``):
+
 * Downsampler: a 3x3 stride-2 conv to out - in channels, concatenated (after it) with a 2x2
   max-pool of the input, then BN + ReLU.
 * Non-bottleneck-1D block (dilation d): 3x1 conv, ReLU, 1x3 conv, BN, ReLU, 3x1 conv with
@@ -26,6 +29,7 @@ Architecture (paper Sec. III, Table I; layer names follow the authors' checkpoin
 * Decoder: 3x3 stride-2 transposed conv (padding 1, output padding 1) + BN + ReLU 128 -> 64, two
   blocks at 64, the same 64 -> 16, two blocks at 16 (no dropout), and a 2x2 stride-2 transposed
   conv to the classes.
+
 Every conv has a bias; every BN has eps 1e-3. Dropout is the authors' ``Dropout2d``: whole
 channels of a sample, the others scaled by 1 / (1 - p); it needs ``rngs={"dropout": key}`` when
 ``train=True``.

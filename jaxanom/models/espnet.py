@@ -1,5 +1,7 @@
 """ESPNet (Mehta et al., ECCV 2018) with its light decoder, as the authors' Cityscapes weights have it.
 
+::
+
     model = ESPNet(num_classes=20, p=2, q=8)
     out = model.apply(variables, normalize_espnet(images_uint8_rgb), train=False)   # {"logits"}
 
@@ -15,6 +17,7 @@ outputs join ``out``.
 
 Architecture (paper Sec. 3 and Fig. 4d; layer names follow the authors' checkpoint, see
 ``jaxanom.weights.architectures``):
+
 * ESP module (Fig. 3b): reduce to n = out // 5 channels (1x1 conv; 3x3 stride 2 when strided),
   five parallel 3x3 convs with dilations 1, 2, 4, 8, 16 (d = 1 gives the out - 4n leftover
   channels), hierarchical feature fusion (the d = 2..16 outputs summed cumulatively), concatenated,
@@ -26,6 +29,7 @@ Architecture (paper Sec. 3 and Fig. 4d; layer names follow the authors' checkpoi
 * Decoder: BN on c8, 2x2 stride-2 transposed conv (u4); 1x1 conv of t2 -> C (p4); BN+PReLU on
   [p4, u4] and a non-residual ESP 2C -> C; transposed conv, BN+PReLU (u2); 3x3 conv of [u2, s1]
   -> C, BN+PReLU; a last transposed conv gives the logits at full resolution.
+
 Every conv is bias-free, every BN has eps 1e-3, PReLU has one slope per channel.
 """
 from __future__ import annotations

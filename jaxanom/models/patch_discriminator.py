@@ -1,5 +1,7 @@
 """The SPADE generator's critic (docs/papers/mmf.md#spade-generator): a conditional multi-scale PatchGAN (pix2pixHD / [34]).
 
+::
+
     model = MultiscaleDiscriminator(num_classes=19, nf=8)
     out = model.apply(variables, image, semantic)   # {"logits": [(B, h_k, w_k, 1)] * scales,
                                                      #  "features": [[(B, h, w, c)] * layers] * scales}

@@ -131,7 +131,7 @@ def batch_sharding(mesh: Mesh) -> NamedSharding:
 
 
 def global_batch(local_batch: dict, mesh: Mesh) -> dict:
-    """Assemble this process's share of a batch (dict of host arrays) into global ``jax.Array``s.
+    """Assemble this process's share of a batch (dict of host arrays) into global arrays (``jax.Array``).
 
     The local batch size must divide evenly over this process's devices in the mesh.
     """

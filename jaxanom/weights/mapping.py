@@ -2,7 +2,7 @@
 
 A *naming* maps the path of each convolution or BatchNorm module (flax's or ``jaxanom.nn``'s; e.g.
 ``("backbone", "layer1_0", "conv1", "conv")``) to the PyTorch module that holds its weights
-(``"layer1.0.conv1"``), or to None when the checkpoint does not provide it. Leaves map as
+(``"layer1.0.conv1"``), or to None when the checkpoint does not provide it. Leaves map as::
 
     Conv      kernel (kh, kw, I, O) <- weight (O, I, kh, kw)     bias <- bias
     BatchNorm scale <- weight, bias <- bias (params); mean <- running_mean, var <- running_var

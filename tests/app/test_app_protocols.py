@@ -40,11 +40,23 @@ def test_native_protocol_passes_frames_unchanged():
     assert len(kept) == 2 and all(np.array_equal(a["image"], b["image"]) for a, b in zip(kept, frames))
 
 
-def test_unknown_protocol_and_extra_pixel_maps_are_refused():
+def test_unknown_protocol_is_refused():
     with pytest.raises(ValueError, match="protocol: expected one of native, erfnet-community"):
         get_protocol("erfnet")
-    with pytest.raises(ValueError, match="reads image and label only"):
-        resize_frame({**frame([0, 1]), "depth": np.zeros((36, 64), np.float32)}, (8, 8))
+
+
+def test_resizing_leaves_depth_out_and_resizes_the_road_region_as_the_labels():
+    """A synthetic or Lost and Found frame: its depth is no input of the protocols' networks; its
+    road region is a mask, resized by PIL's nearest as the labels are."""
+    record = frame([0, 1])
+    rng = np.random.default_rng(7)
+    record.update(depth=np.ones((36, 64), np.float32), disparity=np.ones((36, 64), np.float32),
+                  roi=rng.random((36, 64)) < 0.5)
+    resized = resize_frame(record, (16, 24))
+    assert sorted(resized) == ["image", "label", "name", "roi"]
+    expected = np.asarray(Image.fromarray(record["roi"].astype(np.uint8)).resize((24, 16), Image.NEAREST)) == 1
+    np.testing.assert_array_equal(resized["roi"], expected)
+    assert resized["roi"].dtype == bool
 
 
 def test_dropping_void_changes_every_method_but_void():

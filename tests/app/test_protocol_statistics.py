@@ -130,3 +130,10 @@ def test_predict_refuses_statistics_without_the_void_output(run20, stats_files, 
     error = capsys.readouterr().err.strip()
     assert len(error.splitlines()) == 1 and "--stats" in error
     assert "use them with evaluate --protocol erfnet-community" in error
+
+
+def test_the_protocol_evaluates_synthetic_frames_which_carry_depth(run20, tmp_path):
+    """Synthetic frames carry a depth map: the protocol leaves it out instead of failing mid-run."""
+    assert main(["evaluate", "--run", str(run20), "--dataset", "synthetic", "--path", "anomaly", "--frames", "2",
+                 "--protocol", "erfnet-community", "--methods", "msp", "--out", str(tmp_path / "out")]) == 0
+    assert json.loads((tmp_path / "out" / "metrics.json").read_text())["protocol"] == "erfnet-community"
