@@ -197,7 +197,13 @@ def build_network(experiment: Experiment):
     network = {"attention": experiment.attention, "attention_position": position, "attention_options": options}
     if model_family(experiment.model) == "deeplabv3plus":
         network["output_stride"] = experiment.output_stride
-    return build_model(experiment.model, num_classes=experiment.num_classes, **network)
+    try:
+        return build_model(experiment.model, num_classes=experiment.num_classes, **network)
+    except ValueError as error:  # the module's position and options named as the experiment records them
+        recorded_as = attention_modules.get(experiment.attention).recorded_as if experiment.attention else {}
+        name, colon, rest = str(error).partition(":")
+        field = recorded_as.get("position" if name == "attention_position" else name)
+        raise ValueError(f"{field}:{rest}" if colon and field else str(error)) from None
 
 
 def output_shapes(experiment: Experiment, height: int, width: int) -> dict:

@@ -106,11 +106,14 @@ def check_attachment(segmenter) -> None:
     """ValueError unless ``segmenter``'s ``attention``, ``attention_position`` and
     ``attention_options`` fit its ``ATTENTION_POSITIONS`` (its ``__post_init__`` calls this)."""
     resolve_position(segmenter.attention, segmenter.attention_position, segmenter.ATTENTION_POSITIONS)
-    options = set(dict(segmenter.attention_options))
-    known = set(get(segmenter.attention).options) if segmenter.attention is not None else set()
-    if options - known:
+    options = dict(segmenter.attention_options)
+    spec = get(segmenter.attention) if segmenter.attention is not None else None
+    known = set(spec.options) if spec else set()
+    if set(options) - known:
         raise ValueError(f"attention_options: {segmenter.attention!r} has the options {tuple(sorted(known))}, "
-                         f"got {sorted(options - known)}")
+                         f"got {sorted(set(options) - known)}")
+    if spec:  # the module's own checks of its options, on a module of no parent (nothing is built)
+        spec.build(dtype=segmenter.dtype, parent=None, **{**spec.options, **options})
 
 
 class Attachment:

@@ -3,6 +3,8 @@
 scoring with the ``cudam`` method that reads its attention map."""
 import json
 
+import pytest
+
 from jaxanom.app.experiment import load_experiment, load_variables
 from jaxanom.cli import main
 
@@ -45,3 +47,16 @@ def test_a_runs_recorded_cudam_settings_reach_its_network_and_are_recorded_as_be
     # MSAAM reads neither field: its network is the same whatever they hold
     msaam = Experiment(attention="msaam", cudam_position="output", cudam_gate="scale_free")
     assert build_network(msaam) == build_network(Experiment(attention="msaam"))
+
+
+def test_a_cudam_setting_the_network_refuses_is_named_as_the_experiment_records_it():
+    """Checked when the experiment is made, before any work: the gate by CuDAM's own check, the
+    position by the segmenter's; each named by its experiment field."""
+    from jaxanom.app.experiment import Experiment
+
+    with pytest.raises(ValueError, match=r"^cudam_gate: expected one of \('paper', 'scale_free'\), got 'sigmoid'"):
+        Experiment(attention="cudam", cudam_gate="sigmoid")
+    with pytest.raises(ValueError, match=r"^cudam_position: expected one of \('deep',\) for 'cudam' on this segmenter"):
+        Experiment(model="erfnet", attention="cudam", cudam_position="surface")
+    with pytest.raises(ValueError, match=r"^attention: expected None or one of \('cudam', 'msaam'"):
+        Experiment(attention="cbam")
