@@ -16,25 +16,28 @@ Where methods come from, loaded once on first use:
   provided is asked for (``get``, ``check``), so it breaks no command that does not need it;
 - any module imported by the caller (``load_plugin``, the commands' ``--plugin MODULE``).
 
-Each of those modules calls ``register(Method(...))`` when imported.
+Each of those modules calls ``register(Method(...))`` when imported. The registry is a
+``jaxanom.registry.Registry`` (``METHODS``), the type every kind of plug-in uses.
 """
 from __future__ import annotations
 
 import dataclasses
 import functools
 import hashlib
-import importlib
-import os
-import re
 import sys
 import types
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
 
+from jaxanom import registry
 from jaxanom.errors import InputError
+from jaxanom.registry import DISABLE_ENTRY_POINTS, NAME, NAME_RULE, is_name
+
+__all__ = ["DISABLE_ENTRY_POINTS", "ENTRY_POINTS", "INPUTS", "METHODS", "Method", "NAME", "NAME_RULE", "call",
+           "check", "check_finite", "check_output", "get", "given", "implementation", "is_name", "load_plugin",
+           "names", "read_only", "register", "score"]
 
 ENTRY_POINTS = "jaxanom.methods"
-DISABLE_ENTRY_POINTS = "JAXANOM_DISABLE_ENTRY_POINTS"  # environment variable: installed plug-ins not loaded
 
 # What a batch can give the methods, and how a missing input is described in an error.
 INPUTS: dict[str, str] = {
@@ -51,15 +54,7 @@ Inputs = Mapping[str, Any]
 Options = Mapping[str, Any]
 
 # A method's name becomes a folder or file name of the commands' outputs (``npy/<method>/``,
-# ``scores/<method>.npy``): letters, digits, ``_``, ``-`` and ``.``, never ``.`` or ``..``, so never a path.
-NAME = re.compile(r"[A-Za-z0-9_.-]+")
-NAME_RULE = "letters, digits, '_', '-', '.' (not '.' or '..')"
-
-
-def is_name(text) -> bool:
-    """Whether ``text`` may name a method (``NAME_RULE``): a plain name, never a path."""
-    return isinstance(text, str) and NAME.fullmatch(text) is not None and text not in (".", "..")
-
+# ``scores/<method>.npy``): ``registry.NAME_RULE``, so never a path.
 
 @dataclasses.dataclass(frozen=True)
 class Method:
@@ -104,10 +99,19 @@ class Method:
         return dict(self.resolve(inputs, options)) if self.resolve is not None else options
 
 
-_METHODS: dict[str, Method] = {}
-_BROKEN: list[str] = []  # one line per entry point that failed to load, for the errors of unknown names
-_ORIGIN: dict[str, str] = {}  # name -> the module that registered it, for conflict messages and fingerprints
-_loaded = False
+def _own_modules() -> list[str]:
+    """Dotted names of jaxanom's library modules whose file name ends in ``methods.py``; the
+    application and command-line layers are above the library and never searched."""
+    root = Path(__file__).parent
+    found = []
+    for path in sorted(root.rglob("*methods.py")):
+        parts = path.relative_to(root).with_suffix("").parts
+        if parts[0] not in ("app", "cli") and all(p.isidentifier() for p in parts):
+            found.append(".".join((root.name, *parts)))
+    return found
+
+
+METHODS: registry.Registry[Method] = registry.Registry("method", ENTRY_POINTS, _own_modules)
 
 
 def register(method: Method) -> Method:
@@ -115,14 +119,7 @@ def register(method: Method) -> Method:
     another method already has its name. Returns it."""
     if not isinstance(method, Method):
         raise ValueError(f"method: expected a jaxanom.method_registry.Method, got {type(method).__name__}")
-    origin = sys._getframe(1).f_globals.get("__name__", "?")  # the module calling register
-    if method.name in _METHODS and _METHODS[method.name] != method:
-        raise ValueError(f"method {method.name!r}: already registered by {_ORIGIN[method.name]}; "
-                         f"{origin} cannot register another under the same name")
-    if method.name not in _METHODS:  # the same method again (its module imported twice) keeps its origin
-        _METHODS[method.name] = method
-        _ORIGIN[method.name] = origin
-    return _METHODS[method.name]
+    return METHODS.add(method.name, method, sys._getframe(1).f_globals.get("__name__", "?"))  # the caller's module
 
 
 def implementation(name: str) -> str:
@@ -131,7 +128,7 @@ def implementation(name: str) -> str:
     own ``*methods.py``; a module without a file counts by its name only). Another plug-in
     registering the name, or an edit of its module (a default option included), changes it."""
     method = get(name)
-    modules = {_ORIGIN[name]}
+    modules = {METHODS.origin(name)}
     for function in (method.score, method.resolve):
         while isinstance(function, functools.partial):
             function = function.func
@@ -148,16 +145,16 @@ def implementation(name: str) -> str:
 
 def get(name: str) -> Method:
     """The method called ``name``; ValueError naming it and the known names otherwise."""
-    _load()
-    if name not in _METHODS:
-        raise InputError("methods", f": expected names from {', '.join(_METHODS)}; got unknown {name!r}{_broken()}")
-    return _METHODS[name]
+    method = METHODS.find(name)
+    if method is None:
+        raise InputError("methods", f": expected names from {', '.join(METHODS.names())}; got unknown {name!r}"
+                         f"{METHODS.broken_note()}")
+    return method
 
 
 def names() -> tuple[str, ...]:
     """Every registered name: jaxanom's own first, then installed plug-ins', then loaded modules'."""
-    _load()
-    return tuple(_METHODS)
+    return METHODS.names()
 
 
 def check(method_names: Iterable[str], provided: Iterable[str], options: Options | None = None) -> tuple[str, ...]:
@@ -168,16 +165,17 @@ def check(method_names: Iterable[str], provided: Iterable[str], options: Options
     in ``options`` that no known method declares.
     """
     selected = tuple(method_names)
-    _load()
-    unknown = [n for n in selected if n not in _METHODS]
+    known = METHODS.names()
+    unknown = [n for n in selected if n not in known]
     if unknown or not selected:
-        raise InputError("methods", f": expected names from {', '.join(_METHODS)}; got {list(selected)}"
-                         f"{_broken() if unknown else ''}")
+        raise InputError("methods", f": expected names from {', '.join(known)}; got {list(selected)}"
+                         f"{METHODS.broken_note() if unknown else ''}")
+    methods = METHODS.entries
     provided = set(provided)
     for key in INPUTS:  # the first missing input, with every method that needs it
-        if key not in provided and (missing := [n for n in selected if key in _METHODS[n].needs]):
+        if key not in provided and (missing := [n for n in selected if key in methods[n].needs]):
             raise InputError("methods", f"{missing} need {INPUTS[key]}; none were given")
-    declared = {k for m in _METHODS.values() for k in m.defaults}
+    declared = {k for m in methods.values() for k in m.defaults}
     if stray := sorted(set(options or {}) - declared):
         raise InputError("options", f": expected names from {sorted(declared)}, got {stray}")
     return selected
@@ -265,49 +263,9 @@ def given(inputs: Inputs) -> set[str]:
 
 
 def load_plugin(module: str) -> None:
-    """Import ``module`` (a dotted name on ``sys.path``), which registers its methods; jaxanom's
-    own are registered first, so a plug-in cannot take one of their names. ModuleNotFoundError
-    when it is not found; errors raised inside it propagate."""
-    _load()
-    importlib.import_module(module)
-
-
-def _load() -> None:
-    """Register jaxanom's own methods and the installed plug-ins' (once)."""
-    global _loaded
-    if _loaded:
-        return
-    for module in _own_modules():
-        importlib.import_module(module)
-    from importlib.metadata import entry_points
-
-    _BROKEN.clear()
-    for entry in () if os.environ.get(DISABLE_ENTRY_POINTS, "") not in ("", "0") else entry_points(group=ENTRY_POINTS):
-        try:
-            entry.load()
-        except Exception as error:  # noqa: BLE001  a broken installed plug-in: named when its names are needed
-            reason = str(error).strip().splitlines()[0] if str(error).strip() else ""
-            _BROKEN.append(f"the {ENTRY_POINTS} entry point {entry.name} = {entry.value} "
-                           f"({entry.dist.name if entry.dist else 'unknown distribution'}) failed to load "
-                           f"({type(error).__name__}: {reason})")
-    _loaded = True
-
-
-def _broken() -> str:
-    """For an error about unknown names: the entry points that failed to load (which might have
-    provided them), or ""."""
-    if not _BROKEN:
-        return ""
-    return f"; {'; '.join(_BROKEN)} (fix or uninstall it, or set {DISABLE_ENTRY_POINTS}=1)"
-
-
-def _own_modules() -> list[str]:
-    """Dotted names of jaxanom's library modules whose file name ends in ``methods.py``; the
-    application and command-line layers are above the library and never searched."""
-    root = Path(__file__).parent
-    found = []
-    for path in sorted(root.rglob("*methods.py")):
-        parts = path.relative_to(root).with_suffix("").parts
-        if parts[0] not in ("app", "cli") and all(p.isidentifier() for p in parts):
-            found.append(".".join((root.name, *parts)))
-    return found
+    """Import ``module`` (a dotted name on ``sys.path``), which registers its methods (and entries
+    of other kinds); jaxanom's own are registered first (``registry.load_plugin``), so a plug-in
+    cannot take one of their names. ``registry.PluginError`` (a ValueError) in one line when it is
+    not found or its import raises."""
+    METHODS.load()
+    registry.load_plugin(module)

@@ -39,8 +39,8 @@ def road_anomaly(tmp_path_factory):
 def registry_state(monkeypatch):
     """The registry as it was before the test (a plug-in's methods and modules do not outlive it)."""
     method_registry.names()
-    monkeypatch.setattr(method_registry, "_METHODS", dict(method_registry._METHODS))
-    monkeypatch.setattr(method_registry, "_ORIGIN", dict(method_registry._ORIGIN))
+    monkeypatch.setattr(method_registry.METHODS, "entries", dict(method_registry.METHODS.entries))
+    monkeypatch.setattr(method_registry.METHODS, "origins", dict(method_registry.METHODS.origins))
     modules = set(sys.modules)
     yield
     for name in set(sys.modules) - modules:
@@ -138,7 +138,7 @@ def test_installed_packages_register_through_entry_points(tmp_path, monkeypatch,
         "[jaxanom.methods]\nmine = jaxanom_test_plugin_ep\n")
     (site / "jaxanom_test_plugin_ep.py").write_text(PLUGIN.format(name="from_entry_point"))
     monkeypatch.syspath_prepend(str(site))
-    monkeypatch.setattr(method_registry, "_loaded", False)
+    monkeypatch.setattr(method_registry.METHODS, "loaded", False)
     assert method_registry.names()[-1] == "from_entry_point"
     logits = np.random.default_rng(0).normal(size=(1, 3, 4, 5)).astype(np.float32)
     np.testing.assert_array_equal(method_registry.score("from_entry_point", {"logits": logits}),
@@ -146,9 +146,9 @@ def test_installed_packages_register_through_entry_points(tmp_path, monkeypatch,
 
     (site / "jaxanom_test_plugin_ep.py").write_text("raise RuntimeError('broken plug-in')\n")
     del sys.modules["jaxanom_test_plugin_ep"]
-    monkeypatch.setattr(method_registry, "_loaded", False)
-    monkeypatch.setattr(method_registry, "_METHODS", {k: v for k, v in method_registry._METHODS.items()
-                                                      if k != "from_entry_point"})
+    monkeypatch.setattr(method_registry.METHODS, "loaded", False)
+    monkeypatch.setattr(method_registry.METHODS, "entries", {
+        k: v for k, v in method_registry.METHODS.entries.items() if k != "from_entry_point"})
     assert "msp" in method_registry.names() and "from_entry_point" not in method_registry.names()  # left out
     with pytest.raises(ValueError, match="got unknown 'from_entry_point'; the jaxanom.methods entry point mine = "
                                          r"jaxanom_test_plugin_ep \(jaxanom-test-plugin-dist\) failed to load "

@@ -53,6 +53,14 @@ def add_config(parser, config_help: str | None = None) -> None:
                         "false, comma-separated lists, JSON); repeatable")
 
 
+def add_plugin(parser) -> None:
+    """``--plugin MODULE`` (repeatable; the app function's ``plugins``)."""
+    parser.add_argument("--plugin", action="append", default=[], metavar="MODULE",
+                        help="import this Python module (a dotted name on the Python path) first, which registers its "
+                        "own methods, objectives or other entries (repeatable); a run records the plug-ins its "
+                        "experiment uses and imports them whenever it is read")
+
+
 def add_common(parser, progress: bool, overwrite: bool = True) -> None:
     """``--overwrite`` and ``--no-progress`` where a command has them."""
     if overwrite:
@@ -79,8 +87,7 @@ def add_methods(parser, unavailable: tuple[str, ...] = ()) -> None:
 
     parser.add_argument("--methods", type=method_list, help=f"comma-separated names of the methods listed below "
                         f"(default: {','.join(DEFAULT_METHODS)})")
-    parser.add_argument("--plugin", action="append", default=[], metavar="MODULE",
-                        help="import this Python module first, which registers its own methods (repeatable)")
+    add_plugin(parser)
     parser.formatter_class = _KeepIndented
     format_help = parser.format_help
 

@@ -21,16 +21,16 @@ def method_names(methods: str | None, default: tuple[str, ...] = DEFAULT_METHODS
 
 
 def load_plugins(plugins) -> None:
-    """Import the plug-in modules (their methods are registered on import). InputError naming
-    ``plugins`` and the module, in one line, for: a name that is not a module's dotted name (a
-    file path, ""), a module not found, one whose import raises (a name it registers already
-    taken, a built-in's included; a dependency missing; any bug), with where it raised."""
-    import traceback
-
-    from jaxanom.app.scoring import load_plugin
+    """Import the plug-in modules, which register their methods, objectives (any kind of entry) on
+    import. InputError naming ``plugins`` and the module, in one line, for: a name that is not a
+    module's dotted name (a file path, ""), a module not found, one whose import raises (a name it
+    registers already taken, a built-in's included; a dependency missing; any bug), with where it
+    raised (``jaxanom.app.configs.load_plugin``)."""
+    from jaxanom.app.configs import load_plugin
+    from jaxanom.registry import PluginError, is_module_name
 
     for module in plugins:
-        if not (isinstance(module, str) and all(part.isidentifier() for part in module.split("."))):
+        if not is_module_name(module):
             file = Path(str(module))
             hint = (f" (for this file: PYTHONPATH={file.parent} and {{plugins}} {file.stem})"
                     if file.suffix == ".py" and file.stem.isidentifier() else "")
@@ -39,17 +39,8 @@ def load_plugins(plugins) -> None:
                              mentions=("plugins",))
         try:
             load_plugin(module)
-        except ModuleNotFoundError as error:
-            if error.name is None or not (module + ".").startswith(error.name + "."):
-                raise InputError("plugins", f" {module}: importing it failed: {error}") from None
-            raise InputError("plugins", f" {module}: no module named {error.name!r} on the Python path") from None
-        except Exception as error:  # noqa: BLE001  a plug-in's own failure: one line naming it and where
-            frames = traceback.extract_tb(error.__traceback__)
-            package = str(Path(__file__).parents[2])  # the plug-in's own line, not jaxanom's nor importlib's
-            frame = next((f for f in reversed(frames) if not f.filename.startswith((package, "<"))), frames[-1])
-            raise InputError("plugins", f" {module}: importing it raised {type(error).__name__}: "
-                             f"{str(error).splitlines()[0] if str(error) else ''} ({frame.filename}, line "
-                             f"{frame.lineno})") from None
+        except PluginError as error:
+            raise InputError("plugins", f" {error}") from None
 
 
 def read_stats(path: str | None):

@@ -28,13 +28,15 @@ def predict(images, *, run: str, out: str, methods: str | None = None, plugins=(
     of ``predict_images``."""
     from jaxanom.app import scoring
     from jaxanom.app.evaluate import predictor
-    from jaxanom.app.experiment import build_network, jsonable, load_experiment, load_variables
+    from jaxanom.app.experiment import build_network, jsonable, load_experiment, load_run_plugins, load_variables
     from jaxanom.app.predict import (DeviceOutOfMemory, PredictSettings, Scorer, check_resumable, fingerprint,
                                      list_images, predict_images, remove_other_maps, settings_record,
                                      size_check)
     from jaxanom.io import write_json_atomic
 
     load_plugins(plugins)
+    with reading("run", run):  # the run's recorded plug-ins first: their methods may be asked for
+        load_run_plugins(run)
     settings = PredictSettings(methods=method_names(methods, DEFAULT_METHODS), formats=tuple(formats.split(",")),
                                size=size, batch_size=batch_size, dataset=dataset, slic_step=slic_step,
                                cudam_sigma=cudam_sigma, unit_interval=unit_interval, threads=threads)
