@@ -255,6 +255,12 @@ def override(config: Any, assignments: Sequence[str]) -> Any:
     return decode(type(config), values)
 
 
+def parse(kind: Any, text: str, path: str = "") -> Any:
+    """``text`` (one ``--set`` VALUE) read as the type ``kind`` as ``override`` reads a field's (``none``,
+    ``true`` / ``false``, numbers, comma-separated lists, JSON); ConfigError naming ``path`` otherwise."""
+    return decode(kind, _parse(kind, text, path, None), path)
+
+
 def _member(kind, holder, key, path):
     """``(type, JSON value, dotted name)`` of member ``key`` of ``holder``, the JSON value of type ``kind``."""
     where = _join(path, key)

@@ -64,7 +64,10 @@ class Method:
     higher = more anomalous, from ``inputs`` (holding at least ``needs``) and ``options`` (every
     key of ``defaults``, resolved). ``defaults``: its options and their values; a None default
     may be filled from the batch by ``resolve(inputs, options) -> options`` (e.g. a weight that
-    depends on the attention map's size). ``description``: one line, shown by ``--help``.
+    depends on the attention map's size). ``types``: each option's type, as a config field's
+    (``float``, ``int | None``, ``tuple[int, ...]``; ``jaxanom.config_codec``), by which the
+    commands read ``--set methods.NAME.OPTION=VALUE``; default: the type of its default value
+    (a None default needs its type declared). ``description``: one line, shown by ``--help``.
     """
 
     name: str
@@ -73,6 +76,7 @@ class Method:
     description: str
     defaults: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     resolve: Callable[[Inputs, Options], Options] | None = None
+    types: Mapping[str, Any] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
         if not is_name(self.name):
@@ -86,6 +90,38 @@ class Method:
             raise ValueError(f"description of {self.name}: expected one line, got {self.description!r}")
         object.__setattr__(self, "needs", needs)
         object.__setattr__(self, "defaults", types.MappingProxyType(dict(self.defaults)))
+        declared = dict(self.types)
+        if stray := sorted(set(declared) - set(self.defaults)):
+            raise ValueError(f"types of {self.name}: expected types of options in defaults, got {stray}")
+        for option, default in self.defaults.items():
+            if option not in declared and default is None:
+                raise ValueError(f"types of {self.name}: option {option!r} has a None default; declare its type "
+                                 "(e.g. types={" + repr(option) + ": float | None})")
+            declared.setdefault(option, type(default))
+        object.__setattr__(self, "types", types.MappingProxyType(declared))
+        self.checked(self.defaults)  # each default is of its type
+
+    def checked(self, given: Options) -> dict:
+        """``given`` (option -> value) with each host value read as its declared type (an int for a
+        float becomes a float; arrays, traced values included, pass as they are); InputError naming
+        ``options`` and ``methods.<name>.<option>`` for an option it does not declare or a value not
+        of its type."""
+        from jaxanom.config_codec import ConfigError, decode, describe, encode
+
+        values = {}
+        for option, value in given.items():
+            where = f"methods.{self.name}.{option}"
+            if option not in self.types:
+                raise InputError("options", f": {where}: method {self.name!r} has no option {option!r}; its options: "
+                                 f"{', '.join(self.types) or 'none'}")
+            if hasattr(value, "shape"):  # an array (a traced hyperparameter): its type is the caller's business
+                values[option] = value
+                continue
+            try:
+                values[option] = decode(self.types[option], encode(value), where)
+            except (ConfigError, TypeError):
+                raise InputError("options", f": {where}: expected {describe(self.types[option])}, got {value!r}") from None
+        return values
 
     def unresolved(self, given: Options | None = None) -> dict:
         """This method's options before any batch: its defaults, overridden by the keys of
@@ -157,12 +193,14 @@ def names() -> tuple[str, ...]:
     return METHODS.names()
 
 
-def check(method_names: Iterable[str], provided: Iterable[str], options: Options | None = None) -> tuple[str, ...]:
+def check(method_names: Iterable[str], provided: Iterable[str],
+          options: Mapping[str, Options] | None = None) -> tuple[str, ...]:
     """Validate a list of methods against the inputs a batch will provide; returns the names as a tuple.
 
-    ValueError in one line for: an empty list, unknown names (listing the known ones), an input
-    some methods need that ``provided`` lacks (naming the input and those methods), or an option
-    in ``options`` that no known method declares.
+    ``options``: ``{method: {option: value}}`` for some of the methods. ValueError in one line for:
+    an empty list, unknown names (listing the known ones), an input some methods need that
+    ``provided`` lacks (naming the input and those methods), options of a method not in the list,
+    or an option its method does not declare or a value not of its type (``Method.checked``).
     """
     selected = tuple(method_names)
     known = METHODS.names()
@@ -175,9 +213,13 @@ def check(method_names: Iterable[str], provided: Iterable[str], options: Options
     for key in INPUTS:  # the first missing input, with every method that needs it
         if key not in provided and (missing := [n for n in selected if key in methods[n].needs]):
             raise InputError("methods", f"{missing} need {INPUTS[key]}; none were given")
-    declared = {k for m in methods.values() for k in m.defaults}
-    if stray := sorted(set(options or {}) - declared):
-        raise InputError("options", f": expected names from {sorted(declared)}, got {stray}")
+    options = options or {}
+    if not isinstance(options, Mapping) or not all(isinstance(given, Mapping) for given in options.values()):
+        raise InputError("options", f": expected a mapping of method names to their options, got {options!r}")
+    if stray := [name for name in options if name not in selected]:
+        raise InputError("options", f": options of {stray}, which are not among the methods {list(selected)}")
+    for name, given in options.items():
+        methods[name].checked(given)
     return selected
 
 
@@ -187,7 +229,8 @@ def score(name: str, inputs: Inputs, options: Options | None = None):
     options methods declare (keys this method does not declare are ignored, so one mapping can
     serve many methods)."""
     method = get(name)
-    check((name,), given(inputs), options)
+    options = {key: value for key, value in (options or {}).items() if key in method.defaults}
+    check((name,), given(inputs), {name: options})
     return call(method, inputs, options)[0]
 
 

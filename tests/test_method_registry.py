@@ -90,8 +90,16 @@ def test_a_missing_input_is_named_in_one_line_with_the_methods_needing_it():
 
 
 def test_options_are_declared_defaulted_and_resolved():
-    with pytest.raises(ValueError, match=r"options: expected names from .*'cudam_sigma'.*got \['sigma'\]"):
-        method_registry.check(["cudam"], {"logits", "stats", "attention"}, {"sigma": 1.0})
+    provided = {"logits", "stats", "attention"}
+    with pytest.raises(ValueError, match=r"^options: methods.cudam.sigma: method 'cudam' has no option 'sigma'; its "
+                                         r"options: cudam_sigma$"):
+        method_registry.check(["cudam"], provided, {"cudam": {"sigma": 1.0}})
+    with pytest.raises(ValueError, match=r"^options: methods.cudam.cudam_sigma: expected a number or none, got 'x'$"):
+        method_registry.check(["cudam"], provided, {"cudam": {"cudam_sigma": "x"}})
+    with pytest.raises(ValueError, match=r"^options: options of \['msp'\], which are not among the methods \['cudam'\]$"):
+        method_registry.check(["cudam"], provided, {"msp": {}})
+    assert method_registry.get("cudam").checked({"cudam_sigma": 3}) == {"cudam_sigma": 3.0}  # read as its type
+    assert method_registry.get("cudam").types["cudam_sigma"] == float | None
     cudam = method_registry.get("cudam")
     positions = {"attention_positions": np.int32(32 * 64)}
     assert cudam.options(positions) == {"cudam_sigma": paper_sigma(32 * 64)}  # the paper-equivalent default
@@ -225,4 +233,7 @@ def test_help_lists_every_method_with_its_description(capsys):
                 assert not any(line.split()[:1] == [name] for line in lines)  # predict has no MMF pipeline
                 continue
             description = method_registry.get(name).description
-            assert any(line.split() == [name, *description.split()] for line in lines), (command, name)
+            assert any(line.split()[:len(description.split()) + 1] == [name, *description.split()]
+                       for line in lines), (command, name)
+    assert any("entropy_superpixel" in line and line.endswith("(options slic_step: an integer or none, default None)")
+               for line in lines)

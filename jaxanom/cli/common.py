@@ -42,15 +42,20 @@ def size_hw(text: str | None) -> tuple[int, int] | None:
     return int(parts[0]), int(parts[1])
 
 
-def add_config(parser, config_help: str | None = None) -> None:
-    """``--set NAME=VALUE`` (repeatable; the app function's ``overrides``) and, with ``config_help``,
+VALUES = "VALUE is read as the field's or option's type (none, true / false, comma-separated lists, JSON); repeatable"
+METHOD_OPTIONS = ("methods.METHOD.OPTION=VALUE sets an option of a method (listed below with its type and default), "
+                  "e.g. --set methods.cudam.cudam_sigma=2e4")
+
+
+def add_config(parser, config_help: str | None = None, set_help: str | None = None) -> None:
+    """``--set NAME=VALUE`` (repeatable; the app function's ``overrides``; ``set_help``: what it sets
+    for this command, default the training configuration's fields) and, with ``config_help``,
     ``--config FILE``."""
     if config_help:
         parser.add_argument("--config", help=config_help)
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                        help="set one field of the configuration by its dotted name, after --config and the other "
-                        "flags, e.g. --set train.optim.lr=1e-3; VALUE is read as the field's type (none, true / "
-                        "false, comma-separated lists, JSON); repeatable")
+                        help=(set_help or "set one field of the configuration by its dotted name, after --config and "
+                              "the other flags, e.g. --set train.optim.lr=1e-3") + f"; {VALUES}")
 
 
 def add_plugin(parser) -> None:
@@ -62,12 +67,16 @@ def add_plugin(parser) -> None:
 
 
 def add_common(parser, progress: bool, overwrite: bool = True) -> None:
-    """``--overwrite`` and ``--no-progress`` where a command has them."""
+    """``--overwrite`` where a command has it, and ``--no-progress`` (which does nothing where a
+    command draws no ``progress`` bar)."""
     if overwrite:
         parser.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty output folder")
     if progress:  # a bar drawn into a log file or a pipe is a wall of carriage returns
         parser.add_argument("--no-progress", action="store_true", default=not sys.stderr.isatty(),
                             help="no progress bar (the default where stderr is not a terminal)")
+    else:  # every command takes it, so one script line can pass it to any
+        parser.add_argument("--no-progress", action="store_true", help="accepted for uniformity: this command draws "
+                            "no progress bar")
 
 
 class _KeepIndented(argparse.HelpFormatter):

@@ -43,6 +43,54 @@ def load_plugins(plugins) -> None:
             raise InputError("plugins", f" {error}") from None
 
 
+OPTION_PREFIX = "methods."  # --set methods.METHOD.OPTION=VALUE: an option of a method
+
+
+def split_overrides(overrides) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """``overrides`` (``--set``) as ``(options of methods, the others)``: those of
+    ``"methods.METHOD.OPTION=VALUE"``, and the config fields' ``"dotted.name=VALUE"``, each in order."""
+    methods = tuple(o for o in overrides if o.partition("=")[0].strip().startswith(OPTION_PREFIX))
+    return methods, tuple(o for o in overrides if o not in methods)
+
+
+def method_options(names, overrides=(), **aliases) -> dict:
+    """``{method: {option: value}}`` for the methods ``names``: each alias given (not None; e.g.
+    ``cudam_sigma`` of ``--cudam-sigma``) set for every method of ``names`` that declares that
+    option, then each ``"methods.METHOD.OPTION=VALUE"`` of ``overrides`` (``--set``; see
+    ``split_overrides``) with VALUE read as the option's declared type (``Method.types``, as
+    ``--set`` reads a config field). InputError naming ``overrides``, in one line naming the
+    method and option: a method not among ``names``, an option it does not declare, a value not
+    of its type."""
+    from jaxanom.config_codec import ConfigError, parse
+    from jaxanom.method_registry import get
+
+    options: dict[str, dict] = {}
+    for option, value in aliases.items():
+        if value is not None:
+            for name in names:
+                if option in get(name).defaults:
+                    options.setdefault(name, {})[option] = value
+    for assignment in overrides:
+        target, equals, text = assignment.partition("=")
+        # the last dot: a method's name may hold dots (energy.t5), an option's never does
+        method, dot, option = target.strip().removeprefix(OPTION_PREFIX).rpartition(".")
+        if not (target.strip().startswith(OPTION_PREFIX) and equals and dot and method and option):
+            raise InputError("overrides", f": expected methods.METHOD.OPTION=VALUE (e.g. methods.energy.temperature=2), "
+                             f"got {assignment!r}")
+        if method not in names:
+            raise InputError("overrides", f" {target.strip()}: method {method!r} is not among the methods scored "
+                             f"({', '.join(names)}; {{methods}})", mentions=("methods",))
+        declared = get(method).types
+        if option not in declared:
+            raise InputError("overrides", f" {target.strip()}: method {method!r} has no option {option!r}; its options: "
+                             f"{', '.join(declared) or 'none'}")
+        try:
+            options.setdefault(method, {})[option] = parse(declared[option], text, target.strip())
+        except ConfigError as error:
+            raise InputError("overrides", f" {error} (an option of method {method!r})") from None
+    return options
+
+
 def read_stats(path: str | None):
     """``(mean, std)`` from a statistics .npz, or None for None; prints the frames they were fitted on."""
     if path is None:
