@@ -165,7 +165,10 @@ def test_an_outside_objective_and_method_through_every_command_by_entry_points(t
     through_every_command(capsys, tmp_path, ())
 
 
-def test_a_python_config_defining_its_objective_is_refused_before_any_work(tmp_path, capsys, extension):
+def test_a_python_config_defining_its_objective_is_refused_before_any_work(tmp_path, capsys, monkeypatch, extension):
+    import jaxanom.app.experiment as app
+
+    monkeypatch.setattr(app, "run_training", lambda *_, **__: None)  # should it not be refused: no training
     config = tmp_path / "config.py"
     config.write_text(textwrap.dedent('''
         import dataclasses
@@ -239,3 +242,15 @@ def test_a_run_records_its_plugins_and_every_reading_imports_them(tmp_path, caps
         f"jaxanom evaluate: error: --run {run}: {run / 'experiment.json'}: plugins: the plug-in module '{PACKAGE}' "
         f"that registers what this config names could not be imported (no module named '{PACKAGE}' on the Python "
         "path); install it or put it on PYTHONPATH"), text
+
+
+@pytest.mark.parametrize("argv", [
+    ["train", "--out", "{tmp}/o"], ["fit-stats", "--run", "{tmp}/run", "--out", "{tmp}/s.npz"],
+    ["evaluate", "--run", "{tmp}/run", "--dataset", "synthetic", "--path", "anomaly", "--out", "{tmp}/o"],
+    ["predict", "{tmp}", "--run", "{tmp}/run", "--out", "{tmp}/o"], ["score", "--logits", "{tmp}/l.npy", "--out", "{tmp}/o"],
+    ["demo", "--out", "{tmp}/o"]], ids=lambda argv: argv[0])
+def test_every_command_resolving_names_takes_plugin_and_names_a_missing_one(tmp_path, capsys, argv):
+    code, text = command(capsys, *(arg.format(tmp=tmp_path) for arg in argv), "--plugin", "jaxanom_test_absent")
+    assert code == 2 and text.strip().endswith(
+        "error: --plugin jaxanom_test_absent: no module named 'jaxanom_test_absent' on the Python path"), text
+    assert not (tmp_path / "o").exists()
