@@ -345,7 +345,8 @@ def _scores(out: dict, stats) -> dict:
     ``"sml_post+oracle"``, Eq. 10 with ``oracle_attention`` in place of the network's map (a control)."""
     attention = out.get("attention_up")
     names = (*BASE_SCORES, "cudam") if attention is not None else BASE_SCORES
-    scores, _ = score_all(names, inputs_of(out, stats), {"cudam_sigma": PAPER_SIGMA})  # the paper's literal sigma
+    options = {"cudam": {"cudam_sigma": PAPER_SIGMA}} if "cudam" in names else {}  # the paper's literal sigma
+    scores, _ = score_all(names, inputs_of(out, stats), options)
     if attention is not None:
         positions = out.get("attention_positions")
         positions = attention_positions(*out["logits"].shape[1:3]) if positions is None else int(positions)

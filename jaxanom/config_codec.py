@@ -15,6 +15,10 @@ A field typed with a family of registered configs (a class with a ``class_named(
 classmethod, such as ``objectives.Objective``) is stored with the registered ``name`` of its
 class, which picks the class when it is read back.
 
+A field declared with ``metadata={OMITTED_AT_DEFAULT: True}`` is left out of ``encode``'s object
+while it holds its default (read back as the default): a field added later (``Experiment.plugins``)
+changes neither the JSON of the configs that do not use it nor anything named after that JSON.
+
 ``override(config, ["train.optim.lr=1e-3", ...])`` applies ``--set`` assignments: each VALUE is
 read as the field's type (``none`` for None, ``true`` / ``false``, comma-separated lists or JSON
 for tuples, a registered name or a JSON object for a nested config, a number after a dot indexes a
@@ -33,6 +37,7 @@ from typing import Any, Sequence
 import numpy as np
 
 _MISSING = dataclasses.MISSING
+OMITTED_AT_DEFAULT = "omitted_at_default"  # field metadata: left out of encode's object while at its default
 _NONE_WORDS = ("none", "null")
 _BOOLS = {"true": True, "yes": True, "on": True, "1": True, "false": False, "no": False, "off": False, "0": False}
 
@@ -50,7 +55,8 @@ class ConfigError(ValueError):
 def encode(value: Any) -> Any:
     """``value`` (a dataclass, tuple, Enum or scalar) as plain JSON values (``dataclasses.asdict``'s layout)."""
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return {f.name: encode(getattr(value, f.name)) for f in dataclasses.fields(value)}
+        return {f.name: encode(getattr(value, f.name)) for f in dataclasses.fields(value)
+                if not (f.metadata.get(OMITTED_AT_DEFAULT) and getattr(value, f.name) == _field_default(f))}
     if isinstance(value, (tuple, list)):
         return [encode(item) for item in value]
     if isinstance(value, enum.Enum):
@@ -247,6 +253,12 @@ def override(config: Any, assignments: Sequence[str]) -> Any:
         else:
             holder[last] = new
     return decode(type(config), values)
+
+
+def parse(kind: Any, text: str, path: str = "") -> Any:
+    """``text`` (one ``--set`` VALUE) read as the type ``kind`` as ``override`` reads a field's (``none``,
+    ``true`` / ``false``, numbers, comma-separated lists, JSON); ConfigError naming ``path`` otherwise."""
+    return decode(kind, _parse(kind, text, path, None), path)
 
 
 def _member(kind, holder, key, path):

@@ -15,32 +15,35 @@ Where methods come from, loaded once on first use:
   provided is asked for (``get``, ``check``), so it breaks no command that does not need it;
 - any module imported by the caller (``load_plugin``, the commands' ``--plugin MODULE``).
 
-Each of those modules calls ``register(Method(...))`` when imported.
+Each of those modules calls ``register(Method(...))`` when imported. The registry is a
+``jaxanom.registry.Registry`` (``METHODS``), the type every kind of plug-in uses.
 
 Post-processing composes by name: ``"NAME+POST"`` is method NAME's scores through the
 post-processor POST, one that a module registered with ``register_post(Post(...))`` (SML's
 ``post``, ``suppress`` and ``smooth``: ``"energy+post"``), applied left to right
-(``"NAME+POST1+POST2"``). ``+`` never occurs in a registered name, so a composed name is never
-ambiguous; ``get`` and ``check`` resolve it, ``names()`` lists registered methods only.
+(``"NAME+POST1+POST2"``). ``+`` never occurs in a registered name (``registry.NAME_RULE``), so a
+composed name is never ambiguous; ``get`` and ``check`` resolve it, ``names()`` lists registered
+methods only.
 """
 from __future__ import annotations
 
 import dataclasses
 import functools
 import hashlib
-import importlib
-import os
-import re
 import sys
 import types
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
 
-from jaxanom import builtins
+from jaxanom import builtins, registry
 from jaxanom.errors import InputError
+from jaxanom.registry import DISABLE_ENTRY_POINTS, NAME
+
+__all__ = ["DISABLE_ENTRY_POINTS", "ENTRY_POINTS", "INPUTS", "METHODS", "Method", "NAME", "NAME_RULE", "Post",
+           "call", "check", "check_finite", "check_output", "get", "given", "implementation", "is_name", "load_plugin",
+           "names", "posts", "read_only", "register", "register_post", "score"]
 
 ENTRY_POINTS = "jaxanom.methods"
-DISABLE_ENTRY_POINTS = "JAXANOM_DISABLE_ENTRY_POINTS"  # environment variable: installed plug-ins not loaded
 
 # What a batch can give the methods, and how a missing input is described in an error.
 INPUTS: dict[str, str] = {
@@ -57,17 +60,16 @@ Inputs = Mapping[str, Any]
 Options = Mapping[str, Any]
 
 # A method's name becomes a folder or file name of the commands' outputs (``npy/<method>/``,
-# ``scores/<method>.npy``): letters, digits, ``_``, ``-`` and ``.``, never ``.`` or ``..``, so never a
-# path; a composed name joins such names with ``+`` (``msp+post``), still no path.
-NAME = re.compile(r"[A-Za-z0-9_.-]+")
-NAME_RULE = "letters, digits, '_', '-', '.' (not '.' or '..'), composed with '+'"
+# ``scores/<method>.npy``): a registered name follows ``registry.NAME_RULE``, so never a path; a
+# composed name joins such names with ``+`` (``msp+post``), still no path.
+NAME_RULE = f"{registry.NAME_RULE}, composed with '+'"
 
 
 def is_name(text) -> bool:
-    """Whether ``text`` may name a method (``NAME_RULE``): a plain name, or plain names joined by
-    ``+`` (a method composed with post-processors); never a path."""
-    return isinstance(text, str) and all(NAME.fullmatch(part) is not None and part not in (".", "..")
-                                         for part in text.split("+"))
+    """Whether ``text`` may name a method (``NAME_RULE``): a registered entry's name
+    (``registry.is_name``), or such names joined by ``+`` (a method composed with
+    post-processors); never a path."""
+    return isinstance(text, str) and all(registry.is_name(part) for part in text.split("+"))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,7 +80,10 @@ class Method:
     higher = more anomalous, from ``inputs`` (holding at least ``needs``) and ``options`` (every
     key of ``defaults``, resolved). ``defaults``: its options and their values; a None default
     may be filled from the batch by ``resolve(inputs, options) -> options`` (e.g. a weight that
-    depends on the attention map's size). ``description``: one line, shown by ``--help``.
+    depends on the attention map's size). ``types``: each option's type, as a config field's
+    (``float``, ``int | None``, ``tuple[int, ...]``; ``jaxanom.config_codec``), by which the
+    commands read ``--set methods.NAME.OPTION=VALUE``; default: the type of its default value
+    (a None default needs its type declared). ``description``: one line, shown by ``--help``.
     """
 
     name: str
@@ -87,6 +92,7 @@ class Method:
     description: str
     defaults: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     resolve: Callable[[Inputs, Options], Options] | None = None
+    types: Mapping[str, Any] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
         if not is_name(self.name):
@@ -100,6 +106,38 @@ class Method:
             raise ValueError(f"description of {self.name}: expected one line, got {self.description!r}")
         object.__setattr__(self, "needs", needs)
         object.__setattr__(self, "defaults", types.MappingProxyType(dict(self.defaults)))
+        declared = dict(self.types)
+        if stray := sorted(set(declared) - set(self.defaults)):
+            raise ValueError(f"types of {self.name}: expected types of options in defaults, got {stray}")
+        for option, default in self.defaults.items():
+            if option not in declared and default is None:
+                raise ValueError(f"types of {self.name}: option {option!r} has a None default; declare its type "
+                                 "(e.g. types={" + repr(option) + ": float | None})")
+            declared.setdefault(option, type(default))
+        object.__setattr__(self, "types", types.MappingProxyType(declared))
+        self.checked(self.defaults)  # each default is of its type
+
+    def checked(self, given: Options) -> dict:
+        """``given`` (option -> value) with each host value read as its declared type (an int for a
+        float becomes a float; arrays, traced values included, pass as they are); InputError naming
+        ``options`` and ``methods.<name>.<option>`` for an option it does not declare or a value not
+        of its type."""
+        from jaxanom.config_codec import ConfigError, decode, describe, encode
+
+        values = {}
+        for option, value in given.items():
+            where = f"methods.{self.name}.{option}"
+            if option not in self.types:
+                raise InputError("options", f": {where}: method {self.name!r} has no option {option!r}; its options: "
+                                 f"{', '.join(self.types) or 'none'}")
+            if hasattr(value, "shape"):  # an array (a traced hyperparameter): its type is the caller's business
+                values[option] = value
+                continue
+            try:
+                values[option] = decode(self.types[option], encode(value), where)
+            except (ConfigError, TypeError):
+                raise InputError("options", f": {where}: expected {describe(self.types[option])}, got {value!r}") from None
+        return values
 
     def unresolved(self, given: Options | None = None) -> dict:
         """This method's options before any batch: its defaults, overridden by the keys of
@@ -142,9 +180,9 @@ def _composed(name: str) -> Method | None:
     """The method ``"BASE+POST1+POST2..."`` (each POST applied in turn), or None if ``name`` is
     not of that form with a registered BASE and registered POSTs."""
     base, *posts = name.split("+")
-    if not posts or base not in _METHODS or any(p not in _POSTS for p in posts):
+    if not posts or base not in METHODS.entries or any(p not in _POSTS for p in posts):
         return None
-    method = _METHODS[base]
+    method = METHODS.entries[base]
     for post in (_POSTS[p] for p in posts):
         inner = method.score
         method = dataclasses.replace(
@@ -154,10 +192,7 @@ def _composed(name: str) -> Method | None:
     return method
 
 
-_METHODS: dict[str, Method] = {}
-_BROKEN: list[str] = []  # one line per entry point that failed to load, for the errors of unknown names
-_ORIGIN: dict[str, str] = {}  # name -> the module that registered it, for conflict messages and fingerprints
-_loaded = False
+METHODS: registry.Registry[Method] = registry.Registry("method", ENTRY_POINTS, lambda: builtins.MODULES)
 
 
 def register(method: Method) -> Method:
@@ -165,16 +200,7 @@ def register(method: Method) -> Method:
     another method already has its name. Returns it."""
     if not isinstance(method, Method):
         raise ValueError(f"method: expected a jaxanom.method_registry.Method, got {type(method).__name__}")
-    if "+" in method.name:  # "+" composes a method with a post-processor ("msp+post")
-        raise ValueError(f"name: expected a name without '+', got {method.name!r}")
-    origin = sys._getframe(1).f_globals.get("__name__", "?")  # the module calling register
-    if method.name in _METHODS and _METHODS[method.name] != method:
-        raise ValueError(f"method {method.name!r}: already registered by {_ORIGIN[method.name]}; "
-                         f"{origin} cannot register another under the same name")
-    if method.name not in _METHODS:  # the same method again (its module imported twice) keeps its origin
-        _METHODS[method.name] = method
-        _ORIGIN[method.name] = origin
-    return _METHODS[method.name]
+    return METHODS.add(method.name, method, sys._getframe(1).f_globals.get("__name__", "?"))  # the caller's module
 
 
 def implementation(name: str) -> str:
@@ -185,8 +211,8 @@ def implementation(name: str) -> str:
     registering the name, or an edit of its module (a default option included), changes it."""
     method = get(name)
     base, *post_names = name.split("+")  # a composed method: its base's code and each post's
-    modules = {_ORIGIN[base]}
-    for function in (_METHODS[base].score, method.resolve, *(_POSTS[p].apply for p in post_names)):
+    modules = {METHODS.origin(base)}
+    for function in (METHODS.entries[base].score, method.resolve, *(_POSTS[p].apply for p in post_names)):
         while isinstance(function, functools.partial):
             function = function.func
         if function is not None:
@@ -203,41 +229,44 @@ def implementation(name: str) -> str:
 def get(name: str) -> Method:
     """The method called ``name`` (registered, or composed ``"NAME+POST"``); ValueError naming it
     and the known names otherwise."""
-    _load()
-    method = _METHODS.get(name) or _composed(name)
+    method = METHODS.find(name) or _composed(name)
     if method is None:
-        raise InputError("methods", f": expected names from {', '.join(_METHODS)} (each may end in "
-                                    f"{', '.join('+' + p for p in _POSTS)}); got unknown {name!r}{_broken()}")
+        raise InputError("methods", f": expected names from {', '.join(METHODS.names())} (each may end in "
+                                    f"{_post_suffixes()}); got unknown {name!r}{METHODS.broken_note()}")
     return method
 
 
 def names() -> tuple[str, ...]:
     """Every registered name: jaxanom's own first, then installed plug-ins', then loaded modules'."""
-    _load()
-    return tuple(_METHODS)
+    return METHODS.names()
 
 
-def check(method_names: Iterable[str], provided: Iterable[str], options: Options | None = None) -> tuple[str, ...]:
+def check(method_names: Iterable[str], provided: Iterable[str],
+          options: Mapping[str, Options] | None = None) -> tuple[str, ...]:
     """Validate a list of methods against the inputs a batch will provide; returns the names as a tuple.
 
-    ValueError in one line for: an empty list, unknown names (listing the known ones), an input
-    some methods need that ``provided`` lacks (naming the input and those methods), or an option
-    in ``options`` that no known method declares.
+    ``options``: ``{method: {option: value}}`` for some of the methods. ValueError in one line for:
+    an empty list, unknown names (listing the known ones), an input some methods need that
+    ``provided`` lacks (naming the input and those methods), options of a method not in the list,
+    or an option its method does not declare or a value not of its type (``Method.checked``).
     """
     selected = tuple(method_names)
-    _load()
-    methods = {n: _METHODS.get(n) or _composed(n) for n in selected}
+    methods = {n: METHODS.find(n) or _composed(n) for n in selected}
     if None in methods.values() or not selected:
-        raise InputError("methods", f": expected names from {', '.join(_METHODS)} (each may end in "
-                                    f"{', '.join('+' + p for p in _POSTS)}); got {list(selected)}"
-                                    f"{_broken() if None in methods.values() else ''}")
+        raise InputError("methods", f": expected names from {', '.join(METHODS.names())} (each may end in "
+                                    f"{_post_suffixes()}); got {list(selected)}"
+                                    f"{METHODS.broken_note() if None in methods.values() else ''}")
     provided = set(provided)
     for key in INPUTS:  # the first missing input, with every method that needs it
         if key not in provided and (missing := [n for n in selected if key in methods[n].needs]):
             raise InputError("methods", f"{missing} need {INPUTS[key]}; none were given")
-    declared = {k for m in _METHODS.values() for k in m.defaults}
-    if stray := sorted(set(options or {}) - declared):
-        raise InputError("options", f": expected names from {sorted(declared)}, got {stray}")
+    options = options or {}
+    if not isinstance(options, Mapping) or not all(isinstance(given, Mapping) for given in options.values()):
+        raise InputError("options", f": expected a mapping of method names to their options, got {options!r}")
+    if stray := [name for name in options if name not in selected]:
+        raise InputError("options", f": options of {stray}, which are not among the methods {list(selected)}")
+    for name, given in options.items():
+        methods[name].checked(given)
     return selected
 
 
@@ -247,7 +276,8 @@ def score(name: str, inputs: Inputs, options: Options | None = None):
     options methods declare (keys this method does not declare are ignored, so one mapping can
     serve many methods)."""
     method = get(name)
-    check((name,), given(inputs), options)
+    options = {key: value for key, value in (options or {}).items() if key in method.defaults}
+    check((name,), given(inputs), {name: options})
     return call(method, inputs, options)[0]
 
 
@@ -319,8 +349,12 @@ def check_finite(name: str, scores, labels=None, where: str = "") -> None:
 
 def posts() -> tuple[Post, ...]:
     """Every registered post-processor (``"NAME+<post>"`` composes it with any method)."""
-    _load()
+    METHODS.load()
     return tuple(_POSTS.values())
+
+
+def _post_suffixes() -> str:
+    return ", ".join("+" + p for p in _POSTS)
 
 
 def given(inputs: Inputs) -> set[str]:
@@ -329,36 +363,9 @@ def given(inputs: Inputs) -> set[str]:
 
 
 def load_plugin(module: str) -> None:
-    """Import ``module`` (a dotted name on ``sys.path``), which registers its methods; jaxanom's
-    own are registered first, so a plug-in cannot take one of their names. ModuleNotFoundError
-    when it is not found; errors raised inside it propagate."""
-    _load()
-    importlib.import_module(module)
-
-
-def _load() -> None:
-    """Register jaxanom's own methods and the installed plug-ins' (once)."""
-    global _loaded
-    if _loaded:
-        return
-    builtins.load()
-    from importlib.metadata import entry_points
-
-    _BROKEN.clear()
-    for entry in () if os.environ.get(DISABLE_ENTRY_POINTS, "") not in ("", "0") else entry_points(group=ENTRY_POINTS):
-        try:
-            entry.load()
-        except Exception as error:  # noqa: BLE001  a broken installed plug-in: named when its names are needed
-            reason = str(error).strip().splitlines()[0] if str(error).strip() else ""
-            _BROKEN.append(f"the {ENTRY_POINTS} entry point {entry.name} = {entry.value} "
-                           f"({entry.dist.name if entry.dist else 'unknown distribution'}) failed to load "
-                           f"({type(error).__name__}: {reason})")
-    _loaded = True
-
-
-def _broken() -> str:
-    """For an error about unknown names: the entry points that failed to load (which might have
-    provided them), or ""."""
-    if not _BROKEN:
-        return ""
-    return f"; {'; '.join(_BROKEN)} (fix or uninstall it, or set {DISABLE_ENTRY_POINTS}=1)"
+    """Import ``module`` (a dotted name on ``sys.path``), which registers its methods (and entries
+    of other kinds); jaxanom's own are registered first (``registry.load_plugin``), so a plug-in
+    cannot take one of their names. ``registry.PluginError`` (a ValueError) in one line when it is
+    not found or its import raises."""
+    METHODS.load()
+    registry.load_plugin(module)

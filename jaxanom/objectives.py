@@ -14,19 +14,25 @@ An objective is a frozen dataclass (its config) with
   logged as ``train/<name>``.
 
 Every objective jaxanom ships is registered next to its paper's code (``losses.CrossEntropy``,
-``cudam.objective.CuDAM``, ``msaam.objective.MSAAM``; ``jaxanom.builtins`` lists the modules);
-a user's own is registered with
-``@register`` and then stored in and read back from a run's ``experiment.json`` like those.
+``cudam.objective.CuDAM``, ``msaam.objective.MSAAM``; ``jaxanom.builtins`` lists the modules); a
+user's own is registered with
+``@register`` in a module of its own (a plug-in: ``--plugin MODULE``, or an installed package's
+``jaxanom.objectives`` entry point) and then stored in and read back from a run's
+``experiment.json`` like those; the run records that module (``Experiment.plugins``) so that every
+later reading of it imports it. The registry is a ``jaxanom.registry.Registry`` (``OBJECTIVES``),
+the type every kind of plug-in uses: names follow its ``NAME_RULE``, a taken name is refused.
 """
 from __future__ import annotations
 
 import dataclasses
 from typing import Any, ClassVar
 
-from jaxanom import builtins
+from jaxanom import builtins, registry
 from jaxanom.config_codec import decode
 
-_REGISTRY: dict[str, type["Objective"]] = {}
+ENTRY_POINTS = "jaxanom.objectives"
+OBJECTIVES: registry.Registry[type["Objective"]] = registry.Registry(
+    "objective", ENTRY_POINTS, lambda: builtins.MODULES, lambda cls, origin: f"{cls.__qualname__} ({origin})")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -39,10 +45,11 @@ class Objective:
     def class_named(cls, name: str) -> type["Objective"]:
         """The objective class registered as ``name`` (how ``config_codec`` reads an objective back);
         ValueError listing the known names otherwise."""
-        _load_builtins()
-        if name not in _REGISTRY:
-            raise ValueError(f"expected one of {objective_names()}, got {name!r}")
-        return _REGISTRY[name]
+        found = OBJECTIVES.find(name)
+        if found is None:
+            raise ValueError(f"expected one of {OBJECTIVES.names()}, got {name!r} (an objective of a plug-in: import "
+                             f"its module first, e.g. with --plugin MODULE){OBJECTIVES.broken_note()}")
+        return found
 
     def init_state(self, num_classes: int) -> Any:
         """The state carried in the train state for a network of ``num_classes`` outputs; None: none."""
@@ -71,26 +78,19 @@ def legacy_class_weights(loss: dict) -> tuple[float, ...] | None:
 
 def register(cls: type[Objective]) -> type[Objective]:
     """Class decorator: make ``cls`` (a frozen ``Objective`` dataclass with a ``name`` field
-    default) known by that name. ValueError when another class holds the name."""
+    default) known by that name, registered by its module. ValueError in one line when the name
+    is not a name (``registry.NAME_RULE``) or another class holds it."""
     fields = {f.name: f for f in dataclasses.fields(cls)} if dataclasses.is_dataclass(cls) else {}
     if not issubclass(cls, Objective) or "name" not in fields or not isinstance(fields["name"].default, str):
         raise ValueError(f"objective {cls.__name__}: expected an Objective dataclass with a field "
                          f"`name: str = dataclasses.field(default=..., init=False)`")
-    name = fields["name"].default
-    if _REGISTRY.get(name, cls) is not cls:
-        raise ValueError(f"objective name {name!r}: already registered by {_REGISTRY[name].__qualname__}")
-    _REGISTRY[name] = cls
+    OBJECTIVES.add(fields["name"].default, cls, cls.__module__)
     return cls
-
-
-def _load_builtins() -> None:
-    builtins.load()
 
 
 def objective_names() -> tuple[str, ...]:
     """The names of every registered objective, jaxanom's own first."""
-    _load_builtins()
-    return builtins.in_order(_REGISTRY, lambda name: _REGISTRY[name].__module__)
+    return OBJECTIVES.names()
 
 
 def objective_class(name: str) -> type[Objective]:

@@ -1,10 +1,8 @@
-"""jaxanom.builtins: the one list of modules that register jaxanom's own plug-ins."""
+"""jaxanom.builtins: the one list of modules that register jaxanom's own plug-ins, first in every registry."""
 import os
 import subprocess
 import sys
 from pathlib import Path
-
-from jaxanom import builtins
 
 REPOSITORY = Path(__file__).resolve().parents[1]
 
@@ -24,6 +22,14 @@ def test_the_names_list_jaxanoms_own_first_in_the_lists_order_whatever_was_impor
     assert out.strip() == "('cross_entropy', 'cudam', 'msaam', 'focal') ('cudam', 'msaam')"
 
 
-def test_in_order_puts_the_listed_modules_first():
-    names = {"plugin": "outside", "b": builtins.MODULES[2], "a": builtins.MODULES[1], "other": "elsewhere"}
-    assert builtins.in_order(names, names.get) == ("a", "b", "plugin", "other")
+def test_each_registry_loads_the_one_list():
+    from jaxanom import builtins
+    from jaxanom.method_registry import METHODS
+    from jaxanom.models.attention import ATTENTION_MODULES
+    from jaxanom.objectives import OBJECTIVES
+
+    registries = (METHODS, OBJECTIVES, ATTENTION_MODULES)
+    assert all(tuple(r._builtins()) == builtins.MODULES for r in registries)
+    origins = {origin for r in registries for name in r.names() for origin in [r.origin(name)]}
+    assert set(builtins.MODULES) <= origins  # each listed module registers something
+

@@ -39,8 +39,8 @@ def road_anomaly(tmp_path_factory):
 def registry_state(monkeypatch):
     """The registry as it was before the test (a plug-in's methods and modules do not outlive it)."""
     method_registry.names()
-    monkeypatch.setattr(method_registry, "_METHODS", dict(method_registry._METHODS))
-    monkeypatch.setattr(method_registry, "_ORIGIN", dict(method_registry._ORIGIN))
+    monkeypatch.setattr(method_registry.METHODS, "entries", dict(method_registry.METHODS.entries))
+    monkeypatch.setattr(method_registry.METHODS, "origins", dict(method_registry.METHODS.origins))
     modules = set(sys.modules)
     yield
     for name in set(sys.modules) - modules:
@@ -90,8 +90,16 @@ def test_a_missing_input_is_named_in_one_line_with_the_methods_needing_it():
 
 
 def test_options_are_declared_defaulted_and_resolved():
-    with pytest.raises(ValueError, match=r"options: expected names from .*'cudam_sigma'.*got \['sigma'\]"):
-        method_registry.check(["cudam"], {"logits", "stats", "attention"}, {"sigma": 1.0})
+    provided = {"logits", "stats", "attention"}
+    with pytest.raises(ValueError, match=r"^options: methods.cudam.sigma: method 'cudam' has no option 'sigma'; its "
+                                         r"options: cudam_sigma$"):
+        method_registry.check(["cudam"], provided, {"cudam": {"sigma": 1.0}})
+    with pytest.raises(ValueError, match=r"^options: methods.cudam.cudam_sigma: expected a number or none, got 'x'$"):
+        method_registry.check(["cudam"], provided, {"cudam": {"cudam_sigma": "x"}})
+    with pytest.raises(ValueError, match=r"^options: options of \['msp'\], which are not among the methods \['cudam'\]$"):
+        method_registry.check(["cudam"], provided, {"msp": {}})
+    assert method_registry.get("cudam").checked({"cudam_sigma": 3}) == {"cudam_sigma": 3.0}  # read as its type
+    assert method_registry.get("cudam").types["cudam_sigma"] == float | None
     cudam = method_registry.get("cudam")
     positions = {"attention_positions": np.int32(32 * 64)}
     assert cudam.options(positions) == {"cudam_sigma": paper_sigma(32 * 64)}  # the paper-equivalent default
@@ -138,7 +146,7 @@ def test_installed_packages_register_through_entry_points(tmp_path, monkeypatch,
         "[jaxanom.methods]\nmine = jaxanom_test_plugin_ep\n")
     (site / "jaxanom_test_plugin_ep.py").write_text(PLUGIN.format(name="from_entry_point"))
     monkeypatch.syspath_prepend(str(site))
-    monkeypatch.setattr(method_registry, "_loaded", False)
+    monkeypatch.setattr(method_registry.METHODS, "loaded", False)
     assert method_registry.names()[-1] == "from_entry_point"
     logits = np.random.default_rng(0).normal(size=(1, 3, 4, 5)).astype(np.float32)
     np.testing.assert_array_equal(method_registry.score("from_entry_point", {"logits": logits}),
@@ -146,9 +154,9 @@ def test_installed_packages_register_through_entry_points(tmp_path, monkeypatch,
 
     (site / "jaxanom_test_plugin_ep.py").write_text("raise RuntimeError('broken plug-in')\n")
     del sys.modules["jaxanom_test_plugin_ep"]
-    monkeypatch.setattr(method_registry, "_loaded", False)
-    monkeypatch.setattr(method_registry, "_METHODS", {k: v for k, v in method_registry._METHODS.items()
-                                                      if k != "from_entry_point"})
+    monkeypatch.setattr(method_registry.METHODS, "loaded", False)
+    monkeypatch.setattr(method_registry.METHODS, "entries", {
+        k: v for k, v in method_registry.METHODS.entries.items() if k != "from_entry_point"})
     assert "msp" in method_registry.names() and "from_entry_point" not in method_registry.names()  # left out
     with pytest.raises(ValueError, match="got unknown 'from_entry_point'; the jaxanom.methods entry point mine = "
                                          r"jaxanom_test_plugin_ep \(jaxanom-test-plugin-dist\) failed to load "
@@ -225,4 +233,7 @@ def test_help_lists_every_method_with_its_description(capsys):
                 assert not any(line.split()[:1] == [name] for line in lines)  # predict has no MMF pipeline
                 continue
             description = method_registry.get(name).description
-            assert any(line.split() == [name, *description.split()] for line in lines), (command, name)
+            assert any(line.split()[:len(description.split()) + 1] == [name, *description.split()]
+                       for line in lines), (command, name)
+    assert any("entropy_superpixel" in line and line.endswith("(options slic_step: an integer or none, default None)")
+               for line in lines)

@@ -8,6 +8,8 @@
 - a Python file (config-as-code): run, it defines ``variable`` (a ``cls``).
 
 Either way no number field holds NaN or infinity (``config_codec``: none of them takes one).
+A JSON config of a class with a ``plugins`` field (``Experiment``) first imports the modules it
+lists, which register the names it uses (a plug-in's objective), or names the one missing.
 
 ``override(config, ["train.optim.lr=1e-3", ...])`` (``--set``) is ``config_codec.override``.
 """
@@ -22,7 +24,7 @@ from typing import TypeVar
 
 from jaxanom.config_codec import ConfigError, check_finite, decode, encode, override
 
-__all__ = ["ConfigError", "encode", "load_config", "override"]
+__all__ = ["ConfigError", "encode", "import_plugins", "load_config", "load_plugin", "override"]
 
 T = TypeVar("T")
 
@@ -44,6 +46,8 @@ def load_config(path: str | os.PathLike, cls: type[T], variable: str = "config",
         raise ConfigError("", f"not valid JSON ({error})", os.fspath(path)) from None
     if isinstance(values, dict) and isinstance(values.get("config"), dict) and "config" not in _field_names(cls):
         values = values["config"]  # a demo's results.json: its configuration
+    if isinstance(values, dict) and "plugins" in _field_names(cls):
+        import_plugins(values.get("plugins"), os.fspath(path))
     for name in written:
         holder = values
         for key in name.split("."):
@@ -54,6 +58,33 @@ def load_config(path: str | os.PathLike, cls: type[T], variable: str = "config",
         return decode(cls, values)
     except ConfigError as error:
         raise ConfigError(error.path, error.message, os.fspath(path)) from None
+
+
+def load_plugin(module: str) -> None:
+    """Import the plug-in ``module`` once every kind's registry (methods, objectives) has loaded
+    jaxanom's own names; ``jaxanom.registry.PluginError`` in one line when it cannot be imported."""
+    from jaxanom import registry
+    from jaxanom.method_registry import METHODS
+    from jaxanom.objectives import OBJECTIVES
+
+    for kind in (METHODS, OBJECTIVES):
+        kind.load()
+    registry.load_plugin(module)
+
+
+def import_plugins(modules, source: str) -> None:
+    """Import the plug-in ``modules`` a JSON config lists (not a list of names: left to ``decode``);
+    ConfigError naming ``plugins``, the file and the module to install when one cannot be imported."""
+    from jaxanom.registry import PluginError, is_module_name
+
+    if not isinstance(modules, list) or not all(is_module_name(module) for module in modules):
+        return
+    for module in modules:
+        try:
+            load_plugin(module)
+        except PluginError as error:
+            raise ConfigError("plugins", f"the plug-in module {module!r} that registers what this config names could "
+                              f"not be imported ({error.reason}); install it or put it on PYTHONPATH", source) from None
 
 
 def _field_names(cls) -> set[str]:

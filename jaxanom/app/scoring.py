@@ -61,10 +61,11 @@ def run_inputs(experiment, *, stats: bool) -> set[str]:
                     images=True)
 
 
-def score_all(method_names: Iterable[str], inputs: Mapping, options: Mapping | None = None, *,
+def score_all(method_names: Iterable[str], inputs: Mapping, options: Mapping[str, Mapping] | None = None, *,
               drop_void: bool = False) -> tuple[dict, dict]:
     """``(scores, used)``: each method's scores (B, H, W) of ``inputs`` and the options it used
-    (``Method.options``: defaults, ``options``, resolved for this batch). ``drop_void``: the
+    (``Method.options``: defaults, its own of ``options`` (``{method: {option: value}}``),
+    resolved for this batch). ``drop_void``: the
     methods that do not read the void channel score the logits without it (a protocol's choice,
     ``jaxanom.app.protocols``); the ``void`` method still reads every channel. Each method is
     called through ``method_registry.call`` (its own read-only copy of the inputs; its output's
@@ -76,7 +77,7 @@ def score_all(method_names: Iterable[str], inputs: Mapping, options: Mapping | N
     for name in method_names:
         method = get(name)
         method_inputs = inputs if "void_channel" in method.needs else without_void
-        scores[name], used[name] = call(method, method_inputs, options)
+        scores[name], used[name] = call(method, method_inputs, (options or {}).get(name))
     return scores, used
 
 
@@ -95,11 +96,19 @@ def without_channel(logits, channel: int = VOID_CHANNEL):
 
 
 def describe(unavailable: Iterable[str] = ()) -> str:
-    """Every method, one per line: its name and description (the commands' ``--help``), but those
-    that need an input of ``unavailable``; then the post-processors any method composes with."""
-    unavailable = set(unavailable)
-    rows = [(name, get(name).description) for name in names() if not get(name).needs & unavailable]
+    """Every method, one per line: its name and description (the commands' ``--help``), and its
+    options with their types and defaults, but those that need an input of ``unavailable``; then
+    the post-processors any method composes with."""
+    from jaxanom.config_codec import describe as described
+
+    known = [name for name in names() if not get(name).needs & set(unavailable)]
+    rows = []
+    for name in known:
+        method = get(name)
+        options = "; ".join(f"{option}: {described(method.types[option])}, default {default}"
+                            for option, default in method.defaults.items())
+        rows.append((name, method.description + (f" (options {options})" if options else "")))
     rows += [(f"NAME+{post.name}", f"any method NAME, then {post.description}") for post in posts()
-             if not post.needs & unavailable]
+             if not post.needs & set(unavailable)]
     width = max(len(name) for name, _ in rows)
     return "\n".join(f"  {name.ljust(width)}  {text}" for name, text in rows)

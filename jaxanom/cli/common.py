@@ -42,25 +42,42 @@ def size_hw(text: str | None) -> tuple[int, int] | None:
     return int(parts[0]), int(parts[1])
 
 
-def add_config(parser, example: str, config_help: str | None = None) -> None:
-    """``--set NAME=VALUE`` (repeatable; the app function's ``overrides``), its help showing
-    ``--set example`` (a field of this command's configuration), and, with ``config_help``,
-    ``--config FILE``. Help texts write examples as whole flags in backticks, which a test runs."""
+VALUES = "VALUE is read as the field's or option's type (none, true / false, comma-separated lists, JSON); repeatable"
+METHOD_OPTIONS = ("methods.METHOD.OPTION=VALUE sets an option of a method (listed below with its type and default), "
+                  "e.g. --set methods.cudam.cudam_sigma=2e4")
+
+
+def add_config(parser, example: str | None = None, config_help: str | None = None, set_help: str | None = None) -> None:
+    """``--set NAME=VALUE`` (repeatable; the app function's ``overrides``; ``set_help``: what it sets
+    for this command, default the configuration's fields by dotted name, with ``--set example``)
+    and, with ``config_help``, ``--config FILE``. Help texts write examples as whole flags in
+    backticks, which a test runs."""
     if config_help:
         parser.add_argument("--config", help=config_help)
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                        help="set one field of the configuration by its dotted name, after --config and the other "
-                        f"flags, e.g. `--set {example}`; VALUE is read as the field's type (none, true / "
-                        "false, comma-separated lists, JSON); repeatable")
+                        help=(set_help or "set one field of the configuration by its dotted name, after --config and "
+                              f"the other flags, e.g. `--set {example}`") + f"; {VALUES}")
+
+
+def add_plugin(parser) -> None:
+    """``--plugin MODULE`` (repeatable; the app function's ``plugins``)."""
+    parser.add_argument("--plugin", action="append", default=[], metavar="MODULE",
+                        help="import this Python module (a dotted name on the Python path) first, which registers its "
+                        "own methods, objectives or other entries (repeatable); a run records the plug-ins its "
+                        "experiment uses and imports them whenever it is read")
 
 
 def add_common(parser, progress: bool, overwrite: bool = True) -> None:
-    """``--overwrite`` and ``--no-progress`` where a command has them."""
+    """``--overwrite`` where a command has it, and ``--no-progress`` (which does nothing where a
+    command draws no ``progress`` bar)."""
     if overwrite:
         parser.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty output folder")
     if progress:  # a bar drawn into a log file or a pipe is a wall of carriage returns
         parser.add_argument("--no-progress", action="store_true", default=not sys.stderr.isatty(),
                             help="no progress bar (the default where stderr is not a terminal)")
+    else:  # every command takes it, so one script line can pass it to any
+        parser.add_argument("--no-progress", action="store_true", help="accepted for uniformity: this command draws "
+                            "no progress bar")
 
 
 class _KeepIndented(argparse.HelpFormatter):
@@ -80,8 +97,7 @@ def add_methods(parser, unavailable: tuple[str, ...] = ()) -> None:
 
     parser.add_argument("--methods", type=method_list, help=f"comma-separated names of the methods listed below "
                         f"(default: {','.join(DEFAULT_METHODS)})")
-    parser.add_argument("--plugin", action="append", default=[], metavar="MODULE",
-                        help="import this Python module first, which registers its own methods (repeatable)")
+    add_plugin(parser)
     parser.formatter_class = _KeepIndented
     format_help = parser.format_help
 

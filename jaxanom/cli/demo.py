@@ -1,7 +1,7 @@
 """``jaxanom demo``: train, fit SML statistics and evaluate on synthetic scenes."""
 from __future__ import annotations
 
-from jaxanom.cli.common import add_common, add_config, positive_int
+from jaxanom.cli.common import add_common, add_config, add_plugin, positive_int
 
 
 def add_parser(commands) -> None:
@@ -21,12 +21,13 @@ def add_parser(commands) -> None:
                         help="mmf: the resynthesis (default: class_mean)")
     add_config(parser, "experiment.train.optim.lr=1e-3", "the demo's configuration (DemoConfig, MMFDemoConfig or OffroadDemoConfig): a JSON file of "
                "any of its fields, e.g. a results.json of the same demo, or a Python file defining `config`")
+    add_plugin(parser)
     add_common(parser, progress=True)
-    parser.set_defaults(handler=run, aliases={"overrides": "set"})
+    parser.set_defaults(handler=run, aliases={"overrides": "set", "plugins": "plugin"})
 
 
 def run(args) -> None:
     from jaxanom.app.commands.demo import demo
 
     demo(args.paper, out=args.out, quick=args.quick, steps=args.steps, config=args.config,
-         synthesizer=args.synthesizer, overrides=args.set, overwrite=args.overwrite, progress=not args.no_progress)
+         synthesizer=args.synthesizer, plugins=args.plugin, overrides=args.set, overwrite=args.overwrite, progress=not args.no_progress)

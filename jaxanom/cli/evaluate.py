@@ -1,7 +1,7 @@
 """``jaxanom evaluate``: pooled anomaly metrics of a trained run on an anomaly dataset."""
 from __future__ import annotations
 
-from jaxanom.cli.common import add_common, add_scoring, nonnegative_int, positive_int
+from jaxanom.cli.common import METHOD_OPTIONS, add_common, add_config, add_scoring, nonnegative_int, positive_int
 
 DATASETS = {
     "synthetic": "synthetic anomaly split (PATH = split name: anomaly, anomaly_small, anomaly_large)",
@@ -34,8 +34,9 @@ def add_parser(commands) -> None:
     parser.add_argument("--frames", type=positive_int, default=64, help="synthetic frames (default: %(default)s)")
     add_scoring(parser)
     parser.add_argument("--cudam-sigma", type=float,
-                        help="CuDAM ensemble weight (Eq. 10); default: the paper's 2e4 rescaled to the attention "
-                        "map's size (equivalent_weight), recorded in metrics.json")
+                        help="CuDAM ensemble weight (Eq. 10), the same as --set methods.cudam.cudam_sigma=...; default: "
+                        "the paper's 2e4 rescaled to the attention map's size (equivalent_weight), recorded in "
+                        "metrics.json")
     parser.add_argument("--track", choices=["anomaly", "obstacle", "none"],
                         help="SegmentMeIfYouCan component metrics (sIoU, PPV, mean F1; pooled and per frame) with "
                         "the anomaly track's size rules (RoadAnomaly21, Road Anomaly, Fishyscapes) or the obstacle "
@@ -52,8 +53,10 @@ def add_parser(commands) -> None:
                         help="also print AP (step, trapz, envelope) and FPR@95 (first, interp, nearest, strict) side "
                         "by side (metrics.json always holds them)")
     parser.add_argument("--pictures", type=nonnegative_int, default=0, help="frames to draw (default: %(default)s)")
+    add_config(parser, set_help=f"{METHOD_OPTIONS}, applied after --cudam-sigma; the options each method used are in "
+               "metrics.json")
     add_common(parser, progress=False)
-    parser.set_defaults(handler=run, aliases={"plugins": "plugin"})
+    parser.set_defaults(handler=run, aliases={"plugins": "plugin", "overrides": "set"})
 
 
 def run(args) -> None:
@@ -63,4 +66,5 @@ def run(args) -> None:
              base=args.base, depth=args.depth, frames=args.frames, stats=args.stats, methods=args.methods,
              plugins=args.plugin, fpr_convention=args.fpr_convention, ap_convention=args.ap_convention,
              cudam_sigma=args.cudam_sigma, track=args.track, convention=args.convention, protocol=args.protocol,
-             pictures=args.pictures, all_conventions=args.all_conventions, overwrite=args.overwrite)
+             pictures=args.pictures, all_conventions=args.all_conventions, overrides=args.set,
+             overwrite=args.overwrite)

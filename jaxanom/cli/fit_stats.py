@@ -1,7 +1,7 @@
 """``jaxanom fit-stats``: SML class statistics (Eqs. 3-4) of a trained run."""
 from __future__ import annotations
 
-from jaxanom.cli.common import add_common, positive_int, size_hw
+from jaxanom.cli.common import add_common, add_plugin, positive_int, size_hw
 
 
 def add_parser(commands) -> None:
@@ -28,8 +28,9 @@ def add_parser(commands) -> None:
                         help="policy none: classes never predicted fail, or use the pooled statistics "
                         "(default: %(default)s)")
     add_policy(parser)
+    add_plugin(parser)
     add_common(parser, progress=False)
-    parser.set_defaults(handler=run)
+    parser.set_defaults(handler=run, aliases={"plugins": "plugin"})
 
 
 def add_policy(parser) -> None:
@@ -52,4 +53,4 @@ def run(args) -> None:
 
     fit_stats(run=args.run, out=args.out, frames=args.frames, cityscapes=args.cityscapes, size=size_hw(args.size),
               missing=args.missing, policy=args.policy, min_count=args.min_count, strength=args.strength,
-              protocol=args.protocol, overwrite=args.overwrite)
+              protocol=args.protocol, plugins=args.plugin, overwrite=args.overwrite)

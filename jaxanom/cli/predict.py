@@ -1,7 +1,7 @@
 """``jaxanom predict``: anomaly maps of image files (npy, png, SegmentMeIfYouCan's hdf5 tree)."""
 from __future__ import annotations
 
-from jaxanom.cli.common import add_common, add_config, add_methods, positive_int, size_hw
+from jaxanom.cli.common import METHOD_OPTIONS, add_common, add_config, add_methods, positive_int, size_hw
 from jaxanom.errors import InputError
 
 
@@ -35,12 +35,17 @@ def add_parser(commands) -> None:
     parser.add_argument("--dataset", help="SegmentMeIfYouCan dataset name for --format smiyc, e.g. "
                         "`--format smiyc --dataset AnomalyTrack-all`; one of " + ", ".join(SMIYC_DATASETS))
     parser.add_argument("--slic-step", type=positive_int,
-                        help="SLIC grid step of the *_superpixel methods (default: ~2048 superpixels per image)")
-    parser.add_argument("--cudam-sigma", type=float, help="CuDAM ensemble weight (default: paper-equivalent)")
+                        help="SLIC grid step of the *_superpixel methods, the same as --set methods.M.slic_step=... for "
+                        "each of them (default: ~2048 superpixels per image)")
+    parser.add_argument("--cudam-sigma", type=float, help="CuDAM ensemble weight, the same as --set "
+                        "methods.cudam.cudam_sigma=... (default: paper-equivalent)")
     parser.add_argument("--unit-interval", metavar="CENTER,SCALE",
                         help="write 1 / (1 + exp(-(score - CENTER) / SCALE)) in [0, 1] instead of each score (the "
                         "benchmark documents scores in [0, 1]); AP / AUROC / FPR keep their values, float16 ties do not")
-    add_config(parser, "batch_size=2")  # the PredictSettings
+    add_config(parser, set_help="set one of predict's settings by its name, after the flags, e.g. `--set batch_size=2`: "
+               "methods, formats, size (HEIGHT,WIDTH, e.g. size=512,1024), batch_size, dataset, unit_interval "
+               f"(CENTER,SCALE), threads; or {METHOD_OPTIONS}; a rerun with other options recomputes (--overwrite) or "
+               "refuses the maps")
     add_common(parser, progress=True)
     parser.set_defaults(handler=run, aliases={"formats": "format", "plugins": "plugin", "overrides": "set"})
 

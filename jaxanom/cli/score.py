@@ -1,7 +1,7 @@
 """``jaxanom score``: scores and metrics from logits saved by another framework (``jaxanom.app.commands.score``)."""
 from __future__ import annotations
 
-from jaxanom.cli.common import add_common, add_scoring
+from jaxanom.cli.common import METHOD_OPTIONS, add_common, add_config, add_scoring
 
 
 def add_parser(commands) -> None:
@@ -17,8 +17,9 @@ def add_parser(commands) -> None:
                         "wrong --layout)")
     parser.add_argument("--labels", help=".npy or .npz file (array `labels`) of anomaly labels")
     add_scoring(parser)
+    add_config(parser, set_help=f"{METHOD_OPTIONS}; the options each method used are in metrics.json")
     add_common(parser, progress=False)
-    parser.set_defaults(handler=run, aliases={"plugins": "plugin"})
+    parser.set_defaults(handler=run, aliases={"plugins": "plugin", "overrides": "set"})
 
 
 def run(args) -> None:
@@ -26,4 +27,4 @@ def run(args) -> None:
 
     score(logits=args.logits, out=args.out, layout=args.layout, any_layout=args.any_layout, labels=args.labels,
           stats=args.stats, methods=args.methods, plugins=args.plugin, fpr_convention=args.fpr_convention,
-          ap_convention=args.ap_convention, overwrite=args.overwrite)
+          ap_convention=args.ap_convention, overrides=args.set, overwrite=args.overwrite)

@@ -1,7 +1,7 @@
 """``jaxanom train``: train a network from a config file or flags; ``--resume`` continues."""
 from __future__ import annotations
 
-from jaxanom.cli.common import add_common, add_config, nonnegative_int, positive_int
+from jaxanom.cli.common import add_common, add_config, add_plugin, nonnegative_int, positive_int
 
 
 def add_parser(commands) -> None:
@@ -42,8 +42,10 @@ def add_parser(commands) -> None:
                         "set another tau; the value used is printed")
     add_config(parser, "train.optim.lr=1e-3", "Python file defining `experiment = Experiment(...)`, or an Experiment's JSON "
                "(e.g. a run's experiment.json)")
+    add_plugin(parser)
     add_common(parser, progress=True, overwrite=False)
-    parser.set_defaults(handler=run, aliases={"overrides": "set", "run_dir": "out", "train.steps": "steps"})
+    parser.set_defaults(handler=run, aliases={"overrides": "set", "plugins": "plugin", "run_dir": "out",
+                                              "train.steps": "steps"})
 
 
 def run(args) -> None:
@@ -53,4 +55,4 @@ def run(args) -> None:
           data=args.data, data_root=args.data_root, steps=args.steps, batch_size=args.batch_size, seed=args.seed,
           distributed=args.distributed, init_from=args.init_from, init_modules=args.init_modules,
           cudam_position=args.cudam_position, cudam_gate=args.cudam_gate, cudam_tau=args.cudam_tau,
-          overrides=args.set, progress=not args.no_progress)
+          plugins=args.plugin, overrides=args.set, progress=not args.no_progress)

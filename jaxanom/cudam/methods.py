@@ -27,4 +27,4 @@ def _paper_equivalent_sigma(inputs, options):
 
 register(Method("cudam", frozenset({"logits", "stats", "attention"}), _score,
                 "CuDAM ensemble (Eq. 10): sml_post + sigma * attention; needs statistics and a CuDAM network",
-                defaults={"cudam_sigma": None}, resolve=_paper_equivalent_sigma))
+                defaults={"cudam_sigma": None}, resolve=_paper_equivalent_sigma, types={"cudam_sigma": float | None}))

@@ -74,4 +74,4 @@ for _name, _uncertainty, _description in (
         ("softmax_distance_superpixel", "distance", "MMF's post-processor (Eq. 6) on the softmax distance (Eq. 2), "
          "SLIC superpixels")):
     register(Method(_name, frozenset({"logits", "image"}), _on_superpixels(_uncertainty), _description,
-                    defaults={"slic_step": None}, resolve=_scaled_step))
+                    defaults={"slic_step": None}, resolve=_scaled_step, types={"slic_step": int | None}))

@@ -1,7 +1,9 @@
 """Attention modules by name: add-ons a segmenter runs on one of its feature maps.
 
 A paper's package registers its module (``register(AttentionModule(...))``, done when jaxanom's
-built-in modules load, ``jaxanom.builtins``); a segmenter (``DeepLabV3Plus``, ``ERFNet``,
+built-in modules load, ``jaxanom.builtins``); a plug-in's module (``--plugin MODULE``, or the
+entry-point group ``jaxanom.attention_modules``) registers its own the same way
+(``ATTENTION_MODULES`` is a ``jaxanom.registry.Registry``); a segmenter (``DeepLabV3Plus``, ``ERFNet``,
 ``ESPNet``) names the positions it offers and, built with ``attention=NAME``, runs the module at
 one of them::
 
@@ -19,16 +21,17 @@ them. The module's parameters sit under its registered name (``params[name]``).
 from __future__ import annotations
 
 import dataclasses
+import sys
 from typing import Any, Callable, Mapping
 
 import flax.linen as nn
 
-from jaxanom import builtins
+from jaxanom import builtins, registry
 
 # one application of a module at a position: (module, features, taps) -> (features, outputs)
 Attend = Callable[[nn.Module, Any, Mapping[str, Any]], tuple[Any, dict]]
 
-_REGISTRY: dict[str, "AttentionModule"] = {}
+ENTRY_POINTS = "jaxanom.attention_modules"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,25 +64,31 @@ class AttentionModule:
             raise ValueError(f"attention module {self.name!r}: expected at least one position, got none")
 
 
+ATTENTION_MODULES: registry.Registry[AttentionModule] = registry.Registry(
+    "attention module", ENTRY_POINTS, lambda: builtins.MODULES)
+
+
 def register(module: AttentionModule) -> AttentionModule:
-    """Make ``module`` known by its name; ValueError when another module holds the name."""
-    if _REGISTRY.get(module.name, module) != module:
-        raise ValueError(f"attention module name {module.name!r}: already registered")
-    _REGISTRY[module.name] = module
-    return module
+    """Make ``module`` known by its name; ValueError in one line when the name is not a name or
+    another module holds it (``registry.Registry.add``)."""
+    if not isinstance(module, AttentionModule):
+        raise ValueError(f"attention module: expected a jaxanom.models.attention.AttentionModule, "
+                         f"got {type(module).__name__}")
+    return ATTENTION_MODULES.add(module.name, module, sys._getframe(1).f_globals.get("__name__", "?"))
 
 
 def attention_names() -> tuple[str, ...]:
     """The names of every registered attention module, jaxanom's own first."""
-    builtins.load()
-    return builtins.in_order(_REGISTRY, lambda name: _REGISTRY[name].build.__module__)
+    return ATTENTION_MODULES.names()
 
 
 def get(name: str) -> AttentionModule:
     """The attention module registered as ``name``; ValueError naming ``attention`` otherwise."""
-    if name not in attention_names():
-        raise ValueError(f"attention: expected None or one of {attention_names()}, got {name!r}")
-    return _REGISTRY[name]
+    found = ATTENTION_MODULES.find(name)
+    if found is None:
+        raise ValueError(f"attention: expected None or one of {attention_names()}, got {name!r} (a plug-in's: "
+                         f"import its module first, e.g. with --plugin MODULE){ATTENTION_MODULES.broken_note()}")
+    return found
 
 
 def resolve_position(attention: str | None, position: str | None, offered: tuple[str, ...]) -> str | None:

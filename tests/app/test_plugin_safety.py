@@ -59,8 +59,8 @@ def forget(module, *names):
     """As a new process would find it: ``module`` not imported, ``names`` not registered."""
     sys.modules.pop(module, None)
     for name in names:
-        method_registry._METHODS.pop(name, None)
-        method_registry._ORIGIN.pop(name, None)
+        method_registry.METHODS.entries.pop(name, None)
+        method_registry.METHODS.origins.pop(name, None)
 
 
 def registering(name, expression="-jnp.max(jnp.asarray(inputs['logits']), axis=-1)", defaults=None):
@@ -287,7 +287,7 @@ def test_a_method_cannot_write_into_the_callers_arrays(registry_state):  # noqa:
         return inputs["logits"][..., 0]
 
     for function in (overwrite, overwrite_stats):
-        method_registry._METHODS.pop(f"writer_{function.__name__}", None)
+        method_registry.METHODS.entries.pop(f"writer_{function.__name__}", None)
         method_registry.register(method_registry.Method(f"writer_{function.__name__}", frozenset({"logits", "stats"}),
                                                         function, "x"))
         with pytest.raises(ValueError, match="read-only"):
@@ -392,8 +392,8 @@ def broken_entry_point(tmp_path, monkeypatch, registry_state):  # noqa: F811
                                            "broken = jaxanom_test_plugin_broken\n")
     write_module(site, "jaxanom_test_plugin_good", registering("installed_twin"), monkeypatch)
     write_module(site, "jaxanom_test_plugin_broken", "import no_such_dependency_xyz\n", monkeypatch)
-    monkeypatch.setattr(method_registry, "_loaded", False)
-    monkeypatch.setattr(method_registry, "_BROKEN", [], raising=False)
+    monkeypatch.setattr(method_registry.METHODS, "loaded", False)
+    monkeypatch.setattr(method_registry.METHODS, "broken", [])
 
 
 def test_a_broken_entry_point_breaks_no_help_and_no_command_that_does_not_need_it(tmp_path, capsys,
@@ -414,7 +414,7 @@ def test_a_broken_entry_point_breaks_no_help_and_no_command_that_does_not_need_i
 
 def test_entry_points_can_be_switched_off(tmp_path, capsys, monkeypatch, broken_entry_point):
     monkeypatch.setenv("JAXANOM_DISABLE_ENTRY_POINTS", "1")
-    method_registry._METHODS.pop("installed_twin", None)
+    method_registry.METHODS.entries.pop("installed_twin", None)
     assert "installed_twin" not in method_registry.names()
     error = one_line_error(capsys, [*logits_file(tmp_path), "--methods", "installed_twin", "--out", str(tmp_path / "o")])
     assert "got ['installed_twin']" in error and "entry point" not in error

@@ -100,10 +100,11 @@ def test_an_outside_attention_module_attaches_by_its_registration_alone(monkeypa
     registry.attention_names()  # jaxanom's own first
     spec = registry.AttentionModule("scale", Scale, lambda module, x, taps: module(x), positions=("encoder", "deep"),
                                     options={"init_value": 1.0})
-    monkeypatch.setitem(registry._REGISTRY, "scale", spec)
+    monkeypatch.setitem(registry.ATTENTION_MODULES.entries, "scale", spec)  # registered, and removed after the test
+    monkeypatch.setitem(registry.ATTENTION_MODULES.origins, "scale", __name__)
     for name, channels in (("erfnet", 128), ("deeplabv3plus_tiny", 8 * RESNETS["resnet_tiny"].width)):
         model = build_model(name, num_classes=NUM_CLASSES, attention="scale", attention_options=(("init_value", 2.0),))
         out, variables = jax.eval_shape(lambda x: model.init_with_output(KEY, x, train=False), SMALL)
         assert out["channel_scale"].shape == (2, channels) and variables["params"]["scale"]["scale"].shape == (channels,)
-    with pytest.raises(ValueError, match="attention module name 'scale': already registered"):
+    with pytest.raises(ValueError, match="attention module 'scale': already registered"):
         registry.register(dataclasses.replace(spec, positions=("deep",)))

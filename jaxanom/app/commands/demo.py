@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from jaxanom.app.commands.inputs import read_config, with_overrides
+from jaxanom.app.commands.inputs import load_plugins, read_config, with_overrides
 from jaxanom.app.outputs import out_folder
 from jaxanom.errors import InputError, reading
 
@@ -16,14 +16,16 @@ PAPERS = ("mmf", "offroad")  # the other papers' demos; None: SML + CuDAM
 
 
 def demo(paper: str | None = None, *, out: str = "jaxanom-demo", quick: bool = False, steps: int | None = None,
-         config: str | None = None, synthesizer: str | None = None, overrides=(), overwrite: bool = False,
-         progress: bool = True) -> None:
+         config: str | None = None, synthesizer: str | None = None, plugins=(), overrides=(),
+         overwrite: bool = False, progress: bool = True) -> None:
     """Run the demo of ``paper`` (None: SML + CuDAM) into ``out`` (the off-road demo's default
     folder is ``jaxanom-demo-offroad``): ``quick`` a smoke run at tiny sizes, ``steps`` training
     steps, ``config`` a file of the demo's config (``DemoConfig``, ``MMFDemoConfig`` or
     ``OffroadDemoConfig``: JSON, e.g. a results.json of the same demo, or Python defining
     ``config``), ``synthesizer`` MMF's, then each ``"dotted.name=VALUE"`` of ``overrides``; the
-    whole config is checked before ``out`` is claimed."""
+    whole config is checked before ``out`` is claimed. ``plugins``: modules imported first (e.g.
+    one registering an objective the config names)."""
+    load_plugins(plugins)
     if paper == "offroad":
         return _offroad(out, quick, steps, config, overrides, overwrite, progress)
     if paper == "mmf":

@@ -3,7 +3,7 @@ pipeline's folder or score maps written by ``jaxanom predict --format smiyc``.""
 from __future__ import annotations
 
 from jaxanom.app.commands.inputs import (DEFAULT_METHODS, check_stats_classes, load_plugins, method_names,
-                                         read_stats)
+                                         method_options, read_stats, split_overrides)
 from jaxanom.app.outputs import check_out_outside, out_folder, within
 from jaxanom.app.protocols import PROTOCOLS
 from jaxanom.errors import InputError, reading
@@ -21,12 +21,15 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
              stats: str | None = None, methods: str | None = None, plugins=(), fpr_convention: str | None = None,
              ap_convention: str = "step", cudam_sigma: float | None = None, track: str | None = None,
              convention: str = "exact", protocol: str = "native", pictures: int = 0,
-             all_conventions: bool = False, overwrite: bool = False) -> dict:
+             all_conventions: bool = False, overrides=(), overwrite: bool = False) -> dict:
     """Score ``dataset`` (its folder ``path``) with one of ``run`` (a network), ``mmf`` (a folder
     of ``jaxanom demo mmf``) or ``maps`` (saved score maps) and write ``out/metrics.json``, which
     is returned; prints the results table. ``track`` picks SegmentMeIfYouCan's component rules
     (default: the dataset's), ``protocol`` how frames become counted pixels (with ``run``);
-    ``all_conventions`` also prints every AP and FPR convention side by side."""
+    ``all_conventions`` also prints every AP and FPR convention side by side. ``overrides``:
+    ``"methods.METHOD.OPTION=VALUE"`` options of the methods (``cudam_sigma`` is the same as
+    ``"methods.cudam.cudam_sigma=..."``); ``metrics[name]["options"]`` records each option's values
+    as resolved."""
     from jaxanom._validate import check_number
     from jaxanom.app import scoring
     from jaxanom.app.evaluate import anomaly_results, dataset_reader, predictor, protocol_predictions, saved_map_batches
@@ -53,14 +56,26 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
     if maps and stats:  # the maps are finished scores: statistics would change nothing, silently
         raise InputError("stats", f" {stats}: {{maps}} reads finished score maps, which no statistics change; "
                          "leave it out", mentions=("maps",))
+    if maps and overrides:  # nor would the methods' options
+        raise InputError("overrides", f" {overrides[0]}: {{maps}} reads finished score maps, which no method option "
+                         "changes; leave it out", mentions=("maps",))
     load_plugins(plugins)
     mean_std = read_stats(stats)
     if cudam_sigma is not None:
         check_number("cudam_sigma", cudam_sigma, 0.0, open_low=True)
-    options = {"cudam_sigma": cudam_sigma}
+
+    if others := split_overrides(overrides)[1]:
+        raise InputError("overrides", f" {others[0]}: evaluate sets options of the methods only: "
+                         "methods.METHOD.OPTION=VALUE")
+
+    def options_of(names) -> dict:
+        return method_options(names, overrides, cudam_sigma=cudam_sigma)
+
+    options: dict = {}
     if mmf:  # every check before the first frame is read or scored
         names = scoring.check(method_names(methods, MMF_DEFAULT_METHODS),
-                              scoring.provided(classes=None, stats=mean_std is not None, mmf_maps=True), options)
+                              scoring.provided(classes=None, stats=mean_std is not None, mmf_maps=True))
+        options = options_of(names)
         source, batches = mmf_scored_batches(mmf, dataset, path, frames=frames, depth=depth)
     elif maps:
         with reading("path", path):  # a folder that does not hold the dataset
@@ -73,7 +88,8 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
         with reading("run", run):
             experiment = load_experiment(run)
         names = scoring.check(method_names(methods, DEFAULT_METHODS),
-                              scoring.run_inputs(experiment, stats=mean_std is not None), options)
+                              scoring.run_inputs(experiment, stats=mean_std is not None))
+        options = options_of(names)
         with reading("path", path):  # a folder that does not hold the dataset
             source = dataset_reader(dataset, path, base=base, frames=frames, depth=depth)
         with reading("run", run):
@@ -112,9 +128,10 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
         record["maps"] = maps
     if mean_std is not None:
         record["sml_statistics"] = statistics_record(stats)
-    for method_metrics in metrics.values():  # each option the methods resolved, and whether it was given
+    for name, method_metrics in metrics.items():  # each option the methods resolved, and whether it was given
         for option, values in method_metrics.get("options", {}).items():
-            record[option] = {"values": values, "source": "given" if options.get(option) is not None else "default"}
+            given = options.get(name, {}).get(option) is not None
+            record[option] = {"values": values, "source": "given" if given else "default"}
     write_json_atomic(within(out_dir, out_dir / "metrics.json"), record)
     if pictures and run:  # MMF's pictures: jaxanom demo mmf; maps': jaxanom predict --format png
         from jaxanom.app.reports import write_pictures

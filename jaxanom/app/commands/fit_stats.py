@@ -15,7 +15,7 @@ __all__ = ["DEFAULT_POLICY", "DEFAULT_STRENGTH", "POLICIES", "OneSize", "fit_sta
 def fit_stats(*, run: str, out: str, frames: int = 200, cityscapes: str | None = None,
               size: tuple[int, int] | None = None, missing: str = "error", policy: str = DEFAULT_POLICY,
               min_count: float = 10_000, strength: float = DEFAULT_STRENGTH, protocol: str = "native",
-              overwrite: bool = False) -> Path:
+              plugins=(), overwrite: bool = False) -> Path:
     """Fit the statistics of ``run``'s network on ``frames`` of its training data (or of the train
     split of the Cityscapes folder ``cityscapes``, no labels read), resized to ``size`` (H, W)
     when given; finalize them by ``policy`` (``jaxanom.sml.stats_finalize``) and write ``out``
@@ -23,10 +23,11 @@ def fit_stats(*, run: str, out: str, frames: int = 200, cityscapes: str | None =
     jaxanom did not train: only a step-0 checkpoint) has no training data: it needs ``cityscapes``.
     ``protocol`` (``jaxanom.app.protocols``): the frames resized and the output channels
     selected as that protocol scores them (``erfnet-community``: 512x1024, the void output
-    dropped), recorded in the file for ``evaluate`` to check. Prints the per-class table and
-    warns on classes below ``min_count`` pixels."""
+    dropped), recorded in the file for ``evaluate`` to check. ``plugins``: modules imported first
+    (the run imports those it recorded itself). Prints the per-class table and warns on classes
+    below ``min_count`` pixels."""
     from jaxanom import sml
-    from jaxanom.app.commands.inputs import fitted_on as described
+    from jaxanom.app.commands.inputs import fitted_on as described, load_plugins
     from jaxanom.app.evaluate import class_statistics, predictor
     from jaxanom.app.experiment import _trained_steps, build_network, load_variables
     from jaxanom.app.experiment import frames as run_frames, frames_record as run_frames_record
@@ -37,6 +38,7 @@ def fit_stats(*, run: str, out: str, frames: int = 200, cityscapes: str | None =
     from jaxanom.data.pipeline import evaluation_batches
     from jaxanom.sml.policy import check_policy
 
+    load_plugins(plugins)
     path = Path(out)
     if path.is_dir():
         raise InputError("out", f"{path}: is a folder; expected the path of the .npz file to write")

@@ -21,16 +21,16 @@ def method_names(methods: str | None, default: tuple[str, ...] = DEFAULT_METHODS
 
 
 def load_plugins(plugins) -> None:
-    """Import the plug-in modules (their methods are registered on import). InputError naming
-    ``plugins`` and the module, in one line, for: a name that is not a module's dotted name (a
-    file path, ""), a module not found, one whose import raises (a name it registers already
-    taken, a built-in's included; a dependency missing; any bug), with where it raised."""
-    import traceback
-
-    from jaxanom.app.scoring import load_plugin
+    """Import the plug-in modules, which register their methods, objectives (any kind of entry) on
+    import. InputError naming ``plugins`` and the module, in one line, for: a name that is not a
+    module's dotted name (a file path, ""), a module not found, one whose import raises (a name it
+    registers already taken, a built-in's included; a dependency missing; any bug), with where it
+    raised (``jaxanom.app.configs.load_plugin``)."""
+    from jaxanom.app.configs import load_plugin
+    from jaxanom.registry import PluginError, is_module_name
 
     for module in plugins:
-        if not (isinstance(module, str) and all(part.isidentifier() for part in module.split("."))):
+        if not is_module_name(module):
             file = Path(str(module))
             hint = (f" (for this file: PYTHONPATH={file.parent} and {{plugins}} {file.stem})"
                     if file.suffix == ".py" and file.stem.isidentifier() else "")
@@ -39,17 +39,56 @@ def load_plugins(plugins) -> None:
                              mentions=("plugins",))
         try:
             load_plugin(module)
-        except ModuleNotFoundError as error:
-            if error.name is None or not (module + ".").startswith(error.name + "."):
-                raise InputError("plugins", f" {module}: importing it failed: {error}") from None
-            raise InputError("plugins", f" {module}: no module named {error.name!r} on the Python path") from None
-        except Exception as error:  # noqa: BLE001  a plug-in's own failure: one line naming it and where
-            frames = traceback.extract_tb(error.__traceback__)
-            package = str(Path(__file__).parents[2])  # the plug-in's own line, not jaxanom's nor importlib's
-            frame = next((f for f in reversed(frames) if not f.filename.startswith((package, "<"))), frames[-1])
-            raise InputError("plugins", f" {module}: importing it raised {type(error).__name__}: "
-                             f"{str(error).splitlines()[0] if str(error) else ''} ({frame.filename}, line "
-                             f"{frame.lineno})") from None
+        except PluginError as error:
+            raise InputError("plugins", f" {error}") from None
+
+
+OPTION_PREFIX = "methods."  # --set methods.METHOD.OPTION=VALUE: an option of a method
+
+
+def split_overrides(overrides) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """``overrides`` (``--set``) as ``(options of methods, the others)``: those of
+    ``"methods.METHOD.OPTION=VALUE"``, and the config fields' ``"dotted.name=VALUE"``, each in order."""
+    methods = tuple(o for o in overrides if o.partition("=")[0].strip().startswith(OPTION_PREFIX))
+    return methods, tuple(o for o in overrides if o not in methods)
+
+
+def method_options(names, overrides=(), **aliases) -> dict:
+    """``{method: {option: value}}`` for the methods ``names``: each alias given (not None; e.g.
+    ``cudam_sigma`` of ``--cudam-sigma``) set for every method of ``names`` that declares that
+    option, then each ``"methods.METHOD.OPTION=VALUE"`` of ``overrides`` (``--set``; see
+    ``split_overrides``) with VALUE read as the option's declared type (``Method.types``, as
+    ``--set`` reads a config field). InputError naming ``overrides``, in one line naming the
+    method and option: a method not among ``names``, an option it does not declare, a value not
+    of its type."""
+    from jaxanom.config_codec import ConfigError, parse
+    from jaxanom.method_registry import get
+
+    options: dict[str, dict] = {}
+    for option, value in aliases.items():
+        if value is not None:
+            for name in names:
+                if option in get(name).defaults:
+                    options.setdefault(name, {})[option] = value
+    for assignment in overrides:
+        target, equals, text = assignment.partition("=")
+        # the last dot: a method's name may hold dots (energy.t5), an option's never does
+        method, dot, option = target.strip().removeprefix(OPTION_PREFIX).rpartition(".")
+        if not (target.strip().startswith(OPTION_PREFIX) and equals and dot and method and option):
+            raise InputError("overrides", f": expected methods.METHOD.OPTION=VALUE (e.g. methods.energy.temperature=2), "
+                             f"got {assignment!r}")
+        if method not in names:
+            raise InputError("overrides", f" {target.strip()}: method {method!r} is not among the methods scored "
+                             f"({', '.join(names)}; {{methods}})", mentions=("methods",))
+        declared = get(method).types
+        if option not in declared:
+            raise InputError("overrides", f" {target.strip()}: method {method!r} has no option {option!r}; its options: "
+                             f"{', '.join(declared) or 'none'}")
+        try:
+            options.setdefault(method, {})[option] = parse(declared[option], text, target.strip())
+        except ConfigError as error:
+            raise InputError("overrides", f" {error} (an option of method {method!r})") from None
+    return options
 
 
 def read_stats(path: str | None):

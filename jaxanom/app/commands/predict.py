@@ -5,7 +5,7 @@ import json
 from pathlib import Path
 
 from jaxanom.app.commands.inputs import (DEFAULT_METHODS, check_stats_classes, load_plugins, method_names,
-                                         read_stats, with_overrides)
+                                         method_options, read_stats, split_overrides, with_overrides)
 from jaxanom.app.outputs import inside, out_folder, within
 from jaxanom.app.predict import FORMATS, SMIYC_DATASETS
 from jaxanom.errors import InputError, reading
@@ -21,24 +21,32 @@ def predict(images, *, run: str, out: str, methods: str | None = None, plugins=(
             progress: bool = True) -> dict:
     """Score the image files, folders or glob patterns ``images`` with ``run``'s network into
     ``out`` (comma-separated ``methods`` and ``formats``, see ``jaxanom.app.predict``; then each
-    ``"dotted.name=VALUE"`` of ``overrides`` sets a field of the ``PredictSettings``; ``threads``:
-    host threads decoding and writing, None for ``default_threads()``). A rerun
-    with the same settings, network and statistics skips the frames already written; one with
-    others is refused unless ``overwrite`` (which recomputes every frame). Returns the summary
-    of ``predict_images``."""
+    ``"dotted.name=VALUE"`` of ``overrides`` sets a field of the ``PredictSettings``, or with
+    ``"methods.METHOD.OPTION=VALUE"`` an option of a method, ``slic_step`` and ``cudam_sigma``
+    being the same as ``methods.<m>.slic_step`` / ``methods.cudam.cudam_sigma`` for each method
+    declaring it; ``threads``: host threads decoding and writing, None for ``default_threads()``).
+    A rerun with the same settings, options, network and statistics skips the frames already
+    written; one with others is refused unless ``overwrite`` (which recomputes every frame).
+    Returns the summary of ``predict_images``."""
     from jaxanom.app import scoring
     from jaxanom.app.evaluate import predictor
-    from jaxanom.app.experiment import build_network, jsonable, load_experiment, load_variables
+    from jaxanom.app.experiment import build_network, jsonable, load_experiment, load_run_plugins, load_variables
     from jaxanom.app.predict import (DeviceOutOfMemory, PredictSettings, Scorer, check_resumable, fingerprint,
                                      list_images, predict_images, remove_other_maps, settings_record,
                                      size_check)
     from jaxanom.io import write_json_atomic
 
     load_plugins(plugins)
+    with reading("run", run):  # the run's recorded plug-ins first: their methods may be asked for
+        load_run_plugins(run)
     settings = PredictSettings(methods=method_names(methods, DEFAULT_METHODS), formats=tuple(formats.split(",")),
-                               size=size, batch_size=batch_size, dataset=dataset, slic_step=slic_step,
-                               cudam_sigma=cudam_sigma, unit_interval=unit_interval, threads=threads)
-    settings = with_overrides(settings, overrides)
+                               size=size, batch_size=batch_size, dataset=dataset, unit_interval=unit_interval,
+                               threads=threads)
+    if slic_step is not None and slic_step < 1:
+        raise InputError("slic_step", f": expected >= 1, got {slic_step}")
+    option_overrides, overrides = split_overrides(overrides)
+    settings = with_overrides(settings, overrides)  # first: --set methods=... picks the methods the options are of
+    options = method_options(settings.methods, option_overrides, slic_step=slic_step, cudam_sigma=cudam_sigma)
     if "smiyc" in settings.formats:
         try:
             import h5py  # noqa: F401
@@ -54,7 +62,7 @@ def predict(images, *, run: str, out: str, methods: str | None = None, plugins=(
     with reading("run", run_dir):
         experiment = load_experiment(run_dir)
     mean_std = read_stats(stats)
-    scoring.check(settings.methods, scoring.run_inputs(experiment, stats=mean_std is not None))
+    scoring.check(settings.methods, scoring.run_inputs(experiment, stats=mean_std is not None), options)
     model = build_network(experiment)
     with reading("run", run_dir):
         _, variables = load_variables(run_dir)
@@ -67,14 +75,15 @@ def predict(images, *, run: str, out: str, methods: str | None = None, plugins=(
     network = fingerprint({"experiment": json.dumps(jsonable(experiment), sort_keys=True), "variables": variables})
     record = settings_record(settings, network=network,
                              statistics=None if mean_std is None else fingerprint(mean_std),
-                             read_from={"run": str(run_dir.resolve()),
+                             options=options, read_from={"run": str(run_dir.resolve()),
                                         "stats": None if stats is None else str(Path(stats).resolve())})
     resuming = not overwrite and out_dir.is_dir() and check_resumable(out_dir, record)
     out_dir = out_folder(out, overwrite or resuming, hint="pass {overwrite} (or rerun with its settings)")
     if overwrite and (removed := remove_other_maps(out_dir, record, settings)):
         print(f"jaxanom predict: removed {removed} maps of other settings, network or statistics from {out_dir}")
     write_json_atomic(within(out_dir, out_dir / "settings.json"), record)
-    scorer = Scorer(predictor(model, variables), settings, mean_std, check_size=None if settings.size else check)
+    scorer = Scorer(predictor(model, variables), settings, mean_std, check_size=None if settings.size else check,
+                    options=options)
     try:
         summary = predict_images(paths, out_dir, scorer, progress=progress, redo=overwrite)
     except DeviceOutOfMemory as error:

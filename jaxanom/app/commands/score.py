@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import contextlib
 
-from jaxanom.app.commands.inputs import DEFAULT_METHODS, load_plugins, method_names, read_stats
+from jaxanom.app.commands.inputs import (DEFAULT_METHODS, load_plugins, method_names, method_options, read_stats,
+                                         split_overrides)
 from jaxanom.app.outputs import out_folder, within
 from jaxanom.app.streamed_array import StreamedArray
 from jaxanom.errors import InputError
@@ -20,10 +21,11 @@ __all__ = ["AP_CONVENTIONS", "score"]
 
 def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = False, labels: str | None = None,
           stats: str | None = None, methods: str | None = None, plugins=(), fpr_convention: str | None = None,
-          ap_convention: str = "step", overwrite: bool = False) -> dict | None:
+          ap_convention: str = "step", overrides=(), overwrite: bool = False) -> dict | None:
     """Score the logits file ``logits`` ((N, C, H, W) or, ``layout="NHWC"``, (N, H, W, C)) with
     the comma-separated ``methods`` into ``out/scores/<method>.npy``; with ``labels`` (N, H, W)
-    also the metrics (``out/metrics.json``, returned)."""
+    also the metrics (``out/metrics.json``, returned, with each method's options as used).
+    ``overrides``: ``"methods.METHOD.OPTION=VALUE"`` options of the methods."""
     import numpy as np
 
     from jaxanom.app import scoring
@@ -58,6 +60,10 @@ def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = Fal
         raise InputError("stats", f": has {len(mean_std[0])} classes, the logits have {classes}")
     names = scoring.check(method_names(methods, DEFAULT_METHODS),
                           scoring.provided(classes=classes, stats=mean_std is not None))
+    if others := split_overrides(overrides)[1]:
+        raise InputError("overrides", f" {others[0]}: score sets options of the methods only: "
+                         "methods.METHOD.OPTION=VALUE")
+    options = method_options(names, overrides)
     out_dir = out_folder(out, overwrite)
     accumulators = {name: AnomalyMetricAccumulator() for name in names}
     label_images = iter(label_array if label_array is not None else ())
@@ -68,7 +74,7 @@ def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = Fal
             image = np.moveaxis(image, 0, -1) if channels_first else image
             label = None if label_array is None else next(label_images)
             try:
-                scores, _ = scoring.score_all(names, scoring.inputs_of({"logits": image[None]}, mean_std))
+                scores, used = scoring.score_all(names, scoring.inputs_of({"logits": image[None]}, mean_std), options)
                 scores = {name: np.asarray(value)[0] for name, value in scores.items()}
                 for name, value in scores.items():
                     check_finite(name, value, label, where=f" of image {index}")
@@ -85,6 +91,9 @@ def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = Fal
         return None
     metrics = {name: accumulators.pop(name).compute(fpr_convention=fpr_convention or "first",  # freed in turn
                                                     ap_convention=ap_convention) for name in names}
+    for name in names:  # the options used (resolved for the images' one size)
+        if used.get(name):
+            metrics[name]["options"] = used[name]
     write_json_atomic(within(out_dir, out_dir / "metrics.json"), {"metrics": metrics})
     print(results_table(metrics))
     return metrics

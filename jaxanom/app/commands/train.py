@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from jaxanom.app.commands.inputs import read_config, with_overrides
+from jaxanom.app.commands.inputs import load_plugins, read_config, with_overrides
 from jaxanom.app.outputs import CLAIM, claim, out_folder
 from jaxanom.errors import InputError, reading
 
@@ -17,18 +17,20 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
           steps: int | None = None, batch_size: int | None = None, seed: int | None = None,
           distributed: bool = False, init_from: str | None = None, init_modules: str | None = None,
           cudam_position: str | None = None, cudam_gate: str | None = None, cudam_tau: float | None = None,
-          overrides=(), progress: bool = True) -> None:
+          plugins=(), overrides=(), progress: bool = True) -> None:
     """Train into the new or empty run folder ``out`` the experiment of the file ``config`` (a
     Python file defining ``experiment``, or an Experiment's JSON such as a run's experiment.json;
     without it the defaults, or with ``init_from`` that run's network), each argument given (not
     None) replacing its field, then each ``"dotted.name=VALUE"`` of ``overrides``;
     ``attention="none"`` trains without an attention module, and an ``attention`` given also sets
     its paper's objective unless the config's agrees. ``resume`` continues ``out``'s own run.
-    ``distributed``: one process per host (``jax.distributed``)."""
+    ``distributed``: one process per host (``jax.distributed``). ``plugins``: modules imported
+    first (e.g. one registering an objective); the run records in its experiment.json those that
+    registered the names it uses (``Experiment.plugins``), so every later reading imports them."""
     import jax
 
     from jaxanom.app.experiment import (Experiment, attention_settings, check_data, check_objective,
-                                        check_schedule, load_experiment, output_shapes, run_training)
+                                        check_schedule, load_experiment, output_shapes, run_training, with_plugins)
     from jaxanom.train.checkpoint import DamagedCheckpointError
     from jaxanom.train.loop import NonFiniteLossError
 
@@ -37,6 +39,7 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
 
         with reading("distributed"):
             initialize_distributed()
+    load_plugins(plugins)
     lead = jax.process_index() == 0  # on many hosts the first process checks and claims --out for all
     out_dir = Path(out)
     if resume:
@@ -63,6 +66,8 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
         check_objective(experiment)
         check_schedule(experiment)
         check_data(experiment)
+    _check_recordable(experiment)
+    experiment = with_plugins(experiment)
     if lead and not resume:  # claimed once the whole experiment is checked: a refused one leaves no folder
         out_folder(out, overwrite=_unstarted(out_dir, experiment), hint="continue the run there with {resume}")
     line = experiment.train.objective.describe(output_shapes(experiment, *experiment.crop))
@@ -81,6 +86,19 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
         raise InputError("out", f"{out_dir}: {error}") from None
     print(f"trained {experiment.train.steps} steps on {jax.device_count()} devices ({jax.process_count()} "
           f"processes); checkpoints in {out_dir / 'checkpoints'}")
+
+
+def _check_recordable(experiment) -> None:
+    """InputError naming ``config`` when a name the experiment uses was registered by a module that
+    a later reading of the run could not import by name (a Python config file, run as a script)."""
+    from jaxanom.app.experiment import plugin_modules
+    from jaxanom.registry import is_module_name
+
+    for what, module in plugin_modules(experiment).items():
+        if not is_module_name(module) or module == "__main__":
+            raise InputError("config", f": {what} is registered by {module}, which later readings of the run (resume, "
+                             "fit-stats, evaluate, predict) cannot import; register it in a module on the Python path "
+                             "and import that module (or name it with {plugins})", mentions=("plugins",))
 
 
 def _unstarted(out_dir: Path, experiment) -> bool:

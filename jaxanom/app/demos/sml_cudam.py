@@ -99,7 +99,7 @@ def run_demo(out_dir: str | Path, config: DemoConfig = DemoConfig(), *, progress
         experiment.num_classes)
     anomaly_frames = frames(experiment, config.anomaly_split, config.anomaly_frames)
     metrics, curves = anomaly_results(predictions(predict, _batches(anomaly_frames, batch)), DEMO_METHODS,
-                                      stats=(mean, std), options={"cudam_sigma": config.cudam_sigma},
+                                      stats=(mean, std), options={"cudam": {"cudam_sigma": config.cudam_sigma}},
                                       keep_curves=True)
 
     log("[4/4] writing pictures and results")
