@@ -23,7 +23,7 @@ import numpy as np
 
 from benchmarks.timing import environment, markdown_table, median_ms, torch_device
 from jaxanom import losses
-from jaxanom.cudam_objective import CuDAM
+from jaxanom.cudam.objective import CuDAM
 
 NUM_CLASSES, TAU, BETA = 19, 5e4, 0.5
 

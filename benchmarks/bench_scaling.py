@@ -75,7 +75,7 @@ def _train_step_child(devices: int, quick: bool) -> dict:
     from jaxanom.train.optim import OptimConfig, make_optimizer
     from jaxanom.train.sharding import global_batch, make_mesh, replicated
     from jaxanom.train.state import TrainState
-    from jaxanom.cudam_objective import CuDAM
+    from jaxanom.cudam.objective import CuDAM
     from jaxanom.train.step import make_steps, model_input
 
     batch, height, width = (4, 64, 128) if quick else (8, 128, 256)

@@ -22,7 +22,7 @@ CuDAM's constants are per-pixel magnitudes for attention maps of the paper's siz
 a 180 x 180 training map (720 x 720 crops, §IV-D) and sigma = 2e4 for 256 x 512 test maps
 (1024 x 2048 frames at stride 4). A map sums to 1, so its values scale as 1 / (h * w); the
 defaults here scale tau and sigma by the ratio of map sizes (``matched_tau``, ``matched_sigma``,
-through ``jaxanom.cudam_score.equivalent_weight``)
+through ``jaxanom.cudam.score.equivalent_weight``)
 so that ``tau * M_att`` has the paper's magnitude. The paper's literal values are rows of their own
 (``cudam_fig6`` trains with tau = 5e4; the score ``cudam`` uses sigma = 2e4).
 """
@@ -43,7 +43,7 @@ from experiments.jobs import Job
 from experiments.stats import (REPLICATES, bin_edges, binned_auroc, binned_metrics, frame_histograms, hierarchical,
                                hierarchical_draws, interval)
 from jaxanom import sml
-from jaxanom.cudam_score import (PAPER_TEST_POSITIONS, PAPER_TRAIN_POSITIONS, cudam_score, equivalent_weight,
+from jaxanom.cudam.score import (PAPER_TEST_POSITIONS, PAPER_TRAIN_POSITIONS, cudam_score, equivalent_weight,
                                  paper_sigma, paper_tau)
 from jaxanom.app.evaluate import class_statistics, predictions, predictor
 from jaxanom.app.scoring import inputs_of, score_all
@@ -53,9 +53,9 @@ from jaxanom.metrics import confusion_scores, miou, pr_curve, roc_curve
 from jaxanom.metrics.evaluator import PixelAnomaly, Segmentation, update_keyed
 from jaxanom.train.loop import TrainConfig
 from jaxanom.train.optim import OptimConfig
-from jaxanom.cudam_objective import CuDAM
+from jaxanom.cudam.objective import CuDAM
 from jaxanom.losses import CrossEntropy
-from jaxanom.msaam_objective import MSAAM
+from jaxanom.msaam.objective import MSAAM
 from jaxanom.objectives import Objective
 
 HERE = Path(__file__).parent

@@ -7,9 +7,8 @@ needs and calls it; ``check(names, provided)`` validates a whole list before any
 
 Where methods come from, loaded once on first use:
 
-- jaxanom's own: every library module whose file name ends in ``methods.py`` (``score_methods``
-  beside ``scores``, ``sml/methods``, ``cudam_methods``, ``mmf/methods``, ...), so a paper's rows
-  sit beside its code and adding one is a single file;
+- jaxanom's own: the modules ``jaxanom.builtins`` lists (``score_methods`` beside ``scores``,
+  ``sml/methods``, ``cudam/methods``, ``mmf/methods``, ...), so a paper's rows sit beside its code;
 - installed packages: the modules (or objects) named by the ``jaxanom.methods`` entry-point group,
   unless the environment variable ``JAXANOM_DISABLE_ENTRY_POINTS`` is set (to anything but
   ``""`` or ``0``); one that fails to load is left out and named only when a name it might have
@@ -36,7 +35,7 @@ import types
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
 
-from jaxanom import registry
+from jaxanom import builtins, registry
 from jaxanom.errors import InputError
 from jaxanom.registry import DISABLE_ENTRY_POINTS, NAME
 
@@ -193,19 +192,7 @@ def _composed(name: str) -> Method | None:
     return method
 
 
-def _own_modules() -> list[str]:
-    """Dotted names of jaxanom's library modules whose file name ends in ``methods.py``; the
-    application and command-line layers are above the library and never searched."""
-    root = Path(__file__).parent
-    found = []
-    for path in sorted(root.rglob("*methods.py")):
-        parts = path.relative_to(root).with_suffix("").parts
-        if parts[0] not in ("app", "cli") and all(p.isidentifier() for p in parts):
-            found.append(".".join((root.name, *parts)))
-    return found
-
-
-METHODS: registry.Registry[Method] = registry.Registry("method", ENTRY_POINTS, _own_modules)
+METHODS: registry.Registry[Method] = registry.Registry("method", ENTRY_POINTS, lambda: builtins.MODULES)
 
 
 def register(method: Method) -> Method:

@@ -14,7 +14,8 @@ An objective is a frozen dataclass (its config) with
   logged as ``train/<name>``.
 
 Every objective jaxanom ships is registered next to its paper's code (``losses.CrossEntropy``,
-``cudam_objective.CuDAM``, ``msaam_objective.MSAAM``); a user's own is registered with
+``cudam.objective.CuDAM``, ``msaam.objective.MSAAM``; ``jaxanom.builtins`` lists the modules); a
+user's own is registered with
 ``@register`` in a module of its own (a plug-in: ``--plugin MODULE``, or an installed package's
 ``jaxanom.objectives`` entry point) and then stored in and read back from a run's
 ``experiment.json`` like those; the run records that module (``Experiment.plugins``) so that every
@@ -26,14 +27,12 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, ClassVar
 
-from jaxanom import registry
+from jaxanom import builtins, registry
 from jaxanom.config_codec import decode
 
 ENTRY_POINTS = "jaxanom.objectives"
-# the modules that register jaxanom's own objectives, imported on the first look-up
-_BUILTIN_MODULES = ("jaxanom.losses", "jaxanom.cudam_objective", "jaxanom.msaam_objective")
 OBJECTIVES: registry.Registry[type["Objective"]] = registry.Registry(
-    "objective", ENTRY_POINTS, lambda: _BUILTIN_MODULES, lambda cls, origin: f"{cls.__qualname__} ({origin})")
+    "objective", ENTRY_POINTS, lambda: builtins.MODULES, lambda cls, origin: f"{cls.__qualname__} ({origin})")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,6 +57,23 @@ class Objective:
 
     def loss(self, outputs: dict, batch: dict, key, state: Any, ignore: int) -> tuple[Any, dict, Any]:
         raise NotImplementedError
+
+    def describe(self, outputs: dict) -> str | None:
+        """A line ``train`` prints before it starts, given the shapes of the network's outputs on one
+        training crop (e.g. CuDAM's reward weight at its attention map's size); None: nothing."""
+        return None
+
+    @classmethod
+    def from_legacy_loss(cls, loss: dict, own_terms: bool) -> "Objective":
+        """This objective from the ``train.loss`` of a run of an earlier jaxanom (one dict with every
+        paper's settings, read by ``app.experiment.legacy_objective``); ``own_terms=False``: its own
+        terms off, so the loss is exactly the cross-entropy. Only jaxanom's own objectives existed then."""
+        raise ValueError(f"train.loss.method: expected an objective of an earlier jaxanom, got {cls.__name__}")
+
+
+def legacy_class_weights(loss: dict) -> tuple[float, ...] | None:
+    """The ``class_weights`` of a legacy ``train.loss`` (``Objective.from_legacy_loss``)."""
+    return tuple(loss["class_weights"]) if loss.get("class_weights") is not None else None
 
 
 def register(cls: type[Objective]) -> type[Objective]:

@@ -86,9 +86,11 @@ class Registry(Generic[T]):
         return self.entries.get(name)
 
     def names(self) -> tuple[str, ...]:
-        """Every registered name: jaxanom's own first, then installed plug-ins', then loaded modules'."""
+        """Every registered name: jaxanom's own first, in the order of ``builtins()`` whichever module
+        was imported first, then installed plug-ins', then loaded modules'."""
         self.load()
-        return tuple(self.entries)
+        own = {module: index for index, module in enumerate(self._builtins())}
+        return tuple(sorted(self.entries, key=lambda name: own.get(self.origins[name], len(own))))
 
     def origin(self, name: str) -> str:
         """The module that registered ``name``."""

@@ -15,7 +15,7 @@ import numpy as np  # noqa: E402
 
 from jaxanom.train.loop import TrainConfig, train  # noqa: E402
 from jaxanom.train.optim import OptimConfig  # noqa: E402
-from jaxanom.cudam_objective import CuDAM  # noqa: E402
+from jaxanom.cudam.objective import CuDAM  # noqa: E402
 from tiny_models import IndexedBatches, TinySegNet, init_variables  # noqa: E402
 
 STEPS, SAVE_EVERY = 12, 3

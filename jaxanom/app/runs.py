@@ -17,18 +17,26 @@ def write_run(folder: str | os.PathLike, preset: str, model, variables: dict):
     """Write ``variables`` of ``model`` (built by ``build_model(preset, ...)``) as a step-0 run.
 
     The experiment keeps jaxanom's defaults for everything but the network (model preset,
-    classes; for a DeepLabV3+ also attention, output stride, CuDAM position). Returns the ``Experiment``.
+    classes, attention module; for a DeepLabV3+ also the output stride). Returns the ``Experiment``.
     """
     from jaxanom.app.experiment import Experiment, jsonable
     from jaxanom.models import DeepLabV3Plus
+    from jaxanom.models.attention import get
     from jaxanom.train.checkpoint import Checkpointer, check_space
     from jaxanom.train.optim import make_optimizer
     from jaxanom.train.state import TrainState
 
-    network = {"attention": None}
+    network = {"attention": model.attention}
+    if model.attention is not None:  # the module's position and options, in the fields that record them
+        recorded_as = get(model.attention).recorded_as
+        settings = {"position": model.attention_position, **dict(model.attention_options)}
+        settings = {key: value for key, value in settings.items() if value is not None}
+        unrecorded = sorted(set(settings) - set(recorded_as))
+        if unrecorded:
+            raise ValueError(f"model: the settings {unrecorded} of its attention module have no field in a run")
+        network.update({recorded_as[key]: value for key, value in settings.items()})
     if isinstance(model, DeepLabV3Plus):
-        network = {"attention": model.attention, "cudam_position": model.cudam_position,
-                   "output_stride": model.output_stride}
+        network["output_stride"] = model.output_stride
     experiment = Experiment(model=preset, num_classes=model.num_classes, **network)
     folder = Path(folder)
     write_json_atomic(folder / "experiment.json", jsonable(experiment), allow_nan=False)

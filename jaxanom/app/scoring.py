@@ -52,8 +52,12 @@ def provided(*, classes: int | None, stats: bool, attention: bool = False, image
 
 def run_inputs(experiment, *, stats: bool) -> set[str]:
     """The inputs every batch of a run's network (``experiment``: its ``Experiment``) will give
-    with the frames' images, and class statistics if ``stats``."""
-    return provided(classes=experiment.num_classes, stats=stats, attention=experiment.attention == "cudam",
+    with the frames' images, and class statistics if ``stats``; an attention module's outputs give
+    the inputs its registration names (``method_inputs``)."""
+    from jaxanom.models.attention import get
+
+    module_inputs = get(experiment.attention).method_inputs if experiment.attention is not None else frozenset()
+    return provided(classes=experiment.num_classes, stats=stats, attention="attention" in module_inputs,
                     images=True)
 
 

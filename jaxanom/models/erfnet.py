@@ -10,6 +10,12 @@ std (``normalize_erfnet``: what the authors trained and evaluated on); uint8 bat
 ``jaxanom.app.evaluate.predictor`` or the training step are scaled that way
 (``ERFNet.normalize_input``). ``out["logits"]``: float32 (B, H, W, num_classes).
 
+An attention module (``attention=NAME``, ``jaxanom.models.attention``) sits at the one position
+``"deep"``: the encoder's output (128 channels at 1/8) before the decoder, with the taps ``"low"``
+(the 64 channels at 1/4 after ``layers_5``) and ``"mid"`` (the 128 channels at 1/8 after the third
+downsampler, ``layers_6``); its outputs join ``out``. ``erfnet_tiny`` is the same network with
+fewer, narrower layers (tests, CPU demos).
+
 Architecture (paper Sec. III, Table I; layer names follow the authors' checkpoint, see
 ``jaxanom.weights.architectures``):
 
@@ -35,6 +41,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxanom._validate import check_image_batch
+from jaxanom.models.attention import Attachment, check_attachment
 from jaxanom.nn.batch_norm import BatchNorm
 from jaxanom.nn.layers import BN_MOMENTUM, Dtype
 
@@ -151,51 +158,78 @@ class Upsampler(nn.Module):
 
 
 class ERFNetEncoder(nn.Module):
-    """Image -> 128 channels at 1/8 (module docstring); ``layers_<i>`` are the authors' ``layers.<i>``."""
+    """Image -> (``widths[2]`` channels at 1/8, the taps {"low", "mid"}) (module docstring); ``layers_<i>``
+    are the authors' ``layers.<i>``. ``widths`` and ``blocks``: the channels of the three stages and the
+    blocks at 1/4 and at 1/8 (the authors': (16, 64, 128) and (5, 8))."""
 
     dtype: Dtype = jnp.float32
+    widths: tuple[int, int, int] = (16, 64, 128)
+    blocks: tuple[int, int] = (5, 8)
 
     @nn.compact
-    def __call__(self, x: jax.Array, train: bool) -> jax.Array:
-        dt, (low, high) = self.dtype, ENCODER_DROPOUT
-        x = Downsampler(16, dt, name="initial_block")(x, train)
-        x = Downsampler(64, dt, name="layers_0")(x, train)
-        for i in range(1, 6):
+    def __call__(self, x: jax.Array, train: bool) -> tuple[jax.Array, dict[str, jax.Array]]:
+        dt, (low, high), (quarter, eighth) = self.dtype, ENCODER_DROPOUT, self.blocks
+        x = Downsampler(self.widths[0], dt, name="initial_block")(x, train)
+        x = Downsampler(self.widths[1], dt, name="layers_0")(x, train)
+        for i in range(1, 1 + quarter):
             x = NonBottleneck1D(1, low, dt, name=f"layers_{i}")(x, train)
-        x = Downsampler(128, dt, name="layers_6")(x, train)
-        for i, d in enumerate(DILATIONS * 2, start=7):
+        taps = {"low": x}
+        x = taps["mid"] = Downsampler(self.widths[2], dt, name=f"layers_{1 + quarter}")(x, train)
+        for i, d in enumerate((DILATIONS * 2)[:eighth], start=2 + quarter):
             x = NonBottleneck1D(d, high, dt, name=f"layers_{i}")(x, train)
-        return x
+        return x, taps
 
 
 class ERFNetDecoder(nn.Module):
-    """128 channels at 1/8 -> ``num_classes`` logits at full size."""
+    """``widths[2]`` channels at 1/8 -> ``num_classes`` logits at full size, with ``blocks`` blocks
+    after each upsampler (the authors': 2)."""
 
     num_classes: int
     dtype: Dtype = jnp.float32
+    widths: tuple[int, int, int] = (16, 64, 128)
+    blocks: int = 2
 
     @nn.compact
     def __call__(self, x: jax.Array, train: bool) -> jax.Array:
         dt, i = self.dtype, 0
-        for features in (64, 16):
+        for features in (self.widths[1], self.widths[0]):
             x = Upsampler(features, dt, name=f"layers_{i}")(x, train)
-            x = NonBottleneck1D(dtype=dt, name=f"layers_{i + 1}")(x, train)
-            x = NonBottleneck1D(dtype=dt, name=f"layers_{i + 2}")(x, train)
-            i += 3
+            for j in range(1, 1 + self.blocks):
+                x = NonBottleneck1D(dtype=dt, name=f"layers_{i + j}")(x, train)
+            i += 1 + self.blocks
         return ConvTranspose2x(self.num_classes, 2, dtype=dt, name="output_conv")(x)
 
 
 class ERFNet(nn.Module):
-    """ERFNet; ``__call__(images, train) -> {"logits"}`` (module docstring)."""
+    """ERFNet; ``__call__(images, train) -> {"logits", the attention module's outputs?}`` (module
+    docstring). ``attention``, ``attention_position``, ``attention_options``: as ``DeepLabV3Plus``'s.
+    ``widths``, ``encoder_blocks``, ``decoder_blocks``: the authors' by default; fewer and narrower
+    layers make ``erfnet_tiny`` (``jaxanom.models.build_model``), for tests and CPU demos."""
+
+    ATTENTION_POSITIONS = ("deep",)
 
     num_classes: int = 20
     dtype: Dtype = jnp.float32
+    attention: str | None = None
+    attention_position: str | None = None
+    attention_options: tuple[tuple[str, object], ...] = ()
+    widths: tuple[int, int, int] = (16, 64, 128)
+    encoder_blocks: tuple[int, int] = (5, 8)
+    decoder_blocks: int = 2
 
     normalize_input = staticmethod(normalize_erfnet)  # uint8 RGB -> the input these weights expect
+
+    def __post_init__(self):
+        check_attachment(self)
+        super().__post_init__()
 
     @nn.compact
     def __call__(self, images: jax.Array, train: bool = False) -> dict[str, jax.Array]:
         check_image_batch(images, 8, "scaled to [0, 1]")
-        features = ERFNetEncoder(self.dtype, name="encoder")(images.astype(self.dtype), train)
-        logits = ERFNetDecoder(self.num_classes, self.dtype, name="decoder")(features, train)
-        return {"logits": logits.astype(jnp.float32)}
+        out = {}
+        encoder = ERFNetEncoder(self.dtype, self.widths, self.encoder_blocks, name="encoder")
+        features, taps = encoder(images.astype(self.dtype), train)
+        features = Attachment(self).at("deep", features, taps, out)
+        decoder = ERFNetDecoder(self.num_classes, self.dtype, self.widths, self.decoder_blocks, name="decoder")
+        logits = decoder(features, train)
+        return {**out, "logits": logits.astype(jnp.float32)}

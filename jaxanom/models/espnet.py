@@ -10,6 +10,11 @@
 batches given to ``jaxanom.app.evaluate.predictor`` or the training step are normalised that way
 (``ESPNet.normalize_input``). ``out["logits"]``: float32 (B, H, W, num_classes).
 
+An attention module (``attention=NAME``, ``jaxanom.models.attention``) sits at the one position
+``"deep"``: the encoder's output (c8, C channels at 1/8) before the decoder, with the taps
+``"low"`` (t2, 131 channels at 1/4) and ``"mid"`` (t3, 256 channels at 1/8, c8's input); its
+outputs join ``out``.
+
 Architecture (paper Sec. 3 and Fig. 4d; layer names follow the authors' checkpoint, see
 ``jaxanom.weights.architectures``):
 
@@ -35,6 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxanom._validate import check_image_batch
+from jaxanom.models.attention import Attachment, check_attachment
 from jaxanom.nn.layers import BN_MOMENTUM, Dtype
 
 # The authors' Cityscapes preprocessing (their VisualizeResults.py), per channel in BGR order.
@@ -125,7 +131,7 @@ def _input_pool(x: jax.Array) -> jax.Array:
 
 
 class ESPNetEncoder(nn.Module):
-    """Stages 1-3 -> (s1 at 1/2, t2 at 1/4, c8 at 1/8), see the module docstring."""
+    """Stages 1-3 -> (s1 at 1/2, t2 at 1/4, t3 at 1/8, c8 at 1/8), see the module docstring."""
 
     num_classes: int
     p: int
@@ -148,28 +154,40 @@ class ESPNetEncoder(nn.Module):
         for i in range(self.q):
             y3 = ESP(128, dtype=self.dtype, name=f"level3_{i}")(y3, train)
         t3 = _bn_prelu(jnp.concatenate([d3, y3], -1), train, self.dtype, "b3_")
-        return s1, t2, _conv(self.num_classes, 1, self.dtype, "classifier")(t3)
+        return s1, t2, t3, _conv(self.num_classes, 1, self.dtype, "classifier")(t3)
 
 
 class ESPNet(nn.Module):
-    """ESPNet with the light decoder; ``__call__(images, train) -> {"logits"}`` (module docstring)."""
+    """ESPNet with the light decoder; ``__call__(images, train) -> {"logits", the attention module's
+    outputs?}`` (module docstring). ``attention``, ``attention_position``, ``attention_options``:
+    as ``DeepLabV3Plus``'s."""
+
+    ATTENTION_POSITIONS = ("deep",)
 
     num_classes: int = 20
     p: int = 2
     q: int = 8
     dtype: Dtype = jnp.float32
+    attention: str | None = None
+    attention_position: str | None = None
+    attention_options: tuple[tuple[str, object], ...] = ()
 
     normalize_input = staticmethod(normalize_espnet)  # uint8 RGB -> the input these weights expect
+
+    def __post_init__(self):
+        check_attachment(self)
+        super().__post_init__()
 
     @nn.compact
     def __call__(self, images: jax.Array, train: bool = False) -> dict[str, jax.Array]:
         check_image_batch(images, 8, "normalised")
-        c, dt = self.num_classes, self.dtype
-        s1, t2, c8 = ESPNetEncoder(c, self.p, self.q, dt, name="encoder")(images.astype(dt), train)
+        c, dt, out = self.num_classes, self.dtype, {}
+        s1, t2, t3, c8 = ESPNetEncoder(c, self.p, self.q, dt, name="encoder")(images.astype(dt), train)
+        c8 = Attachment(self).at("deep", c8, {"low": t2, "mid": t3}, out)
         u4 = Upsample2(c, dt, name="up_l3")(_bn(c8, train, dt, "br"))
         p4 = _conv(c, 1, dt, "level3_C")(t2)
         x = _bn_prelu(jnp.concatenate([p4, u4], -1), train, dt, "combine_")
         x = ESP(c, residual=False, dtype=dt, name="combine_esp")(x, train)
         u2 = _bn_prelu(Upsample2(c, dt, name="up_l2")(x), train, dt, "up_l2_")
         x = _bn_prelu(_conv(c, 3, dt, "conv")(jnp.concatenate([u2, s1], -1)), train, dt, "conv_")
-        return {"logits": Upsample2(c, dt, name="classifier")(x).astype(jnp.float32)}
+        return {**out, "logits": Upsample2(c, dt, name="classifier")(x).astype(jnp.float32)}

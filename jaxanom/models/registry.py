@@ -4,9 +4,13 @@
     build_model("deeplabv3plus_tiny", num_classes=19)   # small enough for CPU tests and demos
     build_model("espnet_p2_q8", num_classes=20)          # ESPNet, p and q in the name
     build_model("erfnet", num_classes=20)                # ERFNet
+    build_model("erfnet_tiny", num_classes=19)           # ERFNet's layers, fewer and narrower (tests, CPU)
+    build_model("erfnet", num_classes=20, attention="cudam")   # any of them with an attention module
 
-Keyword arguments override any field of ``DeepLabV3Plus`` (output_stride, attention, dtype...)
-or of ``ESPNet`` / ``ERFNet`` (dtype); ``model_family(name)`` says which of the three a name builds.
+Keyword arguments override any field of ``DeepLabV3Plus`` (output_stride, dtype...) or of
+``ESPNet`` / ``ERFNet`` (dtype), the attention fields of all three (``attention``,
+``attention_position``, ``attention_options``: ``jaxanom.models.attention``); ``model_family(name)``
+says which of the three a name builds.
 """
 from __future__ import annotations
 
@@ -41,13 +45,19 @@ _PRESETS: dict[str, dict[str, Any]] = {
     },
 }
 
+# ERFNet presets: the authors' network, and the same layers fewer and narrower
+_ERFNETS: dict[str, dict[str, Any]] = {
+    "erfnet": {},
+    "erfnet_tiny": {"widths": (4, 8, 16), "encoder_blocks": (1, 2), "decoder_blocks": 1},
+}
+
 # ESPNet with p residual ESP modules in stage 2 and q in stage 3 (the authors' espnet_p_<p>_q_<q>).
 _ESPNET = re.compile(r"espnet_p([1-9]\d*)_q([1-9]\d*)")
 
 
 def model_names() -> tuple[str, ...]:
     """Names accepted by ``build_model`` (any ``espnet_p<P>_q<Q>``; the authors' Cityscapes one listed)."""
-    return (*_PRESETS, "espnet_p2_q8", "erfnet")
+    return (*_PRESETS, "espnet_p2_q8", *_ERFNETS)
 
 
 def model_family(name: str) -> str:
@@ -56,7 +66,7 @@ def model_family(name: str) -> str:
         return "deeplabv3plus"
     if _ESPNET.fullmatch(name):
         return "espnet"
-    if name == "erfnet":
+    if name in _ERFNETS:
         return "erfnet"
     raise ValueError(f"name: expected one of {model_names()} or espnet_p<P>_q<Q>, got {name!r}")
 
@@ -64,7 +74,7 @@ def model_family(name: str) -> str:
 def build_model(name: str, num_classes: int = 19, **overrides: Any) -> DeepLabV3Plus | ESPNet | ERFNet:
     """The network of a preset name; ``overrides`` replace preset fields."""
     if model_family(name) == "erfnet":
-        return ERFNet(num_classes=num_classes, **overrides)
+        return ERFNet(num_classes=num_classes, **{**_ERFNETS[name], **overrides})
     if model_family(name) == "espnet":
         p, q = map(int, _ESPNET.fullmatch(name).groups())
         return ESPNet(num_classes=num_classes, p=p, q=q, **overrides)

@@ -1,5 +1,2 @@
-"""Neural-network building blocks: conv-BN layers and the papers' attention modules."""
-from jaxanom.nn.cudam import CuDAMAttention
-from jaxanom.nn.msaam import MSAAM, best_rectangle
-
-__all__ = ["CuDAMAttention", "MSAAM", "best_rectangle"]
+"""Neural-network building blocks: conv-BN layers, BatchNorm, SPP, AFC and SPADE (the papers' attention
+modules live in their packages, ``jaxanom.cudam`` and ``jaxanom.msaam``)."""

@@ -1,7 +1,8 @@
 """Checkpoints: orbax's ``CheckpointManager`` behind a small API (its own API moves between versions).
 
 A checkpoint of step t holds the full ``TrainState`` and, as JSON, the input iterator's position
-after t batches (``None`` when the input cannot report one). orbax writes each step into a
+after t batches (``None`` when the input cannot report one); a reader that needs the model's
+variables alone reads just those fields (``restore_part``). orbax writes each step into a
 temporary folder and renames it when complete, so a run killed while saving leaves the previous
 checkpoints intact.
 """
@@ -131,12 +132,24 @@ class Checkpointer:
         when it cannot be read or its floating-point arrays hold NaN/Inf (damaged files; training
         never saves those, see docs/decisions/reliability.md).
         """
+        restored = self._restore(template, step, partial=False)
+        return restored["state"], restored["data"]["iterator"]
+
+    def restore_part(self, template: dict, step: int | None = None) -> dict:
+        """Only the fields of the saved state that ``template`` names (a dict, e.g. ``{"params",
+        "batch_stats", "step"}`` shaped as they were saved), read without the rest of the state
+        (optimizer and objective state) and without the input position: what inference needs.
+        The errors of ``restore``."""
+        return self._restore(template, step, partial=True)["state"]
+
+    def _restore(self, template: Any, step: int | None, partial: bool) -> dict:
         step = self.latest_step() if step is None else step
         if step is None:
             raise ValueError(f"checkpoint directory {self.directory}: expected at least one saved step, found none")
         abstract = _abstract(template)
-        args = ocp.args.Composite(state=ocp.args.PyTreeRestore(abstract, ocp.checkpoint_utils.construct_restore_args(abstract)),
-                                  data=ocp.args.JsonRestore())
+        state = ocp.args.PyTreeRestore(abstract, ocp.checkpoint_utils.construct_restore_args(abstract),
+                                       partial_restore=partial)
+        args = ocp.args.Composite(state=state) if partial else ocp.args.Composite(state=state, data=ocp.args.JsonRestore())
         try:
             restored = self._manager.restore(step, args=args)
         except Exception as error:  # orbax raises many types for damaged files; name the step instead
@@ -148,7 +161,7 @@ class Checkpointer:
                if not ok]
         if bad:
             raise DamagedCheckpointError(self._damaged(step, f"holds NaN/Inf in {len(bad)} array(s), e.g. {bad[0]}"))
-        return restored["state"], restored["data"]["iterator"]
+        return restored
 
     def _damaged(self, step: int, problem: str) -> str:
         return (f"checkpoint directory {self.directory}: step {step} {problem}; delete that step's folder "
@@ -182,12 +195,15 @@ def check_space(directory: str | os.PathLike, state: Any, what: str) -> None:
                       "MiB free", os.fspath(directory))
 
 
-def restore_checkpoint(directory: str | os.PathLike, template: Any, step: int | None = None) -> tuple[Any, Any]:
-    """Restore from an existing checkpoint folder; ValueError if it is missing, empty or damaged."""
+def restore_checkpoint(directory: str | os.PathLike, template: Any, step: int | None = None, *,
+                       part: bool = False) -> Any:
+    """Restore from an existing checkpoint folder: ``(state, data_state)``, or with ``part`` the saved
+    state's fields that the dict ``template`` names (``Checkpointer.restore_part``); ValueError if the
+    folder is missing, empty or damaged."""
     if not os.path.isdir(directory):
         raise ValueError(f"checkpoint directory: expected an existing folder, got {os.fspath(directory)!r}")
     with Checkpointer(directory, read_only=True) as checkpointer:
-        return checkpointer.restore(template, step)
+        return checkpointer.restore_part(template, step) if part else checkpointer.restore(template, step)
 
 
 def _first_line(error: Exception, limit: int = 300) -> str:

@@ -199,7 +199,7 @@ def test_one_registry_type_names_every_kind_and_refuses_a_taken_or_bad_name(exte
     assert method_registry.METHODS.plugin_module("temp_energy") == PACKAGE
     assert objectives.OBJECTIVES.plugin_module("focal") == PACKAGE
     assert objectives.OBJECTIVES.plugin_module("cudam") is None
-    with pytest.raises(ValueError, match=r"^objective 'cudam': already registered by CuDAM \(jaxanom.cudam_objective\); "
+    with pytest.raises(ValueError, match=r"^objective 'cudam': already registered by CuDAM \(jaxanom.cudam.objective\); "
                                          r"\S+ cannot register another under the same name$"):
         objectives.register(_renamed("cudam"))
     with pytest.raises(ValueError, match=r"^objective name: expected letters, digits, '_', '-', '.' \(not '.' or "

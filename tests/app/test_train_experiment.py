@@ -12,9 +12,9 @@ from jaxanom.app.experiment import (Experiment, check_objective, check_same_run,
                                     run_training)
 from jaxanom.cli import main
 from jaxanom.config_codec import decode
-from jaxanom.cudam_objective import CuDAM
+from jaxanom.cudam.objective import CuDAM
 from jaxanom.losses import CrossEntropy
-from jaxanom.msaam_objective import MSAAM
+from jaxanom.msaam.objective import MSAAM
 from jaxanom.train.checkpoint import Checkpointer
 from jaxanom.train.loop import TrainConfig
 from jaxanom.train.optim import OptimConfig
@@ -87,7 +87,7 @@ def test_a_config_file_that_disagrees_is_one_line_and_attention_flag_brings_its_
     monkeypatch.setattr(app, "run_training", lambda experiment, out, **_: handed.append(experiment))
     config = tmp_path / "exp.py"
     config.write_text("from jaxanom.app.experiment import Experiment\nfrom jaxanom.train.loop import TrainConfig\n"
-                      "from jaxanom.cudam_objective import CuDAM\n"
+                      "from jaxanom.cudam.objective import CuDAM\n"
                       "experiment = Experiment(train=TrainConfig(run_dir='', objective=CuDAM(beta=0.25)))\n")
     assert main(["train", "--config", str(config), "--out", str(tmp_path / "a"), "--no-progress"]) == 2
     error = capsys.readouterr().err.strip()

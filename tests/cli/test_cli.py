@@ -176,7 +176,7 @@ def test_fit_stats_policy_table_warning_and_evaluate_records_it(demo_dir, tmp_pa
     assert record["sml_statistics"]["policy"]["policy"] == "min_count"
     # evaluate's synthetic frames are 256 x 512; the demo network's CuDAM map is at stride 4: 64 x 128
     assert record["cudam_sigma"] == {"values": [pytest.approx(2e4 * 64 * 128 / (256 * 512))],
-                                     "source": "paper-equivalent"}
+                                     "source": "default"}
     out2 = tmp_path / "eval2"
     assert main(["evaluate", "--run", str(demo_dir / "run"), "--dataset", "synthetic", "--path", "anomaly",
                  "--frames", "2", "--stats", str(stats), "--methods", "cudam", "--cudam-sigma", "3",
@@ -193,7 +193,7 @@ def test_train_uses_the_paper_equivalent_tau_for_its_map(tmp_path, capsys, monke
     monkeypatch.setattr(experiment_module, "run_training", lambda experiment, *_, **__: trained.append(experiment))
     config = tmp_path / "exp.py"
     config.write_text("import dataclasses\nfrom jaxanom.app.demos.sml_cudam import DemoConfig\n"
-                      "from jaxanom.cudam_objective import CuDAM\n"
+                      "from jaxanom.cudam.objective import CuDAM\n"
                       "e = DemoConfig.quick().experiment\n"
                       "experiment = dataclasses.replace(e, train=dataclasses.replace(e.train, objective=CuDAM()))\n")
     assert main(["train", "--config", str(config), "--out", str(tmp_path / "run"), "--cudam-position", "output",

@@ -244,7 +244,7 @@ def test_the_oracle_attention_spends_a_real_maps_mass_on_the_anomalies_only():
     rng = np.random.default_rng(0)
     logits = rng.normal(size=(3, 5, 7, CLASSES)).astype(np.float32)
     from jaxanom import sml
-    from jaxanom.cudam_score import paper_sigma
+    from jaxanom.cudam.score import paper_sigma
 
     stats = sml.stats_finalize(sml.fit_stats([logits]), missing="pooled", policy="none")
     out = {"logits": logits, "label": labels, "attention_up": np.full(labels.shape, 1 / 12, np.float32),

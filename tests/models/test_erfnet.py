@@ -122,8 +122,9 @@ def test_sizes_not_multiples_of_8_and_integer_images_are_refused():
 def test_registry_experiment_and_run_folder(net, imported, tmp_path):
     assert build_model("erfnet", num_classes=20) == ERFNet()
     assert build_network(Experiment(model="erfnet", num_classes=20, attention=None)) == ERFNet()
-    with pytest.raises(ValueError, match="attention: ERFNet"):
-        Experiment(model="erfnet", attention="cudam")
+    assert build_network(Experiment(model="erfnet", attention="msaam")) == ERFNet(num_classes=19, attention="msaam")
+    with pytest.raises(ValueError, match=r"cudam_position: expected one of \('deep',\) for 'cudam'"):
+        Experiment(model="erfnet", attention="cudam", cudam_position="surface")
     torch.save({f"module.{k}": v for k, v in net.state_dict().items()}, tmp_path / "erfnet_pretrained.pth")
     out = tmp_path / "run"
     assert main(["convert-weights", "--from", "erfnet-cityscapes", str(tmp_path / "erfnet_pretrained.pth"),

@@ -92,8 +92,10 @@ def test_sizes_not_multiples_of_8_and_integer_images_are_refused():
 def test_registry_and_experiment_build_espnet():
     assert build_model("espnet_p5_q3", num_classes=4) == ESPNet(num_classes=4, p=5, q=3)
     assert build_network(Experiment(model="espnet_p2_q8", num_classes=20, attention=None)) == ESPNet()
-    with pytest.raises(ValueError, match="attention: ESPNet"):
-        Experiment(model="espnet_p2_q8", attention="cudam")
+    assert build_network(Experiment(model="espnet_p2_q8", attention="cudam")) == ESPNet(
+        num_classes=19, attention="cudam", attention_position="deep", attention_options=(("gate", "paper"),))
+    with pytest.raises(ValueError, match=r"cudam_position: expected one of \('deep',\) for 'cudam'"):
+        Experiment(model="espnet_p2_q8", attention="cudam", cudam_position="output")
     with pytest.raises(ValueError, match="espnet_p<P>_q<Q>, got 'espnet_p0_q8'"):
         build_model("espnet_p0_q8")
 

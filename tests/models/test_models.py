@@ -26,11 +26,11 @@ def n_params(tree):
     return sum(math.prod(a.shape) for a in jax.tree.leaves(tree))
 
 
-def random_variables(model, seed=0):
+def random_variables(model, seed=0, images=IMAGES):
     """Variables of ``model`` filled on the host (no compiled RNG): random kernels, biases and
     BatchNorm statistics, CuDAM's alpha 0 as after ``init``. Shapes come from ``jax.eval_shape``."""
     rng = np.random.default_rng(seed)
-    shapes = jax.eval_shape(lambda x: model.init(KEY, x, train=False), IMAGES)
+    shapes = jax.eval_shape(lambda x: model.init(KEY, x, train=False), images)
 
     def fill(path, leaf):
         name = path[-1].key
@@ -112,7 +112,7 @@ def test_resnet_stage_shapes(output_stride, size):
 @pytest.fixture(scope="module")
 def os16_surface_out(cudam_vars):
     """Output stride 16 with CuDAM at the surface position (the parameters are the same)."""
-    model = tiny(attention="cudam", output_stride=16, cudam_position="surface")
+    model = tiny(attention="cudam", output_stride=16, attention_position="surface")
     return eval_fn(model)(with_alpha(cudam_vars, 0.7), IMAGES)
 
 
@@ -278,7 +278,7 @@ def test_paper_configuration_parameter_counts():
     ({"backbone": "resnet7"}, "backbone"),
     ({"output_stride": 32}, "output_stride"),
     ({"attention": "cbam"}, "attention"),
-    ({"cudam_position": "middle"}, "cudam_position"),
+    ({"attention_position": "middle"}, "attention_position"),
     ({"num_classes": 0}, "num_classes"),
 ])
 def test_bad_configuration_raises(kwargs, match):

@@ -1,7 +1,8 @@
 """docs/extending.md runs as written (``tests/doc_examples.py``): its package ``myext`` is written
 into an empty folder, its method scores a tiny logits file through ``jaxanom score --plugin``, its
 objective trains a tiny network two steps through a Python ``--config``, its evaluator runs
-through ``run_evaluators``. In a process of its own, so what the page registers stays there."""
+through ``run_evaluators``, its attention module attaches to two segmenters and trains a step
+through ``train --plugin``. In a process of its own, so what the page registers stays there."""
 import json
 import os
 import subprocess
@@ -25,6 +26,10 @@ def test_the_extension_authors_page_runs_as_written(tmp_path):
     assert {"temperature_msp", "temperature_msp+post"} <= set(metrics)
     assert json.loads((tmp_path / "focal_run" / "experiment.json").read_text())["train"]["objective"]["name"] == "focal"
     assert "$ jaxanom train --config focal_run.py" in result.stdout  # the commands ran, in page order
+    # the attention module, on ERFNet's encoder output (16 channels in erfnet_tiny) and DeepLabV3+'s (64)
+    assert "erfnet_tiny (1, 32, 64, 19) (1, 16) ['expand', 'reduce']" in result.stdout
+    assert "deeplabv3plus_tiny (1, 32, 64, 19) (1, 64) ['expand', 'reduce']" in result.stdout
+    assert json.loads((tmp_path / "gated_run" / "experiment.json").read_text())["plugins"] == ["myext.attention"]
 
 
 def test_a_page_runs_its_files_blocks_and_commands_and_refuses_a_line_it_would_not_run(tmp_path, monkeypatch):

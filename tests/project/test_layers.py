@@ -1,4 +1,5 @@
-"""The three layers of README.md, read from the source: library <- application (``jaxanom.app``) <- ``jaxanom.cli``.
+"""The three layers of README.md, read from the source: library <- application (``jaxanom.app``) <- ``jaxanom.cli``;
+the papers packaged whole (no switch on their names elsewhere) and the README layout naming every package.
 
 Every ``import`` counts, also those inside functions: a lazy upward import is still an upward
 dependency. Library modules import neither ``jaxanom.app`` nor ``jaxanom.cli``; application
@@ -187,3 +188,59 @@ def test_the_cli_and_demo_checks_find_what_they_forbid(fake_package):
     (fake_package / "app" / "experiment.py").write_text("def f():\n    from jaxanom.app.demos.mmf import Config\n")
     files = {module_name(path, fake_package): path for path in fake_package.rglob("*.py")}
     assert imports_of_demos(files) == ["jaxanom.app.experiment -> jaxanom.app.demos.mmf"]
+
+
+# Papers packaged whole: their names are registered from their package and switched on nowhere else.
+PAPER_PACKAGES = ("cudam", "msaam")
+
+
+def paper_names_outside_their_packages(root: Path = PACKAGE) -> list[str]:
+    """``file:line name`` for each string literal equal to a paper package's name in code outside
+    that package (docstrings and the paper demos of ``app/demos``, which configure a paper's run as
+    a user does, aside): a switch on a paper that its package's registrations should make."""
+    found = []
+    for path in sorted(root.rglob("*.py")):
+        relative = path.relative_to(root)
+        if relative.parts[:2] == ("app", "demos"):
+            continue
+        tree = ast.parse(path.read_text(), str(path))
+        docstrings = {id(node.body[0].value) for node in ast.walk(tree)
+                      if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+                      and node.body and isinstance(node.body[0], ast.Expr)
+                      and isinstance(node.body[0].value, ast.Constant)}
+        for node in ast.walk(tree):
+            if (isinstance(node, ast.Constant) and node.value in PAPER_PACKAGES and id(node) not in docstrings
+                    and relative.parts[0] != node.value):
+                found.append(f"{relative}:{node.lineno} {node.value}")
+    return found
+
+
+def test_no_module_switches_on_a_paper_outside_its_package():
+    assert paper_names_outside_their_packages() == []
+
+
+def test_the_paper_name_check_finds_a_switch(fake_package):
+    (fake_package / "models.py").write_text('"""Say "cudam" here."""\ndef f(a):\n    return a == "cudam"\n')
+    (fake_package / "cudam").mkdir()
+    (fake_package / "cudam" / "attention.py").write_text('NAME = "cudam"\n')
+    assert paper_names_outside_their_packages(fake_package) == ["models.py:3 cudam"]
+
+
+def readme_layout_omissions(readme: str, root: Path = PACKAGE) -> list[str]:
+    """The subpackages of ``root`` that the README's layout block (the first ``text`` block after
+    "## Three layers") does not name as ``name/``."""
+    block = readme.split("## Three layers", 1)[1].split("```text", 1)[1].split("```", 1)[0]
+    packages = sorted(p.parent.name for p in root.glob("*/__init__.py"))
+    return [name for name in packages if f"{name}/" not in block]
+
+
+def test_the_readme_layout_names_every_package():
+    assert readme_layout_omissions((REPOSITORY / "README.md").read_text()) == []
+
+
+def test_the_layout_check_finds_a_missing_package(fake_package):
+    readme = "## Three layers\n\n```text\njaxanom/\n  app/ cli/\n```\n"
+    assert readme_layout_omissions(readme, fake_package) == []
+    (fake_package / "sml").mkdir()
+    (fake_package / "sml" / "__init__.py").write_text("")
+    assert readme_layout_omissions(readme, fake_package) == ["sml"]

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from jaxanom import sml
-from jaxanom.cudam_objective import CuDAM
+from jaxanom.cudam.objective import CuDAM
 from jaxanom.sml.running import running_sml_score, running_stats_update
 from jaxanom.train import step as step_lib
 from jaxanom.train.optim import OptimConfig, make_optimizer

@@ -5,8 +5,8 @@ import jax
 import numpy as np
 import pytest
 
-from jaxanom.app.experiment import PAPER_OBJECTIVES
-from jaxanom.cudam_objective import CuDAM
+from jaxanom.app.experiment import paper_objective
+from jaxanom.cudam.objective import CuDAM
 from jaxanom.models import build_model
 from jaxanom.train import step as step_lib
 from jaxanom.train.optim import OptimConfig, make_optimizer
@@ -39,7 +39,7 @@ def test_tiny_deeplab_train_step_traces_for_every_attention(attention):
     model = build_model("deeplabv3plus_tiny", num_classes=3, attention=attention, output_stride=16)
     tx, _ = make_optimizer(OptimConfig(lr=0.01), 10)
     state = TrainState.create(numpy_variables(model, 32), tx, jax.random.key(0))
-    step = functools.partial(step_lib.train_step, model=model, tx=tx, objective=PAPER_OBJECTIVES[attention]())
+    step = functools.partial(step_lib.train_step, model=model, tx=tx, objective=paper_objective(attention)())
     new_state, metrics = jax.eval_shape(step, state, make_batch(0, batch=2, size=32))
     assert jax.tree.structure(new_state) == jax.tree.structure(state)
     assert all(a.shape == b.shape and a.dtype == b.dtype

@@ -12,7 +12,7 @@ import jax
 import numpy as np
 import pytest
 
-from jaxanom.cudam_objective import CuDAM
+from jaxanom.cudam.objective import CuDAM
 from jaxanom.train import loop as loop_lib
 from jaxanom.train.checkpoint import Checkpointer, restore_checkpoint
 from jaxanom.train.loop import NonFiniteLossError, TrainConfig, train

@@ -11,10 +11,10 @@ import optax
 import pytest
 from sklearn.metrics import confusion_matrix as sk_confusion
 
-from jaxanom.cudam_objective import CuDAM
-from jaxanom.cudam_score import paper_tau
+from jaxanom.cudam.objective import CuDAM
+from jaxanom.cudam.score import paper_tau
 from jaxanom.losses import CrossEntropy, cross_entropy
-from jaxanom.msaam_objective import MSAAM
+from jaxanom.msaam.objective import MSAAM
 from jaxanom.objectives import Objective, objective_class, objective_from_dict, objective_names, register
 from jaxanom.train import step as step_lib
 from jaxanom.train.loop import TrainConfig

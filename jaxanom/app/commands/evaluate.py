@@ -128,10 +128,10 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
         record["maps"] = maps
     if mean_std is not None:
         record["sml_statistics"] = statistics_record(stats)
-    if "cudam" in metrics:
-        record["cudam_sigma"] = {"values": metrics["cudam"]["options"]["cudam_sigma"],
-                                 "source": "given" if options.get("cudam", {}).get("cudam_sigma") is not None
-                                 else "paper-equivalent"}
+    for name, method_metrics in metrics.items():  # each option the methods resolved, and whether it was given
+        for option, values in method_metrics.get("options", {}).items():
+            given = options.get(name, {}).get(option) is not None
+            record[option] = {"values": values, "source": "given" if given else "default"}
     write_json_atomic(within(out_dir, out_dir / "metrics.json"), record)
     if pictures and run:  # MMF's pictures: jaxanom demo mmf; maps': jaxanom predict --format png
         from jaxanom.app.reports import write_pictures

@@ -29,8 +29,8 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
     registered the names it uses (``Experiment.plugins``), so every later reading imports them."""
     import jax
 
-    from jaxanom.app.experiment import (Experiment, attention_positions, check_data, check_objective,
-                                        check_schedule, load_experiment, run_training, with_plugins)
+    from jaxanom.app.experiment import (Experiment, attention_settings, check_data, check_objective,
+                                        check_schedule, load_experiment, output_shapes, run_training, with_plugins)
     from jaxanom.train.checkpoint import DamagedCheckpointError
     from jaxanom.train.loop import NonFiniteLossError
 
@@ -70,10 +70,11 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
     experiment = with_plugins(experiment)
     if lead and not resume:  # claimed once the whole experiment is checked: a refused one leaves no folder
         out_folder(out, overwrite=_unstarted(out_dir, experiment), hint="continue the run there with {resume}")
-    if experiment.train.objective.name == "cudam":
-        positions = attention_positions(experiment, *experiment.crop)
-        print(f"CuDAM tau = {experiment.train.objective.reward_weight(positions):.6g} (position "
-              f"{experiment.cudam_position}, gate {experiment.cudam_gate})")
+    line = experiment.train.objective.describe(output_shapes(experiment, *experiment.crop))
+    if line:
+        position, options = attention_settings(experiment)
+        settings = [f"position {position}"] if position else []
+        print(f"{line} ({', '.join(settings + [f'{k} {v}' for k, v in options])})" if settings or options else line)
     try:
         run_training(experiment, out_dir, progress=progress)
     except NonFiniteLossError as error:
@@ -160,7 +161,7 @@ def _override(experiment, *, model, attention, data, data_root, steps, batch_siz
     """``experiment`` with the arguments given (not None). ``attention`` also sets the objective to
     the module's paper objective unless the config's objective already agrees with it (then its
     settings stay)."""
-    from jaxanom.app.experiment import PAPER_OBJECTIVES
+    from jaxanom.app.experiment import paper_objective
 
     fields = {"model": model, "data": data, "data_root": data_root, "batch_size": batch_size,
               "cudam_position": cudam_position, "cudam_gate": cudam_gate}
@@ -173,13 +174,14 @@ def _override(experiment, *, model, attention, data, data_root, steps, batch_siz
     objective = experiment.train.objective
     if attention is not None:
         fields["attention"] = None if attention == "none" else attention
-        paper = PAPER_OBJECTIVES[fields["attention"]]
+        with reading("attention"):
+            paper = paper_objective(fields["attention"])
         if tuple(objective.needs) != paper.needs:
             objective = paper()
     if cudam_tau is not None:
-        if objective.name != "cudam":
-            raise InputError("cudam_tau", f": the objective is {objective.name!r}, which has no reward weight "
-                             "(pass {attention} cudam)", mentions=("attention",))
+        if "tau" not in {field.name for field in dataclasses.fields(objective)}:
+            raise InputError("cudam_tau", f": the objective is {objective.name!r}, which has no reward weight tau "
+                             "(pass {attention} with a module whose objective has one)", mentions=("attention",))
         objective = dataclasses.replace(objective, tau=cudam_tau)
     train["objective"] = objective
     fields = {k: v for k, v in fields.items() if v is not None or k == "attention"}

@@ -14,8 +14,8 @@ import numpy as np
 
 from jaxanom import sml
 from jaxanom._validate import check_count, check_number
-from jaxanom.cudam_objective import CuDAM
-from jaxanom.cudam_score import PAPER_TEST_POSITIONS, PAPER_TRAIN_POSITIONS, equivalent_weight
+from jaxanom.cudam.objective import CuDAM
+from jaxanom.cudam.score import PAPER_TEST_POSITIONS, PAPER_TRAIN_POSITIONS, equivalent_weight
 from jaxanom.data.synthetic import ANOMALY_SPLITS
 from jaxanom.app.evaluate import anomaly_results, class_statistics, predictions, predictor, segmentation_results
 from jaxanom.config_codec import encode

@@ -5,7 +5,8 @@ network's logits P_a rewarded by ``tau * up(M_att)`` on the true class (Eq. 4), 
 L_att (Eq. 7) pulls attention towards uncertain, wrongly predicted pixels, weighted by e^k with
 k an anomaly score; lambda (Eq. 9) is the batch's share of correctly predicted valid pixels.
 Correctness for psi and lambda is judged on P_a, since with the reward nearly every pixel is
-"correct". The pieces are ``jaxanom.losses``' functions; decisions in docs/decisions/cudam.md.
+"correct". The pieces are ``jaxanom.cudam.losses``' functions and ``jaxanom.losses.cross_entropy``;
+decisions in docs/decisions/cudam.md.
 """
 from __future__ import annotations
 
@@ -17,8 +18,9 @@ import jax.numpy as jnp
 
 from jaxanom import losses
 from jaxanom._validate import check_number
-from jaxanom.cudam_score import paper_tau, upsample_attention
-from jaxanom.objectives import Objective, register
+from jaxanom.cudam.losses import attention_loss, self_regulated_lambda, study_logits
+from jaxanom.cudam.score import paper_tau, upsample_attention
+from jaxanom.objectives import Objective, legacy_class_weights, register
 
 ATTENTION_KS = ("msp", "running_sml")
 
@@ -38,10 +40,10 @@ class CuDAM(Objective):
     """CuDAM's loss (Eq. 8); reads the network's attention map ``"attention"`` (B, h, w).
 
     ``tau``: the reward weight of Eq. 4; None (default) is the paper's 5e4 rescaled to the
-    attention map's h * w positions (``cudam_score.paper_tau``; the paper's maps have 180 x 180),
+    attention map's h * w positions (``cudam.score.paper_tau``; the paper's maps have 180 x 180),
     resolved from the map's static shape when the step is traced. ``reward_prob``: probability
     of a study iteration; ``beta``: L_att's threshold factor; ``attention_literal``: Eq. 7 as
-    printed (``losses.attention_loss``). ``attention_k``: L_att's k, ``"msp"``
+    printed (``cudam.losses.attention_loss``). ``attention_k``: L_att's k, ``"msp"``
     (``training_anomaly_score``) or ``"running_sml"`` (SML from class statistics of the
     network's own predictions, an EMA with ``sml_decay`` kept as this objective's state:
     ``jaxanom.sml.running``). ``class_weights``: of L_seg's cross-entropy. With
@@ -74,6 +76,23 @@ class CuDAM(Objective):
         """The tau used on an attention map of ``attention_positions`` = h * w positions."""
         return paper_tau(attention_positions) if self.tau is None else float(self.tau)
 
+    def describe(self, outputs):
+        attention = outputs["attention"]
+        return f"CuDAM tau = {self.reward_weight(attention.shape[-2] * attention.shape[-1]):.6g}"
+
+    @classmethod
+    def from_legacy_loss(cls, loss, own_terms):
+        """A run whose k came from running SML statistics cannot be read: its checkpoints hold them
+        under an earlier name."""
+        if loss.get("attention_k", "msp") != "msp":
+            raise ValueError("train.loss.attention_k: a run of an earlier jaxanom with attention_k="
+                             f"{loss['attention_k']!r} keeps its statistics in checkpoints this version cannot "
+                             "read; train it again")
+        terms = {"reward_prob": loss.get("reward_prob", 0.5), "beta": loss.get("beta", 0.5)} if own_terms else \
+            {"reward_prob": 0.0, "beta": 0.0}
+        return cls(tau=loss.get("tau", 5e4), attention_literal=loss.get("attention_literal", False),
+                   class_weights=legacy_class_weights(loss), **terms)
+
     def init_state(self, num_classes: int):
         """Empty running SML statistics (``sml.ClassStats``) with ``attention_k="running_sml"``, else None."""
         from jaxanom.sml.stats import stats_init
@@ -94,9 +113,9 @@ class CuDAM(Objective):
             k = running_sml_score(state, logits)
         tau = self.reward_weight(attention.shape[-2] * attention.shape[-1])
         attention_up = upsample_attention(attention, labels.shape[1:])
-        rewarded, study = losses.study_logits(key, logits, attention_up, labels, tau, self.reward_prob, ignore)
+        rewarded, study = study_logits(key, logits, attention_up, labels, tau, self.reward_prob, ignore)
         seg = losses.cross_entropy(rewarded, labels, ignore, self.class_weights)
         k = training_anomaly_score(logits) if k is None else k
-        att = losses.attention_loss(attention_up, logits, labels, k, self.beta, self.attention_literal, ignore)
-        lam = losses.self_regulated_lambda(logits, labels, ignore)
+        att = attention_loss(attention_up, logits, labels, k, self.beta, self.attention_literal, ignore)
+        lam = self_regulated_lambda(logits, labels, ignore)
         return seg + lam * att, {"seg_loss": seg, "attention_loss": att, "lambda": lam, "study": study}, state

@@ -19,6 +19,13 @@ less after hundreds of AdamW steps (alpha moves ~lr per step): the attention bar
 features. Multiplied by h * w the map averages 1 per position, so alpha means the same at every
 map size ("alpha = 1: the average position's features are doubled"). The attention map returned
 (and used by Eqs. 4, 7, 10) is ``M_att`` itself in both cases.
+
+Registered as the attention module ``"cudam"`` (``jaxanom.models.attention``): at a segmenter's
+position it gates the features there (``F_a``) with ``F_low`` and ``F_mid`` the segmenter's taps
+``"low"`` and ``"mid"``, and adds the output ``"attention"`` (``M_att``). Its positions: ``"deep"``
+(the paper's best, Table V: DeepLabV3+'s first decoder convolution, ERFNet's and ESPNet's encoder
+output), ``"surface"`` (DeepLabV3+'s last decoder feature, our earlier reading) and ``"output"`` (the
+logits at input size, the paper's surface position); its option ``gate`` (above).
 """
 from __future__ import annotations
 
@@ -28,6 +35,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from jaxanom.models.attention import AttentionModule, register
 from jaxanom.nn.layers import resize_bilinear, spatial_softmax
 
 GATES = ("paper", "scale_free")
@@ -119,3 +127,14 @@ def _channel_max_jvp(primals, tangents):
     top = x.max(-1)
     is_top = x == top[..., None]
     return top, jnp.sum(dx * is_top, -1) / jnp.sum(is_top, -1)
+
+
+def _attend(module: CuDAMAttention, features, taps):
+    features, attention = module(features, taps["low"], taps["mid"])
+    return features, {"attention": attention}
+
+
+register(AttentionModule(
+    "cudam", CuDAMAttention, _attend, positions=("deep", "surface", "output"), options={"gate": "paper"},
+    objective="cudam", method_inputs=frozenset({"attention"}),
+    recorded_as={"position": "cudam_position", "gate": "cudam_gate"}))

@@ -23,6 +23,10 @@ Highlight maps (Eqs. 8-11, for visualisation): ScAH = alpha_sc * mean_c f_sc, Sp
 m_sp, CAH = alpha_c * mean_c f_c (channel means rather than the paper's sums: the same picture
 up to the factor C, which the paper's normalisation for display removes) and, literally as
 Eq. 11, CoAH = alpha_sc ScAH + alpha_sp SpAH + alpha_c CAH. ``best_rectangle`` is Eq. 12.
+
+Registered as the attention module ``"msaam"`` (``jaxanom.models.attention``): it sits at the
+end of a segmenter's encoder (DeepLabV3+'s ``"encoder"`` position, before ASPP; ERFNet's and
+ESPNet's ``"deep"`` one, before the decoder) and adds the outputs listed under ``MSAAM``.
 """
 from __future__ import annotations
 
@@ -33,6 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxanom.models.attention import AttentionModule, register
 from jaxanom.nn.layers import resize_bilinear, spatial_softmax
 
 
@@ -177,3 +182,7 @@ def best_rectangle(highlight: jax.Array, height: int, width: int) -> tuple[jax.A
     y1, x1 = flat // sums.shape[1], flat % sums.shape[1]
     corner = jnp.stack([y1, x1, y1 + height - 1, x1 + width - 1]).astype(jnp.int32)
     return corner, sums.reshape(-1)[flat] / (height * width)
+
+
+register(AttentionModule("msaam", MSAAM, lambda module, features, taps: module(features), positions=("encoder", "deep"),
+                         objective="msaam"))

@@ -1,12 +1,12 @@
 """CuDAM's ensemble (Eq. 10) as a registered method: ``sml_post`` plus sigma times the upsampled attention.
 
 The option ``cudam_sigma`` defaults to the weight with the paper's effect on this batch's
-attention map (``cudam_score.paper_sigma`` of its h * w positions): 2e4 on the paper's 256 x 512
+attention map (``cudam.score.paper_sigma`` of its h * w positions): 2e4 on the paper's 256 x 512
 maps, scaled with the number of positions elsewhere.
 """
 from __future__ import annotations
 
-from jaxanom.cudam_score import cudam_score, paper_sigma
+from jaxanom.cudam.score import cudam_score, paper_sigma
 from jaxanom.method_registry import Method, register
 from jaxanom.sml.score import sml_score_batch
 

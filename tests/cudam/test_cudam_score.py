@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from jaxanom.cudam_score import cudam_score, upsample_attention
+from jaxanom.cudam.score import cudam_score, upsample_attention
 
 
 def ref_bilinear(image, out_h, out_w):
@@ -54,7 +54,7 @@ def test_bad_shapes_raise_value_error():
 
 
 def test_equivalent_weight_keeps_weight_times_attention():
-    from jaxanom.cudam_score import PAPER_TRAIN_POSITIONS, equivalent_weight
+    from jaxanom.cudam.score import PAPER_TRAIN_POSITIONS, equivalent_weight
 
     assert PAPER_TRAIN_POSITIONS == 180 * 180
     # A uniform map of n positions has values 1/n: the product with the weight must not change.
