@@ -13,11 +13,13 @@ import numpy as np
 from jaxanom.io import write_json_atomic
 
 
-def write_run(folder: str | os.PathLike, preset: str, model, variables: dict):
+def write_run(folder: str | os.PathLike, preset: str, model, variables: dict, **fields):
     """Write ``variables`` of ``model`` (built by ``build_model(preset, ...)``) as a step-0 run.
 
     The experiment keeps jaxanom's defaults for everything but the network (model preset,
-    classes; for a DeepLabV3+ also attention, output stride, CuDAM position). Returns the ``Experiment``.
+    classes; for a DeepLabV3+ also attention, output stride, CuDAM position) and ``fields`` (other
+    ``Experiment`` fields, e.g. ``data="camvid", data_root=...`` for a network trained outside
+    ``jaxanom train``, whose training frames ``fit-stats`` then reads). Returns the ``Experiment``.
     """
     from jaxanom.app.experiment import Experiment, jsonable
     from jaxanom.models import DeepLabV3Plus
@@ -29,7 +31,7 @@ def write_run(folder: str | os.PathLike, preset: str, model, variables: dict):
     if isinstance(model, DeepLabV3Plus):
         network = {"attention": model.attention, "cudam_position": model.cudam_position,
                    "output_stride": model.output_stride}
-    experiment = Experiment(model=preset, num_classes=model.num_classes, **network)
+    experiment = Experiment(model=preset, num_classes=model.num_classes, **network, **fields)
     folder = Path(folder)
     write_json_atomic(folder / "experiment.json", jsonable(experiment), allow_nan=False)
     tx, _ = make_optimizer(experiment.train.optim, experiment.train.steps)
