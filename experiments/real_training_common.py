@@ -182,7 +182,9 @@ class Settings:
 def run_folder(settings: Settings) -> Path:
     _, _, weights = cityscapes_erfnet()
     train_key = cache_folder("train", False).name
-    return CACHE / "runs" / f"decoder-{settings_key({**dataclasses.asdict(settings), 'weights': weights, 'train': train_key, 'version': CACHE_VERSION})}"
+    key = settings_key({**dataclasses.asdict(settings), "weights": weights, "train": train_key,
+                        "version": CACHE_VERSION})
+    return CACHE / "runs" / f"decoder-{key}"
 
 
 def initial_decoder(settings: Settings, example: np.ndarray) -> dict:
