@@ -130,8 +130,7 @@ def cache_features(split: str, flip: bool = False, log=print) -> tuple[np.ndarra
     folder = cache_folder(split, flip)
     folder.mkdir(parents=True, exist_ok=True)
     frames = camvid(split)
-    encoder, variables = encoder_module(), encoder_variables()
-    forward = jax.jit(lambda v, x: encoder.apply(v, normalize_erfnet(x), train=False))
+    forward = None
     computed, seconds = 0, 0.0
     features, labels = [], []
     for i in range(len(frames)):
@@ -141,6 +140,9 @@ def cache_features(split: str, flip: bool = False, log=print) -> tuple[np.ndarra
             image, label = frame["image"], frame["label"]
             if flip:
                 image, label = image[:, ::-1], label[:, ::-1]
+            if forward is None:  # built only where a frame is missing
+                encoder, variables = encoder_module(), encoder_variables()
+                forward = jax.jit(lambda v, x: encoder.apply(v, normalize_erfnet(x), train=False))
             start = time.perf_counter()
             value = np.asarray(forward(variables, np.ascontiguousarray(image)[None])[0], np.float32)
             seconds += time.perf_counter() - start if computed else 0.0  # the first one compiles
@@ -247,6 +249,7 @@ def train_decoder(settings: Settings, log=print) -> Path:
     train = [cache_features("train", flip, log) for flip in (False, True)]
     features = np.concatenate([train[0][0], train[1][0]])
     labels = np.concatenate([train[0][1], train[1][1]])
+    val_features, val_labels, _ = cache_features("val", False, log)
     weights = enet_class_weights(labels, settings.num_classes) if settings.class_weights == "enet" else None
     model = decoder_module(settings.num_classes)
     tx, _ = make_optimizer(OptimConfig(settings.optimizer, lr=settings.lr, weight_decay=settings.weight_decay),
@@ -268,9 +271,12 @@ def train_decoder(settings: Settings, log=print) -> Path:
                 log(f"step {step + 1}/{settings.steps} loss {loss:.4f} ({np.median(times[1:] or times):.2f} s/step)")
             if checkpointer.is_due(step + 1) or step + 1 == settings.steps:
                 checkpointer.save(step + 1, state)
+                val = decoder_miou(state.variables, val_features, val_labels, settings.num_classes)
+                log(f"step {step + 1}: val mIoU {100 * val['miou']:.2f}")
+                with open(folder / "val_history.jsonl", "a") as f:
+                    f.write(json.dumps({"step": step + 1, "val_miou": float(val["miou"])}) + "\n")
         checkpointer.wait()
     decoder = jax.device_get(state.variables)
-    val_features, val_labels, _ = cache_features("val", False, log)
     val = decoder_miou(decoder, val_features, val_labels, settings.num_classes)
     model_full = ERFNet(num_classes=settings.num_classes)
     whole = {collection: {**encoder_variables()[collection], **decoder[collection]} for collection in decoder}
