@@ -283,7 +283,8 @@ def train_decoder(settings: Settings, log=print) -> Path:
     val = decoder_miou(decoder, val_features, val_labels, settings.num_classes)
     model_full = ERFNet(num_classes=settings.num_classes)
     whole = {collection: {**encoder_variables()[collection], **decoder[collection]} for collection in decoder}
-    write_run(folder / "run", "erfnet", model_full, whole, data="camvid", data_root=str(CAMVID), crop=(360, 480))
+    write_run(folder / "run", "erfnet", model_full, whole, settings.steps, data="camvid", data_root=str(CAMVID),
+              crop=(360, 480))
     result = {"settings": dataclasses.asdict(settings), "class_weights": weights,
               "val_miou": float(val["miou"]), "val_iou": [float(x) for x in val["iou"]],
               "median_step_seconds": float(np.median(times[1:])) if len(times) > 1 else None,
