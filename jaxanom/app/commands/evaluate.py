@@ -1,6 +1,9 @@
 """``jaxanom evaluate``: pooled anomaly metrics on an anomaly dataset, of a run's network, an MMF
-pipeline's folder or score maps written by ``jaxanom predict --format smiyc``."""
+pipeline's folder or score maps written by ``jaxanom predict --format smiyc``; or a run's
+segmentation mIoU on a segmentation dataset (``SEGMENTATION``: CamVid)."""
 from __future__ import annotations
+
+import numpy as np
 
 from jaxanom.app.commands.inputs import (DEFAULT_METHODS, check_stats_classes, load_plugins, method_names,
                                          method_options, read_stats, split_overrides)
@@ -8,12 +11,15 @@ from jaxanom.app.outputs import check_out_outside, out_folder, within
 from jaxanom.app.protocols import PROTOCOLS
 from jaxanom.errors import InputError, reading
 
-__all__ = ["MMF_DEFAULT_METHODS", "PROTOCOLS", "TRACKS", "evaluate", "statistics_record"]
+__all__ = ["MMF_DEFAULT_METHODS", "PROTOCOLS", "SEGMENTATION", "TRACKS", "evaluate", "segmentation",
+           "statistics_record"]
 
 MMF_DEFAULT_METHODS = ("entropy", "resynthesis", "resynthesis_post", "mmf_raw", "mmf")
 # SegmentMeIfYouCan's component rules per dataset (smiyc: RoadAnomaly21 or RoadObstacle21, say which)
 TRACKS = {"synthetic": "anomaly", "road-anomaly": "anomaly", "fishyscapes-laf": "anomaly",
           "fishyscapes-static": "anomaly", "lost-and-found": "obstacle", "smiyc": None}
+# segmentation datasets: name -> (its splits, the default one)
+SEGMENTATION = {"camvid": (("train", "val", "test"), "test")}
 
 
 def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: str | None = None,
@@ -21,7 +27,8 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
              stats: str | None = None, methods: str | None = None, plugins=(), fpr_convention: str | None = None,
              ap_convention: str = "step", cudam_sigma: float | None = None, track: str | None = None,
              convention: str = "exact", protocol: str = "native", pictures: int = 0,
-             all_conventions: bool = False, overrides=(), overwrite: bool = False) -> dict:
+             all_conventions: bool = False, overrides=(), split: str | None = None,
+             overwrite: bool = False) -> dict:
     """Score ``dataset`` (its folder ``path``) with one of ``run`` (a network), ``mmf`` (a folder
     of ``jaxanom demo mmf``) or ``maps`` (saved score maps) and write ``out/metrics.json``, which
     is returned; prints the results table. ``track`` picks SegmentMeIfYouCan's component rules
@@ -42,8 +49,20 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
 
     if sum(x is not None for x in (run, mmf, maps)) != 1:
         raise InputError("run", ", {mmf}, {maps}: give exactly one", mentions=("mmf", "maps"))
-    if dataset not in TRACKS:
-        raise InputError("dataset", f": expected one of {', '.join(TRACKS)}, got {dataset!r}")
+    if dataset not in TRACKS and dataset not in SEGMENTATION:
+        raise InputError("dataset", f": expected one of {', '.join([*TRACKS, *SEGMENTATION])}, got {dataset!r}")
+    if dataset in SEGMENTATION:
+        given = {"mmf": mmf, "maps": maps, "stats": stats, "methods": methods, "track": track,
+                 "cudam_sigma": cudam_sigma, "base": base, "depth": depth, "pictures": pictures or None,
+                 "protocol": None if protocol == "native" else protocol, "overrides": list(overrides) or None}
+        refused = [name for name, value in given.items() if value is not None]
+        if refused:
+            raise InputError(refused[0], f": scores anomalies; the {dataset} dataset is scored for segmentation "
+                             "(mIoU) only, from {run}", mentions=("run",))
+        return segmentation(run=run, dataset=dataset, path=path, split=split, out=out, overwrite=overwrite)
+    if split is not None:
+        raise InputError("split", f": picks the frames of a segmentation dataset ({', '.join(SEGMENTATION)}); "
+                         f"{dataset} has none")
     track = track or TRACKS[dataset]
     if track is None:
         raise InputError("track", ": the smiyc dataset holds either track; pass {track} anomaly (RoadAnomaly21) or "
@@ -145,6 +164,58 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
     print(results_table(metrics))
     if all_conventions:
         print("\n" + conventions_table(metrics))
+    return record
+
+
+def segmentation(*, run: str | None, dataset: str, path: str, split: str | None, out: str,
+                 overwrite: bool = False) -> dict:
+    """mIoU over the dataset's classes (its void label ignored), pixel accuracy and per-class IoU of
+    ``run``'s network (the argmax of its logits, each frame at its own size) on the frames of
+    ``split``; writes ``out/metrics.json``, which is returned, and prints them."""
+    from jaxanom.app.evaluate import predictions, predictor, segmentation_results
+    from jaxanom.app.experiment import build_network, load_variables
+    from jaxanom.app.predict import size_check
+    from jaxanom.data.pipeline import evaluation_batches
+    from jaxanom.data import CamVid, camvid
+    from jaxanom.io import write_json_atomic
+
+    reader, num_classes, names = {"camvid": (CamVid, camvid.NUM_CLASSES, camvid.CLASS_NAMES)}[dataset]
+    splits, default = SEGMENTATION[dataset]
+    split = split or default
+    if split not in splits:
+        raise InputError("split", f": expected one of {', '.join(splits)}, got {split!r}")
+    if run is None:
+        raise InputError("run", f": the {dataset} dataset is scored for segmentation, which needs a network")
+    check_out_outside(out, {"run": run})
+    with reading("path", path):
+        source = reader(path, split)
+    with reading("run", run):
+        experiment, variables = load_variables(run)
+    if experiment.num_classes != num_classes:
+        raise InputError("run", f" {run}: has {experiment.num_classes} outputs, expected a network of {dataset}'s "
+                         f"{num_classes} classes")
+    network = build_network(experiment)
+    check = size_check(network, variables, "path", advice="")
+    predict = predictor(network, variables)
+
+    def batches():
+        for batch in evaluation_batches(source, batch_size=1):
+            check(batch["image"].shape[1:3], str(batch["name"][0]))
+            yield batch
+
+    scores = segmentation_results(predictions(predict, batches()), num_classes)
+    metrics = {"miou": scores["miou"], "pixel_accuracy": scores["pixel_accuracy"], "classes": list(names),
+               # None: a class neither labelled nor predicted
+               "iou": [None if np.isnan(v) else v for v in scores["per_class_iou"]]}
+    record = {"dataset": dataset, "path": path, "split": split, "frames": len(source), "run": run,
+              "ignored": "void", "metrics": metrics}
+    out_dir = out_folder(out, overwrite)
+    write_json_atomic(within(out_dir, out_dir / "metrics.json"), record, allow_nan=False)
+    width = max(map(len, names))
+    print(f"{dataset} {split}, {len(source)} frames: mIoU {100 * scores['miou']:.2f}%, "
+          f"pixel accuracy {100 * scores['pixel_accuracy']:.2f}%")
+    for name, value in zip(names, metrics["iou"]):
+        print(f"  {name:<{width}}  {'-' if value is None else f'{100 * value:.2f}'}")
     return record
 
 

@@ -1,0 +1,78 @@
+"""The frozen-encoder regime of experiments/real_training_common.py on the tiny CamVid fixture and a
+random ERFNet: cached features are the encoder's output and a rerun computes none; the crops pair
+feature cells with the label pixels under them; ENet's class weights; the written run is the
+whole ERFNet (frozen encoder + trained decoder)."""
+import jax
+import numpy as np
+import pytest
+
+from camvid_tree import write_camvid
+from experiments import real_training_common as rtc
+from jaxanom.app.experiment import _trained_steps, build_network, load_variables
+from jaxanom.app.runs import write_run
+from jaxanom.models.erfnet import ERFNet, normalize_erfnet
+
+H, W = 32, 48
+
+
+@pytest.fixture
+def tiny(tmp_path, monkeypatch):
+    """The fixture as CamVid, a random 20-output ERFNet as the Cityscapes one, the cache in tmp_path."""
+    write_camvid(tmp_path / "CamVid", H, W)
+    model = ERFNet(num_classes=20)
+    variables = jax.device_get(model.init(jax.random.key(1), np.zeros((1, H, W, 3), np.float32)))
+    rng = np.random.default_rng(0)  # BN statistics that are not the identity
+    variables["batch_stats"] = jax.tree.map(lambda x: (rng.random(x.shape) + 0.5).astype(np.float32),
+                                            variables["batch_stats"])
+    monkeypatch.setattr(rtc, "CAMVID", tmp_path / "CamVid")
+    monkeypatch.setattr(rtc, "CACHE", tmp_path / "cache")
+    monkeypatch.setattr(rtc, "cityscapes_erfnet", lambda: (model, variables, "digest"))
+    return model, variables
+
+
+def test_cached_features_are_the_encoders_and_a_rerun_computes_none(tiny, monkeypatch):
+    model, variables = tiny
+    features, labels, _ = rtc.cache_features("train", flip=True, log=lambda *_: None)
+    frames = rtc.camvid("train")
+    images = np.stack([frames[i]["image"][:, ::-1] for i in range(len(frames))])
+    encoder = rtc.encoder_module().apply({c: {"encoder": t["encoder"]} for c, t in variables.items()},
+                                         normalize_erfnet(images))
+    np.testing.assert_allclose(features, encoder, rtol=1e-6, atol=1e-6)
+    np.testing.assert_array_equal(labels, np.stack([frames[i]["label"][:, ::-1] for i in range(len(frames))]))
+    assert rtc.cache_folder("train", True) != rtc.cache_folder("train", False)
+    monkeypatch.setattr(rtc, "encoder_module", lambda: pytest.fail("a cached frame was computed again"))
+    again, _, _ = rtc.cache_features("train", flip=True)
+    np.testing.assert_array_equal(again, features)
+
+
+def test_a_crop_pairs_each_feature_cell_with_the_label_pixels_under_it():
+    rng = np.random.default_rng(0)
+    labels = rng.integers(0, 11, (5, 8 * 6, 8 * 7)).astype(np.uint8)
+    features = np.repeat(labels[:, ::8, ::8, None], 3, -1).astype(np.float32)  # cell value = its top-left label
+    settings = rtc.Settings(batch_size=3, crop=(4, 5))
+    batch = rtc.crops(features, labels, settings, 7)
+    assert batch["image"].shape == (3, 4, 5, 3) and batch["label"].shape == (3, 32, 40)
+    np.testing.assert_array_equal(batch["image"][..., 0], batch["label"][:, ::8, ::8])
+    np.testing.assert_array_equal(rtc.crops(features, labels, settings, 7)["label"], batch["label"])  # resumable
+
+
+def test_enet_class_weights_from_the_formula():
+    labels = np.array([0, 0, 0, 1, 255, 255, 2, 2])
+    p = np.array([3, 1, 2, 0]) / 6
+    assert rtc.enet_class_weights(labels, 4) == pytest.approx(1 / np.log(1.02 + p), rel=1e-12)
+
+
+def test_the_written_run_is_the_frozen_encoder_and_the_decoder(tiny, tmp_path):
+    model, variables = tiny
+    decoder = rtc.decoder_module(11)
+    example = np.zeros((1, H // 8, W // 8, 128), np.float32)
+    trained = jax.device_get(decoder.init(jax.random.key(2), example))
+    whole = {c: {**rtc.encoder_variables()[c], **trained[c]} for c in trained}
+    write_run(tmp_path / "run", "erfnet", ERFNet(num_classes=11), whole, 7, data="camvid", data_root="x", crop=(H, W))
+    experiment, stored = load_variables(tmp_path / "run")
+    assert (experiment.data, experiment.num_classes) == ("camvid", 11)
+    assert _trained_steps(tmp_path / "run") == 7  # a trained network: fit-stats reads its training frames
+    images = np.random.default_rng(1).integers(0, 256, (2, H, W, 3), np.uint8)
+    logits = build_network(experiment).apply(stored, normalize_erfnet(images))["logits"]
+    encoded = rtc.encoder_module().apply(rtc.encoder_variables(), normalize_erfnet(images))
+    np.testing.assert_allclose(logits, decoder.apply(trained, encoded)["logits"], rtol=1e-5, atol=1e-5)
