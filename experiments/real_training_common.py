@@ -84,7 +84,8 @@ def encoder_module():
     class Encoder(nn.Module):
         @nn.compact
         def __call__(self, images, train: bool = False):
-            return ERFNetEncoder(name="encoder")(images, train)
+            features, _ = ERFNetEncoder(name="encoder")(images, train)  # the taps feed attention modules only
+            return features
 
     return Encoder()
 
