@@ -418,3 +418,11 @@ def test_entry_points_can_be_switched_off(tmp_path, capsys, monkeypatch, broken_
     assert "installed_twin" not in method_registry.names()
     error = one_line_error(capsys, [*logits_file(tmp_path), "--methods", "installed_twin", "--out", str(tmp_path / "o")])
     assert "got ['installed_twin']" in error and "entry point" not in error
+
+
+def test_a_method_named_twice_is_one_line_before_any_output(tmp_path, capsys):
+    """Two writers of one scores/<method>.npy: refused before the folder is made."""
+    error = one_line_error(capsys, [*logits_file(tmp_path), "--methods", "msp,entropy,msp", "--out",
+                                    str(tmp_path / "o")])
+    assert error.endswith("--methods: expected each method once (one output each), got 'msp' twice")
+    assert not (tmp_path / "o").exists()

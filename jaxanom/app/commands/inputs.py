@@ -11,12 +11,14 @@ DEFAULT_METHODS = ("msp", "max_logit", "entropy", "energy", "sml", "sml_post")
 
 def method_names(methods: str | None, default: tuple[str, ...] = DEFAULT_METHODS) -> tuple[str, ...]:
     """Comma-separated ``methods`` as a tuple (None: ``default``); InputError naming ``methods`` for
-    one that is not a name (``method_registry.NAME_RULE``): names become output paths."""
+    one that is not a name (``method_registry.NAME_RULE``) or is given twice: names become output paths."""
     from jaxanom.method_registry import NAME_RULE, is_name
 
     names = tuple(methods.split(",")) if methods else tuple(default)
     if bad := [name for name in names if not is_name(name)]:
         raise InputError("methods", f": expected names of {NAME_RULE}, never a path; got {', '.join(map(repr, bad))}")
+    if twice := sorted({name for name in names if names.count(name) > 1}):
+        raise InputError("methods", f": expected each method once (one output each), got {', '.join(map(repr, twice))} twice")
     return names
 
 
