@@ -74,9 +74,10 @@ def encoder_variables() -> dict:
     return {collection: {"encoder": tree["encoder"]} for collection, tree in variables.items()}
 
 
-def encoder_module():
+def encoder_module(with_taps: bool = False):
     """A module ``(images (B, H, W, 3) in [0, 1], train) -> (B, H/8, W/8, 128)`` whose variables sit
-    under ``encoder`` (as in ``ERFNet``)."""
+    under ``encoder`` (as in ``ERFNet``); ``with_taps``: ``(features, {"low", "mid"})``, the encoder's
+    earlier maps that attention modules read (``jaxanom.models.erfnet``)."""
     import flax.linen as nn
 
     from jaxanom.models.erfnet import ERFNetEncoder
@@ -84,23 +85,35 @@ def encoder_module():
     class Encoder(nn.Module):
         @nn.compact
         def __call__(self, images, train: bool = False):
-            features, _ = ERFNetEncoder(name="encoder")(images, train)  # the taps feed attention modules only
-            return features
+            features, taps = ERFNetEncoder(name="encoder")(images, train)
+            return (features, taps) if with_taps else features
 
     return Encoder()
 
 
-def decoder_module(num_classes: int):
-    """A module ``(features (B, h, w, 128), train) -> {"logits" (B, 8h, 8w, num_classes)}`` whose
-    variables sit under ``decoder`` (as in ``ERFNet``), so the trainer's ``train_step`` runs it."""
+def decoder_module(num_classes: int, attention: str | None = None):
+    """A module ``(features (B, h, w, 128), train, low?, mid?) -> {"logits" (B, 8h, 8w, num_classes),
+    the attention module's outputs}`` whose variables sit under ``decoder`` and the module's name (as
+    in ``ERFNet``), so the trainer's ``train_step`` runs it. ``attention``: a registered attention
+    module at ERFNet's ``deep`` position (the encoder's output), reading the taps ``low`` and ``mid``
+    (the trainer passes them from the batch: ``extra_inputs``)."""
     import flax.linen as nn
+    import jax.numpy as jnp
 
+    from jaxanom.models.attention import get
     from jaxanom.models.erfnet import ERFNetDecoder
 
     class Decoder(nn.Module):
+        extra_inputs = ("low", "mid") if attention is not None else ()
+
         @nn.compact
-        def __call__(self, features, train: bool = False):
-            return {"logits": ERFNetDecoder(num_classes, name="decoder")(features, train)}
+        def __call__(self, features, train: bool = False, low=None, mid=None):
+            out = {}
+            if attention is not None:
+                spec = get(attention)
+                module = spec.build(dtype=jnp.float32, name=spec.name, **spec.options)
+                features, out = spec.attend(module, features, {"low": low, "mid": mid})
+            return {**out, "logits": ERFNetDecoder(num_classes, name="decoder")(features, train)}
 
     return Decoder()
 
@@ -163,6 +176,37 @@ def cache_features(split: str, flip: bool = False, log=print) -> tuple[np.ndarra
     return np.stack(features), np.stack(labels), per_frame
 
 
+def cache_taps(split: str, flip: bool = False, log=print) -> dict[str, np.ndarray]:
+    """``{"low": (N, 90, 120, 64), "mid": (N, 45, 60, 128)}`` float32: the encoder's taps of each frame
+    of a CamVid split (as ``cache_features``, beside it under ``taps-...``), computed where not cached."""
+    import jax
+
+    from jaxanom.models.erfnet import normalize_erfnet
+
+    folder = CACHE / cache_folder(split, flip).name.replace("features-", "taps-", 1)
+    folder.mkdir(parents=True, exist_ok=True)
+    frames = camvid(split)
+    forward = None
+    taps = {"low": [], "mid": []}
+    for i in range(len(frames)):
+        path = folder / f"{i:04d}.npz"
+        if not path.exists():
+            image = frames[i]["image"][:, ::-1] if flip else frames[i]["image"]
+            if forward is None:
+                encoder, variables = encoder_module(with_taps=True), encoder_variables()
+                forward = jax.jit(lambda v, x: encoder.apply(v, normalize_erfnet(x), train=False)[1])
+            value = forward(variables, np.ascontiguousarray(image)[None])
+            partial = folder / f"{i:04d}.partial.npz"
+            np.savez(partial, **{k: np.asarray(value[k][0], np.float32) for k in taps})
+            os.replace(partial, path)
+            if (i + 1) % 50 == 0:
+                log(f"  cached taps of {split}{' flipped' if flip else ''} {i + 1}/{len(frames)}")
+        with np.load(path) as stored:
+            for k in taps:
+                taps[k].append(stored[k])
+    return {k: np.stack(v) for k, v in taps.items()}
+
+
 def enet_class_weights(labels: np.ndarray, num_classes: int, c: float = 1.02) -> tuple[float, ...]:
     """ENet's class weights ``1 / ln(c + p_k)``, p_k the share of class k among the valid pixels
     (Paszke et al. 2016, Sec. 5.2; ERFNet's authors weight Cityscapes the same way)."""
@@ -183,18 +227,30 @@ class Settings:
     weight_decay: float = 1e-4
     class_weights: str = "enet"  # or "none"
     num_classes: int = 11
+    attention: str | None = None  # a registered attention module at the encoder's output
+    objective: tuple[tuple[str, float], ...] = ()  # options of the attention module's objective
+
+    def __post_init__(self):
+        object.__setattr__(self, "crop", tuple(self.crop))
+        object.__setattr__(self, "objective", tuple(sorted((k, v) for k, v in self.objective)))
+
+
+# fields added after the first networks were trained: left out of the key at their defaults, so
+# those networks keep their folders
+LATER_FIELDS = {"attention": None, "objective": ()}
 
 
 def run_folder(settings: Settings) -> Path:
     _, _, weights = cityscapes_erfnet()
     train_key = cache_folder("train", False).name
-    key = settings_key({**dataclasses.asdict(settings), "weights": weights, "train": train_key,
-                        "version": CACHE_VERSION})
+    fields = {k: v for k, v in dataclasses.asdict(settings).items() if k not in LATER_FIELDS or v != LATER_FIELDS[k]}
+    key = settings_key({**fields, "weights": weights, "train": train_key, "version": CACHE_VERSION})
     return CACHE / "runs" / f"decoder-{key}"
 
 
-def initial_decoder(settings: Settings, example: np.ndarray) -> dict:
-    """The decoder's variables: the Cityscapes ones, but the new head from ``settings.seed``."""
+def initial_decoder(settings: Settings, example: dict) -> dict:
+    """The decoder's variables: the Cityscapes ones, but the new head and the attention module
+    (where there is one) fresh from ``settings.seed``. ``example``: a batch (``crops``)."""
     import jax
 
     from jaxanom.app.experiment import class_layers
@@ -202,34 +258,65 @@ def initial_decoder(settings: Settings, example: np.ndarray) -> dict:
 
     _, cityscapes, _ = cityscapes_erfnet()
     source = {collection: {"decoder": tree["decoder"]} for collection, tree in cityscapes.items()}
-    fresh = jax.device_get(decoder_module(settings.num_classes).init(jax.random.key(settings.seed), example))
+    model = decoder_module(settings.num_classes, settings.attention)
+    extras = {name: example[name] for name in model.extra_inputs}
+    fresh = jax.device_get(model.init(jax.random.key(settings.seed), example["image"], **extras))
     return take_modules(fresh, source, ("decoder",), keep=class_layers(fresh, source))
 
 
-def crops(features: np.ndarray, labels: np.ndarray, settings: Settings, step: int) -> dict:
+def crops(features: np.ndarray, labels: np.ndarray, settings: Settings, step: int,
+          taps: dict[str, np.ndarray] | None = None) -> dict:
     """The batch of ``step``: random frames and random crops of the feature grid (labels at 8x the
-    offsets), drawn from ``(seed, step)`` so a resumed run sees the batches it would have seen."""
+    offsets; each tap of ``taps`` at the offsets times its size over the grid's), drawn from
+    ``(seed, step)`` so a resumed run sees the batches it would have seen."""
     rng = np.random.default_rng([settings.seed, step])
     (h, w), (ch, cw) = features.shape[1:3], settings.crop
     index = rng.choice(len(features), settings.batch_size, replace=False)
     ys, xs = rng.integers(0, h - ch + 1, settings.batch_size), rng.integers(0, w - cw + 1, settings.batch_size)
-    return {"image": np.stack([features[i, y:y + ch, x:x + cw] for i, y, x in zip(index, ys, xs)]),
-            "label": np.stack([labels[i, STRIDE * y:STRIDE * (y + ch), STRIDE * x:STRIDE * (x + cw)]
-                               for i, y, x in zip(index, ys, xs)]).astype(np.int32)}
+
+    def cut(array: np.ndarray, factor: int) -> np.ndarray:
+        return np.stack([array[i, factor * y:factor * (y + ch), factor * x:factor * (x + cw)]
+                         for i, y, x in zip(index, ys, xs)])
+
+    batch = {"image": cut(features, 1), "label": cut(labels, STRIDE).astype(np.int32)}
+    for name, tap in (taps or {}).items():
+        batch[name] = cut(tap, tap.shape[1] // h)
+    return batch
 
 
-def decoder_miou(variables: dict, features: np.ndarray, labels: np.ndarray, num_classes: int,
-                 batch: int = 4) -> dict:
-    """mIoU etc. (``Segmentation`` evaluator) of the decoder on whole cached frames."""
+def decoder_outputs(variables: dict, settings: Settings, features: np.ndarray,
+                    taps: dict[str, np.ndarray] | None = None, batch: int = 4):
+    """The decoder's outputs (``{"logits", the attention module's}``, inference mode) on whole cached
+    frames, ``batch`` at a time."""
     import jax
 
+    model = decoder_module(settings.num_classes, settings.attention)
+    forward = jax.jit(lambda v, x, extras: model.apply(v, x, train=False, **extras))
+    for i in range(0, len(features), batch):
+        yield forward(variables, features[i:i + batch], {k: v[i:i + batch] for k, v in (taps or {}).items()})
+
+
+def decoder_miou(variables: dict, settings: Settings, features: np.ndarray, labels: np.ndarray,
+                 taps: dict[str, np.ndarray] | None = None, batch: int = 4) -> dict:
+    """mIoU etc. (``Segmentation`` evaluator) of the decoder on whole cached frames."""
     from jaxanom.metrics.evaluator import Segmentation, run_evaluators
 
-    model = decoder_module(num_classes)
-    forward = jax.jit(lambda v, x: model.apply(v, x, train=False)["logits"])
-    batches = ({"logits": forward(variables, features[i:i + batch]), "label": labels[i:i + batch]}
-               for i in range(0, len(features), batch))
-    return run_evaluators({"s": Segmentation(num_classes)}, batches)["s"]
+    outputs = decoder_outputs(variables, settings, features, taps, batch)
+    batches = ({"logits": out["logits"], "label": labels[i:i + batch]} for i, out in zip(range(0, len(features), batch),
+                                                                                        outputs))
+    return run_evaluators({"s": Segmentation(settings.num_classes)}, batches)["s"]
+
+
+def objective_of(settings: Settings, weights):
+    """The training objective: cross-entropy, or the attention module's paper objective (its
+    registered ``objective``) with ``settings.objective``'s options; ENet's class weights either way."""
+    from jaxanom.losses import CrossEntropy
+    from jaxanom.models.attention import get
+    from jaxanom.objectives import Objective
+
+    if settings.attention is None:
+        return CrossEntropy(weights)
+    return Objective.class_named(get(settings.attention).objective)(class_weights=weights, **dict(settings.objective))
 
 
 def train_decoder(settings: Settings, log=print) -> Path:
@@ -237,7 +324,6 @@ def train_decoder(settings: Settings, log=print) -> Path:
     import jax
 
     from jaxanom.app.runs import write_run
-    from jaxanom.losses import CrossEntropy
     from jaxanom.models.erfnet import ERFNet
     from jaxanom.train.checkpoint import Checkpointer
     from jaxanom.train.optim import OptimConfig, make_optimizer
@@ -250,17 +336,25 @@ def train_decoder(settings: Settings, log=print) -> Path:
         return folder
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "settings.json").write_text(json.dumps(dataclasses.asdict(settings), indent=1))
-    train = [cache_features("train", flip, log) for flip in (False, True)]
+    flips = (False, True)
+    train = [cache_features("train", flip, log) for flip in flips]
     features = np.concatenate([train[0][0], train[1][0]])
     labels = np.concatenate([train[0][1], train[1][1]])
     val_features, val_labels, _ = cache_features("val", False, log)
+    taps = val_taps = None
+    if settings.attention is not None:
+        both = [cache_taps("train", flip, log) for flip in flips]
+        taps = {k: np.concatenate([both[0][k], both[1][k]]) for k in both[0]}
+        del both
+        val_taps = cache_taps("val", False, log)
     weights = enet_class_weights(labels, settings.num_classes) if settings.class_weights == "enet" else None
-    model = decoder_module(settings.num_classes)
+    model = decoder_module(settings.num_classes, settings.attention)
+    objective = objective_of(settings, weights)
     tx, _ = make_optimizer(OptimConfig(settings.optimizer, lr=settings.lr, weight_decay=settings.weight_decay),
                            settings.steps)
-    state = TrainState.create(initial_decoder(settings, crops(features, labels, settings, 0)["image"]), tx,
-                              jax.random.key(settings.seed))
-    step_fn = jax.jit(functools.partial(train_step, model=model, tx=tx, objective=CrossEntropy(weights)))
+    state = TrainState.create(initial_decoder(settings, crops(features, labels, settings, 0, taps)), tx,
+                              jax.random.key(settings.seed), objective.init_state(settings.num_classes))
+    step_fn = jax.jit(functools.partial(train_step, model=model, tx=tx, objective=objective))
     times = []
     with Checkpointer(folder / "checkpoints", save_every=SAVE_EVERY) as checkpointer:
         if checkpointer.latest_step():
@@ -268,25 +362,26 @@ def train_decoder(settings: Settings, log=print) -> Path:
             log(f"resumed at step {int(state.step)}")
         for step in range(int(state.step), settings.steps):
             start = time.perf_counter()
-            state, metrics = step_fn(state, crops(features, labels, settings, step))
+            state, metrics = step_fn(state, crops(features, labels, settings, step, taps))
             loss = float(metrics["loss"])
             times.append(time.perf_counter() - start)
             if (step + 1) % 50 == 0 or step == 0:
                 log(f"step {step + 1}/{settings.steps} loss {loss:.4f} ({np.median(times[1:] or times):.2f} s/step)")
             if checkpointer.is_due(step + 1) or step + 1 == settings.steps:
                 checkpointer.save(step + 1, state)
-                val = decoder_miou(state.variables, val_features, val_labels, settings.num_classes)
+                val = decoder_miou(state.variables, settings, val_features, val_labels, val_taps)
                 log(f"step {step + 1}: val mIoU {100 * val['miou']:.2f}")
                 with open(folder / "val_history.jsonl", "a") as f:
                     f.write(json.dumps({"step": step + 1, "val_miou": float(val["miou"])}) + "\n")
         checkpointer.wait()
     decoder = jax.device_get(state.variables)
-    val = decoder_miou(decoder, val_features, val_labels, settings.num_classes)
-    model_full = ERFNet(num_classes=settings.num_classes)
+    val = decoder_miou(decoder, settings, val_features, val_labels, val_taps)
+    model_full = ERFNet(num_classes=settings.num_classes, attention=settings.attention)
     whole = {collection: {**encoder_variables()[collection], **decoder[collection]} for collection in decoder}
     write_run(folder / "run", "erfnet", model_full, whole, settings.steps, data="camvid", data_root=str(CAMVID),
               crop=(360, 480))
     result = {"settings": dataclasses.asdict(settings), "class_weights": weights,
+              "objective": repr(objective),
               "val_miou": float(val["miou"]), "val_iou": [float(x) for x in val["iou"]],
               "median_step_seconds": float(np.median(times[1:])) if len(times) > 1 else None,
               "steps_this_session": len(times), "run": str(folder / "run")}

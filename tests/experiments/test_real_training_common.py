@@ -76,3 +76,58 @@ def test_the_written_run_is_the_frozen_encoder_and_the_decoder(tiny, tmp_path):
     logits = build_network(experiment).apply(stored, normalize_erfnet(images))["logits"]
     encoded = rtc.encoder_module().apply(rtc.encoder_variables(), normalize_erfnet(images))
     np.testing.assert_allclose(logits, decoder.apply(trained, encoded)["logits"], rtol=1e-5, atol=1e-5)
+
+
+def test_a_crop_cuts_each_tap_at_its_own_scale():
+    rng = np.random.default_rng(1)
+    labels = rng.integers(0, 11, (4, 8 * 6, 8 * 7)).astype(np.uint8)
+    features = labels[:, ::8, ::8, None].astype(np.float32)
+    taps = {"low": labels[:, ::4, ::4, None].astype(np.float32), "mid": features.copy()}
+    settings = rtc.Settings(batch_size=2, crop=(3, 4))
+    batch = rtc.crops(features, labels, settings, 3, taps)
+    assert batch["low"].shape == (2, 6, 8, 1) and batch["mid"].shape == (2, 3, 4, 1)
+    np.testing.assert_array_equal(batch["low"][..., 0], batch["label"][:, ::4, ::4])
+    np.testing.assert_array_equal(batch["mid"], batch["image"])
+
+
+def test_the_baselines_run_key_leaves_out_the_later_fields_at_their_defaults(tiny):
+    old = {"seed": 0, "steps": 1000, "batch_size": 8, "crop": [24, 32], "optimizer": "adamw", "lr": 5e-4,
+           "weight_decay": 1e-4, "class_weights": "enet", "num_classes": 11}  # the fields of the first networks
+    key = rtc.settings_key({**old, "weights": "digest", "train": rtc.cache_folder("train", False).name,
+                            "version": rtc.CACHE_VERSION})
+    assert rtc.run_folder(rtc.Settings()).name == f"decoder-{key}"
+    assert rtc.run_folder(rtc.Settings(attention="cudam")) != rtc.run_folder(rtc.Settings())
+    assert rtc.run_folder(rtc.Settings(attention="cudam", objective=(("beta", 0.0),))) != \
+        rtc.run_folder(rtc.Settings(attention="cudam"))
+
+
+def test_a_run_with_attention_is_the_encoder_its_taps_the_module_and_the_decoder(tiny, tmp_path):
+    """The decoder trained with CuDAM on cached features and taps, written as one ERFNet, gives the
+    logits and attention map of encoder -> module -> decoder (what evaluate --run reads)."""
+    settings = rtc.Settings(attention="cudam")
+    decoder = rtc.decoder_module(11, "cudam")
+    images = np.random.default_rng(2).integers(0, 256, (2, H, W, 3), np.uint8)
+    encoded, taps = rtc.encoder_module(with_taps=True).apply(rtc.encoder_variables(), normalize_erfnet(images))
+    trained = jax.device_get(decoder.init(jax.random.key(3), encoded, low=taps["low"], mid=taps["mid"]))
+    trained["params"]["cudam"]["alpha"] = np.float32(0.7)  # a module that changes the features
+    whole = {c: {**rtc.encoder_variables()[c], **trained[c]} for c in trained}
+    write_run(tmp_path / "run", "erfnet", ERFNet(num_classes=11, attention="cudam"), whole, 7, data="camvid",
+              data_root="x", crop=(H, W))
+    experiment, stored = load_variables(tmp_path / "run")
+    assert experiment.attention == "cudam"
+    out = build_network(experiment).apply(stored, normalize_erfnet(images))
+    (ours,) = list(rtc.decoder_outputs(trained, settings, np.asarray(encoded), jax.device_get(taps)))
+    np.testing.assert_allclose(out["logits"], ours["logits"], rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(out["attention"], ours["attention"], rtol=1e-5, atol=1e-8)
+
+
+def test_the_attention_modules_objective_takes_the_settings_options():
+    from jaxanom.cudam.objective import CuDAM
+    from jaxanom.losses import CrossEntropy
+    from jaxanom.msaam.objective import MSAAM
+
+    weights = (1.0, 2.0)
+    assert rtc.objective_of(rtc.Settings(), weights) == CrossEntropy(weights)
+    assert rtc.objective_of(rtc.Settings(attention="cudam", objective=(("reward_prob", 0.0), ("beta", 0.0))),
+                            weights) == CuDAM(reward_prob=0.0, beta=0.0, class_weights=weights)
+    assert rtc.objective_of(rtc.Settings(attention="msaam"), weights) == MSAAM(class_weights=weights)
