@@ -42,7 +42,7 @@ from experiments.real_common import HERE, anomaly_tracks, resized
 from experiments.real_training_baseline import COMPETENT
 from experiments.real_training_common import (CACHE, CACHE_VERSION, Settings, cache_features, cache_taps,
                                               cityscapes_erfnet, decoder_outputs, encoder_module,
-                                              encoder_variables, run_folder, settings_key, train_decoder)
+                                              encoder_variables, settings_key, train_decoder)
 
 NAME = "real_training_claims"
 EVALUATION_VERSION = 1  # bump when what an evaluation holds changes
