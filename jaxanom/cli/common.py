@@ -110,7 +110,8 @@ def add_methods(parser, unavailable: tuple[str, ...] = ()) -> None:
 
 def add_protocol(parser, help: str) -> None:
     """``--protocol NAME`` (the app function's ``protocol``, default native): any registered protocol,
-    a plug-in's included, looked up when the command runs; ``help`` lists jaxanom's own."""
+    a plug-in's included, looked up when the command runs; its help is ``help`` (what the protocol
+    does for this command) followed by jaxanom's own protocols."""
     from jaxanom.app.commands.inputs import own_entries
 
     parser.add_argument("--protocol", default="native", metavar="NAME",

@@ -16,7 +16,7 @@ from jaxanom.app.streamed_array import StreamedArray
 from jaxanom.errors import InputError
 from jaxanom.metrics.anomaly import AP_CONVENTIONS
 
-__all__ = ["AP_CONVENTIONS", "jsonable", "score"]
+__all__ = ["AP_CONVENTIONS", "score"]
 
 
 def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = False, labels: str | None = None,
@@ -110,7 +110,7 @@ def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = Fal
         if used.get(name):
             metrics[name]["options"] = used[name]
     for (name, kind), (evaluator, state) in evaluated.items():
-        metrics[name].setdefault("evaluators", {})[kind] = jsonable(evaluator.finalize(state))
+        metrics[name].setdefault("evaluators", {})[kind] = _jsonable(evaluator.finalize(state))
     write_json_atomic(within(out_dir, out_dir / "metrics.json"), {"metrics": metrics})
     print(results_table(metrics))
     for (name, kind) in evaluated:
@@ -118,7 +118,7 @@ def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = Fal
     return metrics
 
 
-def jsonable(value):
+def _jsonable(value):
     """An evaluator's finalized metrics as JSON values: NumPy scalars and arrays as numbers and
     lists, in dicts, lists and tuples; other values as they are."""
     import numpy as np
@@ -126,7 +126,7 @@ def jsonable(value):
     if isinstance(value, (np.ndarray, np.generic)):
         return value.tolist()
     if isinstance(value, dict):
-        return {str(key): jsonable(item) for key, item in value.items()}
+        return {str(key): _jsonable(item) for key, item in value.items()}
     if isinstance(value, (list, tuple)):
-        return [jsonable(item) for item in value]
+        return [_jsonable(item) for item in value]
     return value
