@@ -4,7 +4,7 @@
 
 Many public repositories evaluate the ERFNet authors' Cityscapes weights on the SegmentMeIfYouCan
 validation frames with one protocol, and four of them independently report the numbers in
-``PUBLISHED`` (float weights). The protocol (``jaxanom.app.protocols``, ``erfnet-community``): RGB
+``PUBLISHED`` (float weights). The protocol (``jaxanom.protocols``, ``erfnet-community``): RGB
 resized to 512x1024 with PIL's BILINEAR (antialiased), in [0, 1] without mean or std; the void
 output dropped; labels resized to 512x1024 by PIL's NEAREST; frames without an anomaly pixel
 skipped; pixels pooled over frames; AP as scikit-learn's average precision, FPR95 as ood-metrics'
@@ -44,7 +44,7 @@ LABELS = {"msp": "MSP", "max_logit": "max logit", "entropy": "max entropy", "voi
 
 def main() -> dict:
     from jaxanom.app.evaluate import anomaly_results, dataset_reader, predictor, protocol_predictions
-    from jaxanom.app.protocols import get_protocol
+    from jaxanom.protocols import get_protocol
     from jaxanom.weights import from_torch, read_state_dict
 
     model, variables = from_torch(read_state_dict(require_realdata(*WEIGHTS)), "erfnet-cityscapes")

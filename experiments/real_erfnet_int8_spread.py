@@ -46,7 +46,7 @@ def draw_weights(state: dict, steps: dict[str, float], seed: int) -> dict:
 
 def main(draws: int = 8) -> dict:
     from jaxanom.app.evaluate import anomaly_results, dataset_reader, predictor, protocol_predictions
-    from jaxanom.app.protocols import get_protocol
+    from jaxanom.protocols import get_protocol
     from jaxanom.weights import from_torch, read_state_dict
 
     path = require_realdata(*WEIGHTS)

@@ -1,9 +1,10 @@
 """jaxanom's own plug-ins: the one list of library modules that register its scoring methods,
-training objectives and attention modules when imported.
+training objectives, attention modules, evaluators and evaluation protocols when imported.
 
 Every registry (``method_registry.METHODS``, ``objectives.OBJECTIVES``, ``models.attention.ATTENTION_MODULES``,
-each a ``jaxanom.registry.Registry``) imports them before its first look-up and lists their names
-first, in this order; so a paper's package registers what it adds by being named here once.
+``metrics.evaluator.EVALUATORS``, ``protocols.PROTOCOLS``, each a ``jaxanom.registry.Registry``)
+imports them before its first look-up and lists their names first, in this order; so a paper's
+package registers what it adds by being named here once.
 """
 from __future__ import annotations
 
@@ -21,5 +22,9 @@ MODULES = (
     # attention modules
     "jaxanom.cudam.attention",
     "jaxanom.msaam.attention",
+    # evaluators (dataset metrics by name)
+    "jaxanom.metrics.evaluator",
+    # evaluation protocols
+    "jaxanom.protocols",
 )
 

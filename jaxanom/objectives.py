@@ -28,7 +28,6 @@ import dataclasses
 from typing import Any, ClassVar
 
 from jaxanom import builtins, registry
-from jaxanom.config_codec import decode
 
 ENTRY_POINTS = "jaxanom.objectives"
 OBJECTIVES: registry.Registry[type["Objective"]] = registry.Registry(
@@ -91,17 +90,3 @@ def register(cls: type[Objective]) -> type[Objective]:
 def objective_names() -> tuple[str, ...]:
     """The names of every registered objective, jaxanom's own first."""
     return OBJECTIVES.names()
-
-
-def objective_class(name: str) -> type[Objective]:
-    """The objective class registered as ``name``; ValueError listing the known names otherwise."""
-    try:
-        return Objective.class_named(name)
-    except ValueError as error:
-        raise ValueError(f"objective: {error}") from None
-
-
-def objective_from_dict(values: dict) -> Objective:
-    """The inverse of ``config_codec.encode(objective)``: ``{"name": ..., field: value}``; a
-    ``config_codec.ConfigError`` (a ValueError) naming the field on an unknown name or field."""
-    return decode(Objective, values, "objective")

@@ -12,7 +12,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxanom._validate import check_finite, check_rank, check_real
+from jaxanom.data.cityscapes_labels import NUM_CLASSES
 from jaxanom.method_registry import Method, register
+
+# A network with one output more than Cityscapes' 19 trainIds carries a void class there (the ESPNet
+# and ERFNet authors' weights). The other methods read every channel, void included, as measured in
+# docs/decisions/espnet.md; the void method reads the void channel's probability.
+VOID_CHANNEL = NUM_CLASSES
 
 
 @jax.jit
@@ -30,6 +36,12 @@ def void_probability_batch(logits, channel: int) -> jax.Array:
     check_real("logits", logits)
     check_finite("logits", logits)
     return _void_probability(jnp.asarray(logits, jnp.float32), int(channel))
+
+
+def without_channel(logits, channel: int = VOID_CHANNEL):
+    """``logits`` (..., C) -> (..., C - 1) without ``channel`` (default: the void output)."""
+    logits = jnp.asarray(logits)
+    return jnp.concatenate([logits[..., :channel], logits[..., channel + 1:]], axis=-1)
 
 
 register(Method("void", frozenset({"logits", "void_channel"}),

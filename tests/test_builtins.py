@@ -25,10 +25,12 @@ def test_the_names_list_jaxanoms_own_first_in_the_lists_order_whatever_was_impor
 def test_each_registry_loads_the_one_list():
     from jaxanom import builtins
     from jaxanom.method_registry import METHODS
+    from jaxanom.metrics.evaluator import EVALUATORS
     from jaxanom.models.attention import ATTENTION_MODULES
     from jaxanom.objectives import OBJECTIVES
+    from jaxanom.protocols import PROTOCOLS
 
-    registries = (METHODS, OBJECTIVES, ATTENTION_MODULES)
+    registries = (METHODS, OBJECTIVES, ATTENTION_MODULES, EVALUATORS, PROTOCOLS)
     assert all(tuple(r._builtins()) == builtins.MODULES for r in registries)
     origins = {origin for r in registries for name in r.names() for origin in [r.origin(name)]}
     assert set(builtins.MODULES) <= origins  # each listed module registers something

@@ -22,7 +22,7 @@ from jaxanom.cli import main
 from jaxanom.config_codec import ConfigError, decode, encode, override
 from jaxanom.cudam.objective import CuDAM
 from jaxanom.msaam.objective import MSAAM
-from jaxanom.objectives import Objective, objective_class, objective_names
+from jaxanom.objectives import Objective, objective_names
 from jaxanom.train.loop import TrainConfig
 from jaxanom.train.optim import OptimConfig
 
@@ -56,7 +56,7 @@ def _values(kind, base):
             strategies.append(st.tuples(*(_values(arg, None) for arg in args)))
         elif isinstance(option, type) and issubclass(option, Objective):
             strategies.append(st.sampled_from(objective_names()).flatmap(
-                lambda name: configs(objective_class(name)(), 0.5)))
+                lambda name: configs(Objective.class_named(name)(), 0.5)))
         elif dataclasses.is_dataclass(option) and isinstance(base, option):
             strategies.append(configs(base))
     return st.one_of(*strategies, *([] if base is None else [st.just(base)]))
@@ -120,7 +120,7 @@ def test_every_command_config_round_trips_through_json_and_through_set(name, dat
 
 
 @settings(max_examples=20, deadline=None)
-@given(objective=st.sampled_from(objective_names()).flatmap(lambda name: configs(objective_class(name)(), 0.5)))
+@given(objective=st.sampled_from(objective_names()).flatmap(lambda name: configs(Objective.class_named(name)(), 0.5)))
 def test_an_objective_is_read_back_as_its_registered_class(objective):
     values = json.loads(json.dumps(encode(objective)))
     assert values["name"] == objective.name

@@ -61,8 +61,10 @@ def load_config(path: str | os.PathLike, cls: type[T], variable: str = "config",
 
 
 def load_plugin(module: str) -> None:
-    """Import the plug-in ``module`` once every kind's registry (methods, objectives) has loaded
-    jaxanom's own names; ``jaxanom.registry.PluginError`` in one line when it cannot be imported."""
+    """Import the plug-in ``module`` once every kind's registry has loaded jaxanom's own names (the
+    methods' and objectives' registries import ``jaxanom.builtins``' modules, which make the other
+    kinds' registries: attention modules, evaluators, protocols); ``jaxanom.registry.PluginError``
+    in one line when it cannot be imported."""
     from jaxanom import registry
     from jaxanom.method_registry import METHODS
     from jaxanom.objectives import OBJECTIVES

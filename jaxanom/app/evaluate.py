@@ -78,7 +78,7 @@ def predictions(predict: Callable, batches: Iterable[dict]) -> Iterator[dict]:
 
 def protocol_predictions(predict: Callable, source, protocol, skipped: list | None = None,
                          check_size: Callable | None = None) -> Iterator[dict]:
-    """One-frame batches of ``source`` (a frame reader) as ``protocol`` (``jaxanom.app.protocols``)
+    """One-frame batches of ``source`` (a frame reader) as ``protocol`` (``jaxanom.protocols``)
     counts them, with the network's outputs added: each frame resized to the protocol's size, the
     frames it skips left out (their names appended to ``skipped``) before the network runs.
     ``check_size((h, w), name)`` (``app.predict.size_check``) refuses a size before the network runs on it."""

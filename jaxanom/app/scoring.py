@@ -11,17 +11,11 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from jaxanom.data.cityscapes_labels import NUM_CLASSES
 from jaxanom.method_registry import INPUTS, call, check, get, given, load_plugin, names, posts
+from jaxanom.void_methods import VOID_CHANNEL, without_channel
 
 __all__ = ["INPUTS", "check", "describe", "get", "inputs_of", "load_plugin", "names", "provided", "run_inputs",
            "score_all", "without_channel"]
-
-
-# A network with one output more than Cityscapes' 19 trainIds carries a void class there (the ESPNet
-# and ERFNet authors' weights). The other methods read every channel, void included, as measured in
-# docs/decisions/espnet.md; the void method reads the void channel's probability.
-VOID_CHANNEL = NUM_CLASSES
 
 
 def inputs_of(batch: Mapping, stats=None) -> dict:
@@ -67,7 +61,7 @@ def score_all(method_names: Iterable[str], inputs: Mapping, options: Mapping[str
     (``Method.options``: defaults, its own of ``options`` (``{method: {option: value}}``),
     resolved for this batch). ``drop_void``: the
     methods that do not read the void channel score the logits without it (a protocol's choice,
-    ``jaxanom.app.protocols``); the ``void`` method still reads every channel. Each method is
+    ``jaxanom.protocols``); the ``void`` method still reads every channel. Each method is
     called through ``method_registry.call`` (its own read-only copy of the inputs; its output's
     shape and dtype checked); the caller checks the values where it reads them
     (``method_registry.check_finite``)."""
@@ -85,14 +79,6 @@ def _without_void(inputs: Mapping) -> dict:
     """``inputs`` whose logits lack the void channel (and so no ``void_channel``)."""
     return {**{k: v for k, v in inputs.items() if k != "void_channel"},
             "logits": without_channel(inputs["logits"], int(inputs["void_channel"]))}
-
-
-def without_channel(logits, channel: int = VOID_CHANNEL):
-    """``logits`` (..., C) -> (..., C - 1) without ``channel`` (default: the void output)."""
-    import jax.numpy as jnp
-
-    logits = jnp.asarray(logits)
-    return jnp.concatenate([logits[..., :channel], logits[..., channel + 1:]], axis=-1)
 
 
 def describe(unavailable: Iterable[str] = ()) -> str:

@@ -108,6 +108,17 @@ def add_methods(parser, unavailable: tuple[str, ...] = ()) -> None:
     parser.format_help = with_methods
 
 
+def add_protocol(parser, help: str) -> None:
+    """``--protocol NAME`` (the app function's ``protocol``, default native): any registered protocol,
+    a plug-in's included, looked up when the command runs; its help is ``help`` (what the protocol
+    does for this command) followed by jaxanom's own protocols."""
+    from jaxanom.app.commands.inputs import own_entries
+
+    parser.add_argument("--protocol", default="native", metavar="NAME",
+                        help=f"{help}: " + own_entries("protocols").replace("%", "%%") + "; or a plug-in's (--plugin "
+                        "MODULE, or the jaxanom.protocols entry points) (default: %(default)s)")
+
+
 def add_scoring(parser) -> None:
     """Flags of the commands that score anomalies: statistics, methods, plug-ins, metric conventions, --out."""
     from jaxanom.app.commands.score import AP_CONVENTIONS

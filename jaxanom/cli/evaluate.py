@@ -2,7 +2,8 @@
 segmentation dataset."""
 from __future__ import annotations
 
-from jaxanom.cli.common import METHOD_OPTIONS, add_common, add_config, add_scoring, nonnegative_int, positive_int
+from jaxanom.cli.common import (METHOD_OPTIONS, add_common, add_config, add_protocol, add_scoring, nonnegative_int,
+                                positive_int)
 
 DATASETS = {
     "synthetic": "synthetic anomaly split (PATH = split name: anomaly, anomaly_small, anomaly_large)",
@@ -17,7 +18,7 @@ DATASETS = {
 
 
 def add_parser(commands) -> None:
-    from jaxanom.app.commands.evaluate import MMF_DEFAULT_METHODS, PROTOCOLS
+    from jaxanom.app.commands.evaluate import MMF_DEFAULT_METHODS
 
     parser = commands.add_parser("evaluate", help="score an anomaly dataset (or camvid's segmentation) with a run",
                                  description="Pooled AP / AUROC / FPR@95 per method on an anomaly dataset; mIoU, "
@@ -52,9 +53,7 @@ def add_parser(commands) -> None:
                         help="exact (default): one curve point per distinct score; smiyc: AP, AUROC, FPR@95 and the "
                         "component threshold as the official SegmentMeIfYouCan kit computes them (float16 scores, "
                         "768 percentile bins per frame, mask score > t; the exact values stay in metrics.json)")
-    parser.add_argument("--protocol", choices=list(PROTOCOLS), default="native",
-                        help="how frames become counted pixels (with --run): " + "; ".join(
-                            f"{p.name}: {p.description}" for p in PROTOCOLS.values()) + " (default: %(default)s)")
+    add_protocol(parser, "how frames become counted pixels (with --run)")
     parser.add_argument("--all-conventions", action="store_true",
                         help="also print AP (step, trapz, envelope) and FPR@95 (first, interp, nearest, strict) side "
                         "by side (metrics.json always holds them)")

@@ -1,12 +1,10 @@
 """``jaxanom fit-stats``: SML class statistics (Eqs. 3-4) of a trained run."""
 from __future__ import annotations
 
-from jaxanom.cli.common import add_common, add_plugin, positive_int, size_hw
+from jaxanom.cli.common import add_common, add_plugin, add_protocol, positive_int, size_hw
 
 
 def add_parser(commands) -> None:
-    from jaxanom.app.protocols import PROTOCOLS
-
     parser = commands.add_parser("fit-stats", help="fit SML class statistics of a trained run",
                                  description="Stream a trained network's logits over training frames and write the "
                                  "per-class max-logit mean / std (SML Eqs. 3-4) as .npz. Prints a per-class table "
@@ -19,10 +17,8 @@ def add_parser(commands) -> None:
                         "only: the statistics need no labels) instead of the run's training data; needed for a "
                         "network from convert-weights, which has none")
     parser.add_argument("--size", help="HxW the frames are resized to first, e.g. `--size 512x1024` (default: as read)")
-    parser.add_argument("--protocol", choices=list(PROTOCOLS), default="native",
-                        help="fit as evaluate --protocol scores: erfnet-community resizes the frames to 512x1024 "
-                        "(PIL's bilinear filter) and drops a void output, so the statistics have one class per "
-                        "output the methods see (default: %(default)s)")
+    add_protocol(parser, "fit as evaluate --protocol scores, so the statistics have one class per output the "
+                 "methods see (erfnet-community resizes the frames to 512x1024 and drops a void output)")
     parser.add_argument("--out", required=True, help="output .npz file")
     parser.add_argument("--missing", choices=["error", "pooled"], default="error",
                         help="policy none: classes never predicted fail, or use the pooled statistics "

@@ -5,6 +5,8 @@ from jaxanom.cli.common import METHOD_OPTIONS, add_common, add_config, add_scori
 
 
 def add_parser(commands) -> None:
+    from jaxanom.app.commands.inputs import own_entries
+
     parser = commands.add_parser("score", help="scores and metrics from logits saved by another framework",
                                  description="Read logits (.npy, or .npz with array `logits`) of shape (N, C, H, W) "
                                  "or (N, H, W, C), and optional labels (N, H, W) in {0, 1, 255}; write score maps "
@@ -17,6 +19,11 @@ def add_parser(commands) -> None:
                         "wrong --layout)")
     parser.add_argument("--labels", help=".npy or .npz file (array `labels`) of anomaly labels")
     add_scoring(parser)
+    own = own_entries("evaluators").replace("%", "%%")
+    parser.add_argument("--evaluators", metavar="NAMES",
+                        help="comma-separated evaluators also fed each method's scores (with --labels), their metrics "
+                        f"in metrics.json under the method's \"evaluators\": {own}; or a plug-in's (--plugin MODULE, "
+                        "or the jaxanom.evaluators entry points)")
     add_config(parser, set_help=f"{METHOD_OPTIONS}; the options each method used are in metrics.json")
     add_common(parser, progress=False)
     parser.set_defaults(handler=run, aliases={"plugins": "plugin", "overrides": "set"})
@@ -27,4 +34,4 @@ def run(args) -> None:
 
     score(logits=args.logits, out=args.out, layout=args.layout, any_layout=args.any_layout, labels=args.labels,
           stats=args.stats, methods=args.methods, plugins=args.plugin, fpr_convention=args.fpr_convention,
-          ap_convention=args.ap_convention, overrides=args.set, overwrite=args.overwrite)
+          ap_convention=args.ap_convention, evaluators=args.evaluators, overrides=args.set, overwrite=args.overwrite)

@@ -13,15 +13,25 @@ Batches are dicts with ``"label"`` (B, H, W). The anomaly evaluators read
 segmentation evaluator reads ``batch["logits"]`` (B, H, W, C) (its argmax) against class labels.
 ``update`` may change the state in place (host accumulators do): use the state it returns.
 ``merge`` leaves its inputs as they were.
+
+Evaluators of one method's scores are plug-ins by name like scoring methods (``EVALUATORS``, a
+``jaxanom.registry.Registry``): a ``NamedEvaluator`` makes the evaluator of a method's scores;
+jaxanom's (``pixel``, ``smiyc_pixels``) are registered here (this module is in
+``jaxanom.builtins``), a module of one's own registers its own with ``register``, loaded by
+``--plugin MODULE`` or an installed package's entry-point group ``jaxanom.evaluators``, and
+``jaxanom score --evaluators NAME`` runs them by name.
 """
 from __future__ import annotations
 
 import dataclasses
+import sys
 from typing import Any, Callable, Iterable, Mapping, Protocol
 
 import jax.numpy as jnp
 import numpy as np
 
+from jaxanom import builtins, registry
+from jaxanom.errors import InputError
 from jaxanom.metrics.accumulator import AnomalyMetricAccumulator
 from jaxanom.metrics.components import component_summary, frame_components
 from jaxanom.metrics.segmentation import confusion_matrix, frame_confusion_matrices, confusion_scores
@@ -53,6 +63,51 @@ def update_keyed(evaluated: dict, key, make: Callable[[], Evaluator], batch: dic
     where ``key`` is new (e.g. one evaluator per scoring method, the methods met in the batches)."""
     evaluator, state = evaluated[key] if key in evaluated else (make(), None)
     evaluated[key] = evaluator, evaluator.update(evaluator.init() if state is None else state, batch)
+
+
+@dataclasses.dataclass(frozen=True)
+class NamedEvaluator:
+    """An evaluator of one method's scores, by name: ``make(method) -> Evaluator`` (e.g. an
+    evaluator class whose one required field is the method, as ``PixelAnomaly``); ``description``:
+    one line, shown by ``--help``."""
+
+    name: str
+    make: Callable[[str], Evaluator]
+    description: str
+
+    def __post_init__(self):
+        if not callable(self.make):
+            raise ValueError(f"make of evaluator {self.name!r}: expected a function (method name) -> evaluator")
+        if not isinstance(self.description, str) or not self.description.strip() or "\n" in self.description.strip():
+            raise ValueError(f"description of evaluator {self.name!r}: expected one line, got {self.description!r}")
+
+
+ENTRY_POINTS = "jaxanom.evaluators"
+EVALUATORS: registry.Registry[NamedEvaluator] = registry.Registry("evaluator", ENTRY_POINTS, lambda: builtins.MODULES)
+
+
+def register(evaluator: NamedEvaluator) -> NamedEvaluator:
+    """Add ``evaluator`` under its name (``registry.NAME_RULE``), registered by the calling module;
+    ValueError in one line when the name is not a name or another evaluator has it. Returns it."""
+    if not isinstance(evaluator, NamedEvaluator):
+        raise ValueError(f"evaluator: expected a jaxanom.metrics.evaluator.NamedEvaluator, got "
+                         f"{type(evaluator).__name__}")
+    return EVALUATORS.add(evaluator.name, evaluator, sys._getframe(1).f_globals.get("__name__", "?"))
+
+
+def evaluator_names() -> tuple[str, ...]:
+    """Every registered evaluator's name: jaxanom's own first, then installed plug-ins', then loaded modules'."""
+    return EVALUATORS.names()
+
+
+def get_evaluator(name: str) -> NamedEvaluator:
+    """The evaluator called ``name``; InputError naming ``evaluators`` and the known names (and an
+    entry point that failed to load, which might have provided it) otherwise."""
+    found = EVALUATORS.find(name)
+    if found is None:
+        raise InputError("evaluators", f": expected names from {', '.join(EVALUATORS.names())}, got {name!r} (a "
+                         f"plug-in's evaluator: load its module, e.g. with --plugin MODULE){EVALUATORS.broken_note()}")
+    return found
 
 
 @dataclasses.dataclass(frozen=True)
@@ -167,3 +222,9 @@ class Segmentation:
 
     def finalize(self, state: np.ndarray) -> dict:
         return confusion_scores(state, self.scored)
+
+
+register(NamedEvaluator("pixel", PixelAnomaly, "pooled pixel AP, AUROC, FPR95 and best F1, exact "
+                        "(anomaly_metrics)"))
+register(NamedEvaluator("smiyc_pixels", SmiycPixels, "the official SegmentMeIfYouCan kit's binned pixel AP, AUROC, "
+                        "FPR95 and best F1"))

@@ -1,9 +1,10 @@
-"""Evaluation protocols (``jaxanom.app.protocols``): which frames count, at which size."""
+"""Evaluation protocols (``jaxanom.protocols``): which frames count, at which size."""
 import numpy as np
 import pytest
 from PIL import Image
 
-from jaxanom.app.protocols import PROTOCOLS, get_protocol, resize_frame
+from jaxanom.errors import InputError
+from jaxanom.protocols import Protocol, get_protocol, resize_frame
 
 
 def frame(label_values, shape=(36, 64), name="f"):
@@ -30,7 +31,7 @@ def test_anomaly_lost_by_the_label_resize_skips_the_frame():
     """The community checks for an anomaly pixel after resizing the label (their loop's order)."""
     record = frame([0])
     record["label"][5, 5] = 1  # one pixel that nearest-neighbour shrinking to 4x4 does not sample
-    protocol = PROTOCOLS["erfnet-community"].__class__("t", "test", size=(4, 4), skip_frames_without_anomaly=True)
+    protocol = Protocol("t", "test", size=(4, 4), skip_frames_without_anomaly=True)
     assert list(protocol.frames([record])) == []
 
 
@@ -41,7 +42,7 @@ def test_native_protocol_passes_frames_unchanged():
 
 
 def test_unknown_protocol_is_refused():
-    with pytest.raises(ValueError, match="protocol: expected one of native, erfnet-community"):
+    with pytest.raises(InputError, match="^protocol: expected one of native, erfnet-community, got 'erfnet'"):
         get_protocol("erfnet")
 
 
@@ -94,7 +95,7 @@ def test_protocol_predictions_skip_frames_before_the_network_runs():
         seen.append(images.shape)
         return {"logits": np.zeros((*images.shape[:3], 20), np.float32)}
 
-    protocol = PROTOCOLS["erfnet-community"].__class__("t", "test", size=(8, 16), skip_frames_without_anomaly=True)
+    protocol = Protocol("t", "test", size=(8, 16), skip_frames_without_anomaly=True)
     skipped = []
     batches = list(protocol_predictions(predict, Frames([frame([0, 1], name="a"), frame([0, 255], name="b")]),
                                         protocol, skipped))

@@ -13,7 +13,7 @@ import pytest
 from PIL import Image
 
 from converted_run import write_tiny_cityscapes, write_tiny_run
-from jaxanom.app import protocols
+from jaxanom import protocols
 from jaxanom.cli import main
 from jaxanom.sml import load_stats, load_stats_info
 
@@ -27,8 +27,8 @@ def run20(tmp_path_factory):
 
 @pytest.fixture(autouse=True)
 def small_protocol(monkeypatch):
-    protocol = dataclasses.replace(protocols.PROTOCOLS["erfnet-community"], size=SIZE)
-    monkeypatch.setitem(protocols.PROTOCOLS, "erfnet-community", protocol)
+    protocol = dataclasses.replace(protocols.PROTOCOLS.entries["erfnet-community"], size=SIZE)
+    monkeypatch.setitem(protocols.PROTOCOLS.entries, "erfnet-community", protocol)
 
 
 @pytest.fixture(scope="module")
@@ -37,8 +37,8 @@ def stats_files(run20, tmp_path_factory):
     folder = tmp_path_factory.mktemp("stats")
     frames = write_tiny_cityscapes(folder / "cityscapes", [SIZE, SIZE])
     with pytest.MonkeyPatch.context() as patch:
-        patch.setitem(protocols.PROTOCOLS, "erfnet-community",
-                      dataclasses.replace(protocols.PROTOCOLS["erfnet-community"], size=SIZE))
+        patch.setitem(protocols.PROTOCOLS.entries, "erfnet-community",
+                      dataclasses.replace(protocols.PROTOCOLS.entries["erfnet-community"], size=SIZE))
         for name, extra in (("dropped", ["--protocol", "erfnet-community"]), ("all", ["--size", "64x128"])):
             assert main(["fit-stats", "--run", str(run20), "--frames", "2", "--policy", "none", "--missing", "pooled",
                          "--cityscapes", str(frames), "--out", str(folder / f"{name}.npz"), *extra]) == 0

@@ -1,8 +1,10 @@
 """docs/extending.md runs as written (``tests/doc_examples.py``): its package ``myext`` is written
-into an empty folder, its method scores a tiny logits file through ``jaxanom score --plugin``, its
-objective trains a tiny network two steps through a Python ``--config``, its evaluator runs
-through ``run_evaluators``, its attention module attaches to two segmenters and trains a step
-through ``train --plugin``. In a process of its own, so what the page registers stays there."""
+into an empty folder, its method scores a tiny logits file through ``jaxanom score --plugin`` (an
+option set by ``--set methods.NAME.OPTION=``), its objective trains a tiny network two steps through
+``train --plugin``, its evaluator runs through ``run_evaluators`` and ``score --evaluators``, its
+protocol through ``evaluate --protocol``, its attention module attaches to two segmenters and
+trains a step through ``train --plugin``. In a process of its own, so what the page registers
+stays there."""
 import json
 import os
 import subprocess
@@ -25,7 +27,12 @@ def test_the_extension_authors_page_runs_as_written(tmp_path):
     metrics = json.loads((tmp_path / "scored" / "metrics.json").read_text())["metrics"]
     assert {"temperature_msp", "temperature_msp+post"} <= set(metrics)
     assert json.loads((tmp_path / "focal_run" / "experiment.json").read_text())["train"]["objective"]["name"] == "focal"
-    assert "$ jaxanom train --config focal_run.py" in result.stdout  # the commands ran, in page order
+    assert "$ jaxanom train --plugin myext.objectives" in result.stdout  # the commands ran, in page order
+    assert json.loads((tmp_path / "scored_hot" / "metrics.json").read_text())["metrics"]["temperature_msp"][
+        "options"] == {"temperature": 2.0}
+    gaps = json.loads((tmp_path / "gaps" / "metrics.json").read_text())["metrics"]["temperature_msp"]["evaluators"]
+    assert set(gaps) == {"score_gap", "pixel"}
+    assert json.loads((tmp_path / "small_eval" / "metrics.json").read_text())["protocol"] == "small"
     # the attention module, on ERFNet's encoder output (16 channels in erfnet_tiny) and DeepLabV3+'s (64)
     assert "erfnet_tiny (1, 32, 64, 19) (1, 16) ['expand', 'reduce']" in result.stdout
     assert "deeplabv3plus_tiny (1, 32, 64, 19) (1, 64) ['expand', 'reduce']" in result.stdout

@@ -15,7 +15,8 @@ from jaxanom.cudam.objective import CuDAM
 from jaxanom.cudam.score import paper_tau
 from jaxanom.losses import CrossEntropy, cross_entropy
 from jaxanom.msaam.objective import MSAAM
-from jaxanom.objectives import Objective, objective_class, objective_from_dict, objective_names, register
+from jaxanom.config_codec import decode
+from jaxanom.objectives import Objective, objective_names, register
 from jaxanom.train import step as step_lib
 from jaxanom.train.loop import TrainConfig
 from jaxanom.train.optim import OptimConfig, make_optimizer
@@ -29,7 +30,7 @@ HEADS = {(): "plain", ("attention",): "cudam", ("branch_weights",): "msaam"}
 
 
 def head_for(name: str) -> str:
-    return HEADS[objective_class(name).needs]
+    return HEADS[Objective.class_named(name).needs]
 
 
 @functools.lru_cache(maxsize=None)
@@ -38,7 +39,7 @@ def compiled(name, n_devices, lr, compute_dtype="float32"):
     model = TinySegNet(head=head_for(name))
     mesh = make_mesh(jax.devices()[:n_devices])
     tx, _ = make_optimizer(OptimConfig(lr=lr), 100)
-    objective = objective_class(name)()
+    objective = Objective.class_named(name)()
     return (model, mesh, tx, objective) + step_lib.make_steps(model, tx, objective, mesh, compute_dtype=compute_dtype)
 
 
@@ -86,24 +87,25 @@ def test_every_objective_trains_threads_its_state_and_lowers_the_cross_entropy(n
 
 @pytest.mark.parametrize("name", objective_names())
 def test_every_objective_round_trips_through_its_dict_and_refuses_an_unknown_field(name):
-    cls = objective_class(name)
+    cls = Objective.class_named(name)
     weighted = "class_weights" in {f.name for f in dataclasses.fields(cls)}
     objective = cls(class_weights=(1.0, 2.0, 0.5)) if weighted else cls()
     values = dataclasses.asdict(objective)
     assert values["name"] == name
-    assert objective_from_dict({k: list(v) if isinstance(v, tuple) else v for k, v in values.items()}) == objective
+    read = decode(Objective, {k: list(v) if isinstance(v, tuple) else v for k, v in values.items()}, "objective")
+    assert read == objective
     with pytest.raises(ValueError, match=f"objective.bogus: unknown field of {cls.__name__}"):
-        objective_from_dict({**values, "bogus": 1})
+        decode(Objective, {**values, "bogus": 1}, "objective")
 
 
 def test_unknown_objective_names_the_known_ones():
     with pytest.raises(ValueError, match=r"objective.name: expected one of \('cross_entropy', 'cudam', 'msaam'.*'pebal'"):
-        objective_from_dict({"name": "pebal"})
+        decode(Objective, {"name": "pebal"}, "objective")
 
 
 def test_an_objective_from_outside_the_package_is_registered_and_its_state_threaded():
     assert "test_counting_cross_entropy" in objective_names()
-    assert objective_from_dict({"name": "test_counting_cross_entropy"}) == CountingCrossEntropy()
+    assert decode(Objective, {"name": "test_counting_cross_entropy"}, "objective") == CountingCrossEntropy()
     _, mesh, _, _, state, train, _ = setup("test_counting_cross_entropy")  # compiled by the test above
     for seed in range(2):
         state, metrics = train(state, global_batch(make_batch(seed), mesh))
@@ -122,7 +124,7 @@ def test_an_objective_from_outside_the_package_is_registered_and_its_state_threa
 
 @pytest.mark.parametrize("name", ["cudam", "msaam"])
 def test_a_network_without_the_output_an_objective_reads_is_refused_when_traced(name):
-    model, objective = TinySegNet(), objective_class(name)()
+    model, objective = TinySegNet(), Objective.class_named(name)()
     tx, _ = make_optimizer(OptimConfig(lr=0.05), 100)
     state = TrainState.create(init_variables(), tx, jax.random.key(0), objective.init_state(3))
     step = functools.partial(step_lib.train_step, model=model, tx=tx, objective=objective)

@@ -8,11 +8,9 @@ import numpy as np
 from jaxanom.app.commands.inputs import (DEFAULT_METHODS, check_stats_classes, load_plugins, method_names,
                                          method_options, read_stats, split_overrides)
 from jaxanom.app.outputs import check_out_outside, out_folder, within
-from jaxanom.app.protocols import PROTOCOLS
 from jaxanom.errors import InputError, reading
 
-__all__ = ["MMF_DEFAULT_METHODS", "PROTOCOLS", "SEGMENTATION", "TRACKS", "evaluate", "segmentation",
-           "statistics_record"]
+__all__ = ["MMF_DEFAULT_METHODS", "SEGMENTATION", "TRACKS", "evaluate", "segmentation", "statistics_record"]
 
 MMF_DEFAULT_METHODS = ("entropy", "resynthesis", "resynthesis_post", "mmf_raw", "mmf")
 # SegmentMeIfYouCan's component rules per dataset (smiyc: RoadAnomaly21 or RoadObstacle21, say which)
@@ -32,7 +30,8 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
     """Score ``dataset`` (its folder ``path``) with one of ``run`` (a network), ``mmf`` (a folder
     of ``jaxanom demo mmf``) or ``maps`` (saved score maps) and write ``out/metrics.json``, which
     is returned; prints the results table. ``track`` picks SegmentMeIfYouCan's component rules
-    (default: the dataset's), ``protocol`` how frames become counted pixels (with ``run``);
+    (default: the dataset's), ``protocol`` how frames become counted pixels (with ``run``; a
+    ``jaxanom.protocols`` name, a plug-in's included);
     ``all_conventions`` also prints every AP and FPR convention side by side. ``overrides``:
     ``"methods.METHOD.OPTION=VALUE"`` options of the methods (``cudam_sigma`` is the same as
     ``"methods.cudam.cudam_sigma=..."``); ``metrics[name]["options"]`` records each option's values
@@ -43,9 +42,9 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
     from jaxanom.app.experiment import build_network, load_experiment, load_variables
     from jaxanom.app.mmf_experiment import mmf_scored_batches
     from jaxanom.app.predict import size_check
-    from jaxanom.app.protocols import get_protocol
     from jaxanom.app.reports import conventions_table, results_table
     from jaxanom.io import write_json_atomic
+    from jaxanom.protocols import get_protocol
 
     if sum(x is not None for x in (run, mmf, maps)) != 1:
         raise InputError("run", ", {mmf}, {maps}: give exactly one", mentions=("mmf", "maps"))
@@ -68,6 +67,7 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
         raise InputError("track", ": the smiyc dataset holds either track; pass {track} anomaly (RoadAnomaly21) or "
                          "{track} obstacle (RoadObstacle21)")
     check_out_outside(out, {"run": run, "mmf": mmf, "maps": maps})
+    load_plugins(plugins)  # before the protocol and the methods are looked up: a plug-in may name either
     protocol_ = get_protocol(protocol)
     if protocol_.name != "native" and not run:
         raise InputError("protocol", f" {protocol_.name}: resizes the frames the network sees, so it needs {{run}}",

@@ -21,7 +21,7 @@ def fit_stats(*, run: str, out: str, frames: int = 200, cityscapes: str | None =
     when given; finalize them by ``policy`` (``jaxanom.sml.stats_finalize``) and write ``out``
     (.npz), which records the frames (set, folder, count, size). A converted run (a network
     jaxanom did not train: only a step-0 checkpoint) has no training data: it needs ``cityscapes``.
-    ``protocol`` (``jaxanom.app.protocols``): the frames resized and the output channels
+    ``protocol`` (a ``jaxanom.protocols`` name, a plug-in's included): the frames resized and the output channels
     selected as that protocol scores them (``erfnet-community``: 512x1024, the void output
     dropped), recorded in the file for ``evaluate`` to check. ``plugins``: modules imported first
     (the run imports those it recorded itself). Prints the per-class table and warns on classes
@@ -31,11 +31,11 @@ def fit_stats(*, run: str, out: str, frames: int = 200, cityscapes: str | None =
     from jaxanom.app.evaluate import class_statistics, predictor
     from jaxanom.app.experiment import _trained_steps, build_network, load_variables
     from jaxanom.app.experiment import frames as run_frames, frames_record as run_frames_record
-    from jaxanom.app.protocols import get_protocol
     from jaxanom.app.predict import size_check
     from jaxanom.data import Cityscapes
     from jaxanom.data.frames import FirstFrames, Resized
     from jaxanom.data.pipeline import evaluation_batches
+    from jaxanom.protocols import get_protocol
     from jaxanom.sml.policy import check_policy
 
     load_plugins(plugins)
@@ -51,8 +51,7 @@ def fit_stats(*, run: str, out: str, frames: int = 200, cityscapes: str | None =
     if path.exists() and not overwrite:
         raise InputError("out", f"{path}: file exists; choose another or pass {{overwrite}}", mentions=("overwrite",))
     check_policy(policy, min_count, strength)
-    with reading("protocol"):
-        protocol_ = get_protocol(protocol)
+    protocol_ = get_protocol(protocol)
     if protocol_.size is not None and size is not None:
         raise InputError("size", f"{{size}} and {{protocol}} {protocol_.name}: the protocol resizes the frames to "
                          f"{protocol_.size[0]}x{protocol_.size[1]} itself; give one of them", mentions=("protocol",))

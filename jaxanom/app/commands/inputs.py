@@ -22,6 +22,33 @@ def method_names(methods: str | None, default: tuple[str, ...] = DEFAULT_METHODS
     return names
 
 
+def evaluator_names(evaluators: str | None) -> tuple[str, ...]:
+    """Comma-separated ``evaluators`` (``jaxanom.metrics.evaluator``, a plug-in's included) as a
+    tuple (None: none), each looked up: InputError naming ``evaluators`` for a name given twice or
+    unknown (listing the known ones). Call it after the plug-ins are loaded."""
+    from jaxanom.metrics.evaluator import get_evaluator
+
+    names = tuple(evaluators.split(",")) if evaluators else ()
+    if twice := sorted({name for name in names if names.count(name) > 1}):
+        raise InputError("evaluators", f": expected each evaluator once, got {', '.join(map(repr, twice))} twice")
+    for name in names:
+        get_evaluator(name)
+    return names
+
+
+def own_entries(kind: str) -> str:
+    """jaxanom's own ``"protocols"`` or ``"evaluators"``, ``name: description`` joined by ``"; "``,
+    for ``--help``: what their modules registered when imported, with no plug-in loaded, so an
+    installed plug-in that fails to load breaks no help (a plug-in's entries are found when the
+    command runs)."""
+    if kind == "protocols":
+        from jaxanom.protocols import PROTOCOLS as entries
+    else:
+        from jaxanom.metrics.evaluator import EVALUATORS as entries
+    return "; ".join(f"{name}: {entry.description}" for name, entry in entries.entries.items()
+                     if entries.plugin_module(name) is None)
+
+
 def load_plugins(plugins) -> None:
     """Import the plug-in modules, which register their methods, objectives (any kind of entry) on
     import. InputError naming ``plugins`` and the module, in one line, for: a name that is not a
@@ -140,7 +167,7 @@ def with_overrides(config, overrides=()):
 def check_stats_classes(mean_std, stats: str, network, variables, size, protocol=None) -> None:
     """InputError naming ``stats`` unless its statistics have one class per logit the methods see:
     every output of ``network`` (``size``: an (h, w) it takes; shapes only), or those ``protocol``
-    (a ``jaxanom.app.protocols.Protocol``) keeps; before the first frame is scored."""
+    (a ``jaxanom.protocols.Protocol``) keeps; before the first frame is scored."""
     from jaxanom.app.predict import logits_shape
     from jaxanom.sml import load_stats_info
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import contextlib
 
-from jaxanom.app.commands.inputs import (DEFAULT_METHODS, load_plugins, method_names, method_options, read_stats,
-                                         split_overrides)
+from jaxanom.app.commands.inputs import (DEFAULT_METHODS, evaluator_names, load_plugins, method_names,
+                                         method_options, read_stats, split_overrides)
 from jaxanom.app.outputs import out_folder, within
 from jaxanom.app.streamed_array import StreamedArray
 from jaxanom.errors import InputError
@@ -21,10 +21,14 @@ __all__ = ["AP_CONVENTIONS", "score"]
 
 def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = False, labels: str | None = None,
           stats: str | None = None, methods: str | None = None, plugins=(), fpr_convention: str | None = None,
-          ap_convention: str = "step", overrides=(), overwrite: bool = False) -> dict | None:
+          ap_convention: str = "step", evaluators: str | None = None, overrides=(),
+          overwrite: bool = False) -> dict | None:
     """Score the logits file ``logits`` ((N, C, H, W) or, ``layout="NHWC"``, (N, H, W, C)) with
     the comma-separated ``methods`` into ``out/scores/<method>.npy``; with ``labels`` (N, H, W)
     also the metrics (``out/metrics.json``, returned, with each method's options as used).
+    ``evaluators``: comma-separated names of evaluators (``jaxanom.metrics.evaluator``, a
+    plug-in's included; with ``labels``) also fed every image of each method's scores, their
+    metrics in ``metrics[method]["evaluators"][name]``.
     ``overrides``: ``"methods.METHOD.OPTION=VALUE"`` options of the methods."""
     import numpy as np
 
@@ -33,8 +37,13 @@ def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = Fal
     from jaxanom.io import NpyWriter, write_json_atomic
     from jaxanom.method_registry import check_finite
     from jaxanom.metrics import AnomalyMetricAccumulator
+    from jaxanom.metrics.evaluator import get_evaluator
 
     load_plugins(plugins)
+    extra = evaluator_names(evaluators)
+    if extra and labels is None:
+        raise InputError("evaluators", ": the evaluators compare scores with labels; give {labels}",
+                         mentions=("labels",))
     streamed = StreamedArray(logits, "logits")
     if streamed.ndim != 4:
         raise InputError("logits", f": expected 4 dimensions ({layout}), got shape {streamed.shape}")
@@ -66,6 +75,8 @@ def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = Fal
     options = method_options(names, overrides)
     out_dir = out_folder(out, overwrite)
     accumulators = {name: AnomalyMetricAccumulator() for name in names}
+    evaluated = {(name, kind): (evaluator, evaluator.init()) for name in names for kind in extra
+                 for evaluator in [get_evaluator(kind).make(name)]}
     label_images = iter(label_array if label_array is not None else ())
     with contextlib.ExitStack() as files:
         writers = {name: files.enter_context(NpyWriter(within(out_dir, out_dir / "scores" / f"{name}.npy"), shape,
@@ -84,6 +95,10 @@ def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = Fal
                 raise
             except ValueError as error:  # the library's checks of this image's values (finite logits, labels)
                 raise InputError("image", f"{index}: {error}") from None
+            if extra:  # each evaluator fed this image (a batch of one) of its method's scores
+                batch = {"scores": {name: value[None] for name, value in scores.items()}, "label": label[None]}
+                for key, (evaluator, state) in evaluated.items():
+                    evaluated[key] = evaluator, evaluator.update(state, batch)
             for name, value in scores.items():
                 writers[name].write(value)
     print(f"score maps of {len(streamed)} images -> {out_dir / 'scores'}/<method>.npy")
@@ -94,6 +109,24 @@ def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = Fal
     for name in names:  # the options used (resolved for the images' one size)
         if used.get(name):
             metrics[name]["options"] = used[name]
+    for (name, kind), (evaluator, state) in evaluated.items():
+        metrics[name].setdefault("evaluators", {})[kind] = _jsonable(evaluator.finalize(state))
     write_json_atomic(within(out_dir, out_dir / "metrics.json"), {"metrics": metrics})
     print(results_table(metrics))
+    for (name, kind) in evaluated:
+        print(f"{name} {kind}: {metrics[name]['evaluators'][kind]}")
     return metrics
+
+
+def _jsonable(value):
+    """An evaluator's finalized metrics as JSON values: NumPy scalars and arrays as numbers and
+    lists, in dicts, lists and tuples; other values as they are."""
+    import numpy as np
+
+    if isinstance(value, (np.ndarray, np.generic)):
+        return value.tolist()
+    if isinstance(value, dict):
+        return {str(key): _jsonable(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(item) for item in value]
+    return value

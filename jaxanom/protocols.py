@@ -1,4 +1,4 @@
-"""Evaluation protocols: how a table turns a dataset's frames into the pixels it counts.
+"""Evaluation protocols by name: how a table turns a dataset's frames into the pixels it counts.
 
 Published road-anomaly numbers differ in more than the network: the size the network sees, the
 resampling filter, whether a void output takes part in the scores, which frames count, and how
@@ -15,15 +15,27 @@ reproduced by name (``jaxanom evaluate --protocol NAME``):
   (the ``void`` method reads it); frames without an anomaly pixel skipped; pixels pooled over
   frames; AP as scikit-learn's ``average_precision_score`` (the step sum) and FPR95 as
   ood-metrics' ``fpr_at_95_tpr`` (linear interpolation on the ROC).
+
+Protocols are plug-ins like scoring methods (``PROTOCOLS`` is a ``jaxanom.registry.Registry``):
+jaxanom's two are registered here (this module is in ``jaxanom.builtins``), and a module of
+one's own registers another with ``register(Protocol(...))``, loaded by ``--plugin MODULE`` or
+an installed package's entry-point group ``jaxanom.protocols``; ``get_protocol`` finds a name
+when a command runs, so a plug-in's protocol is as good as jaxanom's.
 """
 from __future__ import annotations
 
 import dataclasses
+import sys
 from typing import Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 
+from jaxanom import builtins, registry
 from jaxanom.data.resize import resize_image_antialiased, resize_labels_nearest
+from jaxanom.errors import InputError
+from jaxanom.void_methods import VOID_CHANNEL, without_channel
+
+ENTRY_POINTS = "jaxanom.protocols"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,6 +53,20 @@ class Protocol:
     ap_convention: str = "step"
     fpr_convention: str = "first"
 
+    def __post_init__(self):  # a plug-in's protocol is refused where it is made, in one line
+        from jaxanom.metrics.anomaly import AP_CONVENTIONS, FPR_CONVENTIONS
+
+        description = self.description
+        if not (isinstance(description, str) and description.strip() and "\n" not in description.strip()):
+            raise ValueError(f"description of protocol {self.name!r}: expected one line, got {self.description!r}")
+        size = self.size
+        if size is not None and not (isinstance(size, tuple) and len(size) == 2
+                                     and all(isinstance(n, int) and n > 0 for n in size)):
+            raise ValueError(f"size of protocol {self.name!r}: expected None or (H, W) positive ints, got {self.size!r}")
+        if self.ap_convention not in AP_CONVENTIONS or self.fpr_convention not in FPR_CONVENTIONS:
+            raise ValueError(f"conventions of protocol {self.name!r}: expected ap_convention of {AP_CONVENTIONS} and "
+                             f"fpr_convention of {FPR_CONVENTIONS}, got {self.ap_convention!r}, {self.fpr_convention!r}")
+
     def source(self, source: Sequence[Mapping]) -> Sequence[dict]:
         """``source`` (``len`` and ``[i]`` of records ``{"image" (H, W, 3) uint8, "label" (H, W),
         "name"?}``) with every frame resized to ``size`` when read, or ``source`` itself."""
@@ -53,9 +79,7 @@ class Protocol:
 
     def classes(self, outputs: int) -> int:
         """How many classes the methods (but ``void``) see of a network with ``outputs`` channels:
-        one fewer where the protocol drops a void output (``app.scoring.VOID_CHANNEL``)."""
-        from jaxanom.app.scoring import VOID_CHANNEL
-
+        one fewer where the protocol drops a void output (``void_methods.VOID_CHANNEL``)."""
         return outputs - 1 if self.drop_void and outputs == VOID_CHANNEL + 1 else outputs
 
     def outputs(self, predict):
@@ -63,7 +87,6 @@ class Protocol:
         ``void``) see: without the void output where the protocol drops it."""
         if not self.drop_void:
             return predict
-        from jaxanom.app.scoring import without_channel
 
         def call(images):
             out = predict(images)
@@ -116,18 +139,35 @@ def resize_frame(record: Mapping, size: tuple[int, int]) -> dict:
     return resized
 
 
-PROTOCOLS: dict[str, Protocol] = {
-    "native": Protocol("native", "each image at its own size, every channel, every frame, FPR at the first "
-                       "point with TPR >= 95 percent (jaxanom's default)"),
-    "erfnet-community": Protocol(
-        "erfnet-community", "512x1024 PIL resize of images (antialiased bilinear) and labels (nearest), void channel "
-        "dropped, frames without anomalies skipped, interpolated FPR95 (the public ERFNet evaluations)",
-        size=(512, 1024), drop_void=True, skip_frames_without_anomaly=True, fpr_convention="interp"),
-}
+PROTOCOLS: registry.Registry[Protocol] = registry.Registry("protocol", ENTRY_POINTS, lambda: builtins.MODULES)
+
+
+def register(protocol: Protocol) -> Protocol:
+    """Add ``protocol`` under its name (``registry.NAME_RULE``), registered by the calling module;
+    ValueError in one line when the name is not a name or another protocol has it. Returns it."""
+    if not isinstance(protocol, Protocol):
+        raise ValueError(f"protocol: expected a jaxanom.protocols.Protocol, got {type(protocol).__name__}")
+    return PROTOCOLS.add(protocol.name, protocol, sys._getframe(1).f_globals.get("__name__", "?"))
+
+
+def protocol_names() -> tuple[str, ...]:
+    """Every registered protocol's name: jaxanom's own first, then installed plug-ins', then loaded modules'."""
+    return PROTOCOLS.names()
 
 
 def get_protocol(name: str) -> Protocol:
-    """The protocol called ``name``; ValueError naming the known ones otherwise."""
-    if name not in PROTOCOLS:
-        raise ValueError(f"protocol: expected one of {', '.join(PROTOCOLS)}, got {name!r}")
-    return PROTOCOLS[name]
+    """The protocol called ``name``; InputError naming ``protocol`` and the known names (and an
+    entry point that failed to load, which might have provided it) otherwise."""
+    found = PROTOCOLS.find(name)
+    if found is None:
+        raise InputError("protocol", f": expected one of {', '.join(PROTOCOLS.names())}, got {name!r} (a plug-in's "
+                         f"protocol: load its module, e.g. with --plugin MODULE){PROTOCOLS.broken_note()}")
+    return found
+
+
+register(Protocol("native", "each image at its own size, every channel, every frame, FPR at the first point with TPR "
+                  ">= 95 percent (jaxanom's default)"))
+register(Protocol(
+    "erfnet-community", "512x1024 PIL resize of images (antialiased bilinear) and labels (nearest), void channel "
+    "dropped, frames without anomalies skipped, interpolated FPR95 (the public ERFNet evaluations)",
+    size=(512, 1024), drop_void=True, skip_frames_without_anomaly=True, fpr_convention="interp"))
