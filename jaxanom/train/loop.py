@@ -26,7 +26,7 @@ import jax
 import numpy as np
 
 from jaxanom._validate import check_count
-from jaxanom.metrics.segmentation import confusion_scores
+from jaxanom.metrics.evaluator import ConfusionSum, run_evaluators
 from jaxanom.train.optim import OptimConfig, make_optimizer
 from jaxanom.train.run_loop import NonFiniteLossError  # noqa: F401  (part of this module's API: train raises it)
 from jaxanom.train.run_loop import Checkpoints, progress_bar, run_loop
@@ -95,15 +95,16 @@ def step_inputs(batch: dict, model=None) -> dict:
 
 
 def evaluate(eval_step, variables, batches: Iterable[dict], mesh, ignore: int, model=None) -> dict[str, float]:
-    """mIoU and pixel accuracy of ``variables`` over ``batches`` (summed confusion matrix)."""
-    total = None
-    for batch in batches:
-        batch = global_batch(pad_batch(step_inputs(batch, model), len(mesh.local_devices), ignore), mesh)
-        confusion = eval_step(variables, batch)
-        total = confusion if total is None else total + confusion
-    if total is None:
-        raise ValueError("val_data: expected at least one batch, got none")
-    scores = confusion_scores(np.asarray(jax.device_get(total)))
+    """mIoU and pixel accuracy of ``variables`` over ``batches``: the eval step's confusion
+    matrices, summed on the device and read once (``metrics.evaluator.ConfusionSum``)."""
+    confusions = ({"confusion": eval_step(variables, global_batch(
+        pad_batch(step_inputs(batch, model), len(mesh.local_devices), ignore), mesh))} for batch in batches)
+    try:
+        scores = run_evaluators({"val": ConfusionSum()}, confusions)["val"]
+    except ValueError as error:
+        if str(error).startswith("batches:"):  # no batch at all
+            raise ValueError("val_data: expected at least one batch, got none") from None
+        raise
     return {"val/miou": scores["miou"], "val/pixel_accuracy": scores["pixel_accuracy"]}
 
 

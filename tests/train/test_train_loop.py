@@ -265,3 +265,24 @@ def test_a_finished_run_is_extended_bitwise_and_never_shortened(tmp_path):
     with pytest.raises(ValueError, match=r"steps: expected at least the 6 steps the run in .*run has trained, got 5"):
         train(config(tmp_path / "run", optim=flat, steps=5, save_every=2), TinySegNet(), batches(6))
     assert steps_on_disk(tmp_path / "run" / "checkpoints") == [4, 6]
+
+
+def test_validation_metrics_equal_numpy_from_the_networks_argmax():
+    from jaxanom.losses import CrossEntropy
+    from jaxanom.train.step import model_input
+
+    model, variables = TinySegNet(), init_variables()
+    mesh, *_, eval_step = loop_lib._compiled(model, CrossEntropy(), OptimConfig(), 6, "float32", 255,
+                                              tuple(jax.devices()))
+    val = [make_batch(50 + i, batch=3, void_fraction=0.3) for i in range(3)]
+    with jax.set_mesh(mesh):
+        got = loop_lib.evaluate(eval_step, variables, val, mesh, 255, model)
+        with pytest.raises(ValueError, match="val_data: expected at least one batch"):
+            loop_lib.evaluate(eval_step, variables, [], mesh, 255, model)
+    prediction = np.concatenate([np.argmax(model.apply(variables, model_input(b["image"], model))["logits"], -1)
+                                 for b in val]).ravel()
+    label = np.concatenate([b["label"] for b in val]).ravel()
+    prediction, label = prediction[label != 255], label[label != 255]
+    iou = [np.sum((prediction == k) & (label == k)) / np.sum((prediction == k) | (label == k)) for k in range(3)]
+    assert got["val/miou"] == pytest.approx(np.mean(iou), rel=1e-12)
+    assert got["val/pixel_accuracy"] == pytest.approx(np.mean(prediction == label), rel=1e-12)

@@ -1,8 +1,9 @@
 """``jaxanom score``: scores and metrics from logits saved by another framework.
 
 Streams: the logits (and labels) are read one image at a time (``jaxanom.app.streamed_array``),
-each image is scored and added to the exact metric accumulators, and its score maps are appended
-to ``scores/<method>.npy`` files that appear only once complete. Memory: one image's logits and
+each image is scored, fed to one exact ``PixelAnomaly`` evaluator per method
+(``jaxanom.metrics.evaluator``), and its score maps are appended to ``scores/<method>.npy`` files
+that appear only once complete. Memory: one image's logits and
 scores, plus the accumulators' ~6 bytes per distinct score (see ``jaxanom.metrics.accumulator``).
 """
 from __future__ import annotations
@@ -32,7 +33,7 @@ def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = Fal
     from jaxanom.app.reports import results_table
     from jaxanom.io import NpyWriter, write_json_atomic
     from jaxanom.method_registry import check_finite
-    from jaxanom.metrics import AnomalyMetricAccumulator
+    from jaxanom.metrics.evaluator import PixelAnomaly, run_evaluators
 
     load_plugins(plugins)
     streamed = StreamedArray(logits, "logits")
@@ -65,33 +66,46 @@ def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = Fal
                          "methods.METHOD.OPTION=VALUE")
     options = method_options(names, overrides)
     out_dir = out_folder(out, overwrite)
-    accumulators = {name: AnomalyMetricAccumulator() for name in names}
-    label_images = iter(label_array if label_array is not None else ())
-    with contextlib.ExitStack() as files:
-        writers = {name: files.enter_context(NpyWriter(within(out_dir, out_dir / "scores" / f"{name}.npy"), shape,
-                                                       np.float32)) for name in names}
-        for index, image in enumerate(streamed):
-            image = np.moveaxis(image, 0, -1) if channels_first else image
-            label = None if label_array is None else next(label_images)
-            try:
-                scores, used = scoring.score_all(names, scoring.inputs_of({"logits": image[None]}, mean_std), options)
+    used: dict = {}  # the options each method used (resolved for the images' one size)
+    current = [None]  # the index of the image being scored (None once all are), named when a value is refused
+
+    def scored():
+        """Each image's scores (appended to ``scores/<method>.npy``) with its label, in order."""
+        label_images = iter(label_array if label_array is not None else ())
+        with contextlib.ExitStack() as files:
+            writers = {name: files.enter_context(NpyWriter(within(out_dir, out_dir / "scores" / f"{name}.npy"),
+                                                           shape, np.float32)) for name in names}
+            for index, image in enumerate(streamed):
+                current[0] = index
+                image = np.moveaxis(image, 0, -1) if channels_first else image
+                label = None if label_array is None else next(label_images)
+                scores, options_used = scoring.score_all(names, scoring.inputs_of({"logits": image[None]}, mean_std),
+                                                         options)
                 scores = {name: np.asarray(value)[0] for name, value in scores.items()}
                 for name, value in scores.items():
                     check_finite(name, value, label, where=f" of image {index}")
-                    if label is not None:
-                        accumulators[name].update(value, label)
-            except InputError:  # a method's output refused, naming it
-                raise
-            except ValueError as error:  # the library's checks of this image's values (finite logits, labels)
-                raise InputError("image", f"{index}: {error}") from None
-            for name, value in scores.items():
-                writers[name].write(value)
-    print(f"score maps of {len(streamed)} images -> {out_dir / 'scores'}/<method>.npy")
+                yield {"scores": scores, "label": label}  # the evaluators check the labels
+                used.update(options_used)
+                for name, value in scores.items():
+                    writers[name].write(value)
+        current[0] = None
+        print(f"score maps of {len(streamed)} images -> {out_dir / 'scores'}/<method>.npy")
+
+    evaluators = {} if label_array is None else {
+        name: PixelAnomaly(name, fpr_convention=fpr_convention or "first", ap_convention=ap_convention)
+        for name in names}
+    try:
+        with contextlib.closing(scored()) as images:  # closed on an error: no partial scores/<method>.npy
+            metrics = run_evaluators(evaluators, images)
+    except InputError:  # a method's output refused, naming it
+        raise
+    except ValueError as error:  # the library's checks of one image's values (finite logits, labels)
+        if current[0] is None:
+            raise
+        raise InputError("image", f"{current[0]}: {error}") from None
     if label_array is None:
         return None
-    metrics = {name: accumulators.pop(name).compute(fpr_convention=fpr_convention or "first",  # freed in turn
-                                                    ap_convention=ap_convention) for name in names}
-    for name in names:  # the options used (resolved for the images' one size)
+    for name in names:
         if used.get(name):
             metrics[name]["options"] = used[name]
     write_json_atomic(within(out_dir, out_dir / "metrics.json"), {"metrics": metrics})
