@@ -23,7 +23,7 @@ from jaxanom.io import write_json_atomic
 from jaxanom.losses import CrossEntropy
 from jaxanom.models import attention as attention_modules
 from jaxanom.objectives import Objective
-from jaxanom.train.loop import TrainConfig
+from jaxanom.train.segmenter import TrainConfig
 from jaxanom.train.optim import poly_schedule, schedule_depends_on_steps
 
 # The training data ``Experiment.data`` names, and the classes of its labels (0 .. n - 1, 255 void).
@@ -293,7 +293,7 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
     """
     from jaxanom.data.pipeline import evaluation_batches, training_batches
     from jaxanom.data.transforms import Augment
-    from jaxanom.train.loop import train
+    from jaxanom.train.segmenter import train
 
     run_dir = Path(run_dir)
     check_objective(experiment)

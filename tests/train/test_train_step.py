@@ -17,7 +17,7 @@ from jaxanom.losses import CrossEntropy, cross_entropy
 from jaxanom.msaam.objective import MSAAM
 from jaxanom.objectives import Objective, objective_class, objective_from_dict, objective_names, register
 from jaxanom.train import step as step_lib
-from jaxanom.train.loop import TrainConfig
+from jaxanom.train.segmenter import TrainConfig
 from jaxanom.train.optim import OptimConfig, make_optimizer
 from jaxanom.train.sharding import global_batch, make_mesh, replicated
 from jaxanom.train.state import TrainState

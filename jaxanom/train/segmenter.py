@@ -9,7 +9,7 @@ already holds checkpoints is resumed from the newest one; a damaged newest check
 run with a ValueError (nothing is silently restarted).
 
 On CPU a run that is killed and resumed ends with parameters bitwise equal to an uninterrupted
-run (tests/train/test_train_loop.py); on GPUs this holds as far as their kernels are deterministic.
+run (tests/train/test_train_segmenter.py); on GPUs this holds as far as their kernels are deterministic.
 
 The metrics are read from the device on logging steps only (every ``log_every`` steps, every step
 that evaluates or saves, and the last), checked for NaN/Inf (before anything is saved) and
