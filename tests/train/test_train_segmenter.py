@@ -268,13 +268,12 @@ def test_a_finished_run_is_extended_bitwise_and_never_shortened(tmp_path):
 
 
 def test_validation_metrics_equal_numpy_from_the_networks_argmax():
-    from jaxanom.losses import CrossEntropy
     from jaxanom.train.step import model_input
 
-    model, variables = TinySegNet(), init_variables()
-    mesh, *_, eval_step = segmenter_lib._compiled(model, CrossEntropy(), OptimConfig(), 6, "float32", 255,
-                                              tuple(jax.devices()))
-    val = [make_batch(50 + i, batch=3, void_fraction=0.3) for i in range(3)]
+    model, variables, run = TinySegNet(), init_variables(), config("")  # the steps the other tests compiled
+    mesh, *_, eval_step = segmenter_lib._compiled(model, run.objective, run.optim, run.steps, run.compute_dtype,
+                                                  run.ignore, tuple(jax.devices()))
+    val = [make_batch(50 + i, void_fraction=0.3) for i in range(3)]
     with jax.set_mesh(mesh):
         got = segmenter_lib.evaluate(eval_step, variables, val, mesh, 255, model)
         with pytest.raises(ValueError, match="val_data: expected at least one batch"):
