@@ -1,7 +1,8 @@
 """Exact benchmark metrics: pixel AP / AUROC / FPR@TPR, SMIYC components, confusion / mIoU; the
 official SegmentMeIfYouCan kit's binned convention (``smiyc``); all of them as evaluators fed the
-same batches (``evaluator``: init / update / merge / finalize); AP / AUROC / FPR as pure JAX for
-use inside ``jax.jit`` / ``vmap``, binned or by a sort, with error bounds (``binned``)."""
+same batches (``evaluator``: init / update / merge / finalize), which also fold the datasets
+given as lists of frames (``pooled``); AP / AUROC / FPR as pure JAX for use inside ``jax.jit`` /
+``vmap``, binned or by a sort, with error bounds (``binned``)."""
 from jaxanom.metrics.accumulator import AnomalyMetricAccumulator
 from jaxanom.metrics.anomaly import anomaly_metrics, pr_curve, roc_curve, threshold_at_tpr
 from jaxanom.metrics.binned import (binned_anomaly_metrics, binned_error_bounds, score_histogram,

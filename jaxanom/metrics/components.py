@@ -3,7 +3,8 @@
 Follows the SegmentMeIfYouCan definitions (Chan et al., 2021) and their benchmark code:
 
 - anomaly mask = score >= threshold (default: the pixel threshold of best F1 over all images,
-  the point of the exact PR curve), minus void pixels; 8-connected components (OpenCV);
+  the point of the exact PR curve: ``metrics.pooled.component_metrics``), minus void pixels;
+  8-connected components (OpenCV);
 - predicted components under ``min_predicted`` pixels are dropped and ground-truth components
   (label 1) under ``min_ground_truth`` pixels become void: 500 / 100 ("anomaly" track),
   50 / 10 ("obstacle" track); then only non-void pixels count;
