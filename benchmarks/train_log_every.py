@@ -2,7 +2,7 @@
 
 The train loop reads its metrics (loss, gradient norm) from the device on logging steps only; this
 measures what a read on every step would cost. Each measurement is a fresh process running
-``jaxanom.train.loop.train`` for STEPS steps of a network on one random batch, repeated (no input
+``jaxanom.train.segmenter.train`` for STEPS steps of a network on one random batch, repeated (no input
 pipeline: the host only dispatches steps and, on logging steps, waits for the device and reads
 the metrics), with one checkpoint at the end. Its images per second are read from the run's own
 log (``train/images_per_s`` of each step's line: the rate of the window between two reads) over
@@ -32,7 +32,7 @@ def measure(network: str, size: tuple[int, int], batch: int, steps: int, log_eve
     import numpy as np
 
     from jaxanom.models import build_model
-    from jaxanom.train.loop import TrainConfig, train
+    from jaxanom.train.segmenter import TrainConfig, train
 
     rng = np.random.default_rng(0)
     data = {"image": rng.integers(0, 256, (batch, *size, 3), dtype=np.uint8),

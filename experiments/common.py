@@ -51,7 +51,7 @@ from jaxanom.app.experiment import Experiment, build_network, frames, jsonable, 
 from jaxanom.io import write_bytes_atomic, write_json_atomic
 from jaxanom.metrics import confusion_scores, miou, pr_curve, roc_curve
 from jaxanom.metrics.evaluator import PixelAnomaly, Segmentation, update_keyed
-from jaxanom.train.loop import TrainConfig
+from jaxanom.train.segmenter import TrainConfig
 from jaxanom.train.optim import OptimConfig
 from jaxanom.cudam.objective import CuDAM
 from jaxanom.losses import CrossEntropy

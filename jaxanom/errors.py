@@ -3,7 +3,8 @@
 A Python caller reads ``argument`` as the function's parameter name; the command line reads it as
 its flag (``stats`` -> ``--stats``). Any other argument the advice mentions is written ``{name}`` in
 the message and listed in ``mentions``, so it is spelled the same way. Subclassing ``ValueError``
-keeps ``except ValueError`` and ``pytest.raises(ValueError)`` of callers valid.
+keeps ``except ValueError`` and ``pytest.raises(ValueError)`` of callers valid. ``first_line``
+shortens another library's error to fit a one-line message.
 """
 from __future__ import annotations
 
@@ -55,3 +56,9 @@ def reading(argument: str, value=None) -> Iterator[None]:
         if value is not None and text.startswith(f"{value}:"):  # ... or the value
             text = text[len(str(value)) + 1:].lstrip()
         raise InputError(argument, f"{'' if value is None else value}: {text}") from None
+
+
+def first_line(error: Exception, limit: int = 300) -> str:
+    """The first line of an error's message, at most ``limit`` characters (TensorStore's run to 60 lines)."""
+    lines = str(error).strip().splitlines() or [""]
+    return lines[0][:limit] + (" ..." if len(lines) > 1 or len(lines[0]) > limit else "")

@@ -54,7 +54,7 @@ def road_anomaly_sample() -> Path:
 # a long file left to the end would keep one worker busy while the other idles.
 LONGEST_FIRST = ("test_mmf_demo.py", "test_experiments_offroad.py", "test_mmf_table2.py", "test_experiments.py",
                  "test_offroad_crf.py", "test_cli.py", "test_weights.py", "test_distributed.py", "test_predict.py",
-                 "test_offroad_pipeline.py", "test_train_loop.py", "test_mmf_spade.py", "test_nn_afc_rgbd.py",
+                 "test_offroad_pipeline.py", "test_train_segmenter.py", "test_mmf_spade.py", "test_nn_afc_rgbd.py",
                  "test_mixture.py", "test_nn_spade_dissimilarity.py", "test_weights_cli.py", "test_superpixels.py",
                  "test_mmf_postprocess.py")
 

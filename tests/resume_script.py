@@ -13,7 +13,7 @@ jax.config.update("jax_platforms", "cpu")
 
 import numpy as np  # noqa: E402
 
-from jaxanom.train.loop import TrainConfig, train  # noqa: E402
+from jaxanom.train.segmenter import TrainConfig, train  # noqa: E402
 from jaxanom.train.optim import OptimConfig  # noqa: E402
 from jaxanom.cudam.objective import CuDAM  # noqa: E402
 from tiny_models import IndexedBatches, TinySegNet, init_variables  # noqa: E402

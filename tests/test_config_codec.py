@@ -23,7 +23,7 @@ from jaxanom.config_codec import ConfigError, decode, encode, override
 from jaxanom.cudam.objective import CuDAM
 from jaxanom.msaam.objective import MSAAM
 from jaxanom.objectives import Objective, objective_names
-from jaxanom.train.loop import TrainConfig
+from jaxanom.train.segmenter import TrainConfig
 from jaxanom.train.optim import OptimConfig
 
 WRITTEN_BEFORE = Path(__file__).parent / "fixtures" / "configs"  # by jaxanom 8925539 (make_files.py)

@@ -6,6 +6,7 @@ benchmarks do (docs/papers/anomaly-metrics.md#pooling). ``segmentation_results``
 """
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
@@ -18,8 +19,7 @@ from jaxanom.app.scoring import inputs_of, score_all
 from jaxanom.cudam.score import upsample_attention
 from jaxanom.method_registry import check_finite
 from jaxanom.metrics import anomaly_metrics, pr_curve, restrict_to_roi, roc_curve
-from jaxanom.metrics.evaluator import (Components, PixelAnomaly, Segmentation, SmiycPixels, run_evaluators,
-                                       update_keyed)
+from jaxanom.metrics.evaluator import Components, PixelAnomaly, Segmentation, SmiycPixels, run_evaluators
 from jaxanom.train.step import model_input
 from jaxanom.errors import InputError
 
@@ -144,80 +144,163 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
     InputError naming ``path`` when the frames pool no anomaly or no normal pixel (each frame's
     reason said), and naming ``methods`` when ``convention="smiyc"`` meets a score outside float16.
     """
+    import itertools
     import tempfile
 
     if convention not in CONVENTIONS:
         raise ValueError(f"convention: expected one of {CONVENTIONS}, got {convention!r}")
-    pixels, kept, used, frames, binned = {}, {}, {}, [], {}  # method -> (evaluator, state)
-    counted: list[tuple] = []  # (frame name, anomaly pixels, normal pixels)
     spill = (tempfile.TemporaryDirectory(prefix=".jaxanom-maps-", suffix=".tmp", dir=spill_dir)
              if track is not None else None)
     try:
-        for batch in outputs:
-            if "maps" in batch:  # finished score maps (saved_map_batches)
-                batch_scores = batch["maps"]
-            else:
-                batch_scores, options_used = score_all(method_names, inputs_of(batch, stats), options,
-                                                       drop_void=drop_void)
-                for name, values in options_used.items():
-                    for key, value in values.items():
-                        if value not in (seen := used.setdefault(name, {}).setdefault(key, [])):
-                            seen.append(value)
-            labels = np.asarray(batch["label"])
-            if "roi" in batch:  # evaluate inside the region of interest only (MMF: the road)
-                labels = restrict_to_roi(labels, batch["roi"])
-            where = f" of frame {', '.join(map(str, batch['name']))}" if "name" in batch else ""
-            for name, score in batch_scores.items():  # a count per map, read once the next batch is dispatched
-                check_finite(name, score, labels, where)
-            names_in_batch = batch.get("name", [None] * len(labels))
-            for index, label in enumerate(labels):  # what each frame adds to the pool, named if it adds no class
-                counted.append((names_in_batch[index], int((label == 1).sum()), int((label == 0).sum())))
-            first = len(frames)
+        batches = _scored_batches(outputs, method_names, stats, options, drop_void, convention,
+                                  None if spill is None else Path(spill.name))
+        first = list(itertools.islice(batches, 1))  # its methods name the evaluators
+        methods = list(first[0]["scores"]) if first else []
+        evaluators = {"frames": _Frames(), "options": _OptionsUsed()}  # first: no class, no metric computed
+        for name in methods:
+            evaluators["pixels", name] = PixelAnomaly(name, mode, fpr_convention, ap_convention, conventions=True)
+            if convention == "smiyc":
+                evaluators["kit", name] = SmiycPixels(name)
+            if keep_curves:
+                evaluators["curves", name] = _Curves(name)
             if spill is not None:
-                for index, label in enumerate(labels):
-                    name = names_in_batch[index]
-                    frames.append({"name": str(name) if name is not None else str(first + index), "pixels": {}})
-                    np.save(Path(spill.name) / f"label_{first + index}.npy", label)
-            scored = {"scores": batch_scores, "label": labels}
-            for name, score in batch_scores.items():
-                update_keyed(pixels, name, lambda: PixelAnomaly(name, mode, fpr_convention, ap_convention,
-                                                                conventions=True), scored)
-                if convention == "smiyc":
-                    _check_kit_range(name, score, labels, names_in_batch)
-                    update_keyed(binned, name, lambda: SmiycPixels(name), scored)
-                if keep_curves:
-                    kept.setdefault(name, []).extend(zip(np.asarray(score), labels))
-                if spill is not None:
-                    for index, (one, label) in enumerate(zip(np.asarray(score), labels)):
-                        np.save(within(spill.name, Path(spill.name) / f"{name}_{first + index}.npy"), one)
-                        frames[first + index]["pixels"][name] = _frame_pixel_metrics(one, label, fpr_convention,
-                                                                                      ap_convention)
-        _check_both_classes(counted)
+                evaluators["frame_pixels", name] = _FramePixels(name, fpr_convention, ap_convention)
+        results = run_evaluators(evaluators, itertools.chain(first, batches))
     except BaseException:  # a refused frame mid-way leaves no spilled maps in --out
         if spill is not None:
             spill.cleanup()
         raise
-    metrics = {name: evaluator.finalize(state) for name, (evaluator, state) in pixels.items()}
-    for name, values in used.items():
+    metrics = {name: results["pixels", name] for name in methods}
+    for name, values in results["options"].items():
         if values:
             metrics[name]["options"] = values
-    for name, (evaluator, state) in binned.items():  # the kit's numbers on top, "convention": "smiyc"; the
-        values = metrics[name]  # exact ones move with the conventions that made them
-        values["exact"] = {key: values.pop(key) for key in EXACT_KEYS}
-        values.update(evaluator.finalize(state))
+    if convention == "smiyc":  # the kit's numbers on top, "convention": "smiyc"; the exact ones
+        for name, values in metrics.items():  # move with the conventions that made them
+            values["exact"] = {key: values.pop(key) for key in EXACT_KEYS}
+            values.update(results["kit", name])
     if spill is not None:
         with spill:
             for name, values in metrics.items():
                 components = Components(name, values["best_f1_threshold"], track, convention)
-                values["components"], values["frames"] = _component_pass(Path(spill.name), components, frames)
-    curves = {}
-    for name, per_frame in kept.items():
-        maps, truths = (list(x) for x in zip(*per_frame))
+                values["components"], values["frames"] = _component_pass(Path(spill.name), components,
+                                                                         results["frames"]["names"],
+                                                                         results["frame_pixels", name])
+    return metrics, {name: results["curves", name] for name in methods if keep_curves}
+
+
+def _scored_batches(outputs: Iterable[dict], method_names, stats, options, drop_void: bool, convention: str,
+                    spill: Path | None) -> Iterator[dict]:
+    """Each batch of ``outputs`` scored (``anomaly_results``' arguments) and checked: ``{"scores":
+    {method: (B, H, W)}, "label" (the ROI applied), "name" (Nones if none), "options": used}``;
+    with ``spill``, each frame's label and scores saved there as ``label_<i>.npy`` and
+    ``<method>_<i>.npy``, i counting frames."""
+    frames = 0
+    for batch in outputs:
+        if "maps" in batch:  # finished score maps (saved_map_batches)
+            batch_scores, used = batch["maps"], {}
+        else:
+            batch_scores, used = score_all(method_names, inputs_of(batch, stats), options, drop_void=drop_void)
+        labels = np.asarray(batch["label"])
+        if "roi" in batch:  # evaluate inside the region of interest only (MMF: the road)
+            labels = restrict_to_roi(labels, batch["roi"])
+        names = batch.get("name", [None] * len(labels))
+        where = f" of frame {', '.join(map(str, names))}" if "name" in batch else ""
+        for name, score in batch_scores.items():  # a count per map, read once the next batch is dispatched
+            check_finite(name, score, labels, where)
+        for name, score in batch_scores.items() if convention == "smiyc" else ():
+            _check_kit_range(name, score, labels, names)
+        if spill is not None:
+            for index, label in enumerate(labels):
+                np.save(spill / f"label_{frames + index}.npy", label)
+            for name, score in batch_scores.items():
+                for index, one in enumerate(np.asarray(score)):
+                    np.save(within(spill, spill / f"{name}_{frames + index}.npy"), one)
+        yield {"scores": batch_scores, "label": labels, "name": names, "options": used}
+        frames += len(labels)
+
+
+class _Framewise:
+    """``init`` / ``merge`` of an evaluator whose state is a tuple of per-frame entries, in frame order."""
+
+    def init(self) -> tuple:
+        return ()
+
+    def merge(self, a: tuple, b: tuple) -> tuple:
+        return a + b
+
+
+class _Frames(_Framewise):
+    """Each frame's name and anomaly / normal pixel counts; ``finalize``: ``{"names": [each frame's
+    name, else its index]}``, or InputError naming ``path`` (``_check_both_classes``) unless the
+    frames pool both classes."""
+
+    def update(self, state: tuple, batch: dict) -> tuple:
+        return state + tuple((name, int((label == 1).sum()), int((label == 0).sum()))
+                             for name, label in zip(batch["name"], batch["label"]))
+
+    def finalize(self, state: tuple) -> dict:
+        _check_both_classes(list(state))
+        return {"names": [str(name) if name is not None else str(index) for index, (name, _, _) in enumerate(state)]}
+
+
+@dataclasses.dataclass(frozen=True)
+class _Curves(_Framewise):
+    """``method``'s pooled ROC and PR curves, with every frame's score map and label kept on the host
+    (small sets only): ``{"roc": (fpr, tpr), "pr": (recall, precision), "scores", "labels"}``."""
+
+    method: str
+
+    def update(self, state: tuple, batch: dict) -> tuple:
+        return state + tuple(zip(np.asarray(batch["scores"][self.method]), batch["label"]))
+
+    def finalize(self, state: tuple) -> dict:
+        maps, truths = (list(x) for x in zip(*state))
         scores, labels = (np.concatenate([x.ravel() for x in xs]) for xs in (maps, truths))
         fpr, tpr, _ = roc_curve(scores, labels)
         precision, recall, _ = pr_curve(scores, labels)
-        curves[name] = {"roc": (fpr, tpr), "pr": (recall, precision), "scores": maps, "labels": truths}
-    return metrics, curves
+        return {"roc": (fpr, tpr), "pr": (recall, precision), "scores": maps, "labels": truths}
+
+
+@dataclasses.dataclass(frozen=True)
+class _FramePixels(_Framewise):
+    """Every frame's AP / AUROC / FPR of ``method``'s scores (None where the frame lacks a class), in order."""
+
+    method: str
+    fpr_convention: str
+    ap_convention: str
+
+    def update(self, state: tuple, batch: dict) -> tuple:
+        return state + tuple(_frame_pixel_metrics(one, label, self.fpr_convention, self.ap_convention)
+                             for one, label in zip(np.asarray(batch["scores"][self.method]), batch["label"]))
+
+    def finalize(self, state: tuple) -> list:
+        return list(state)
+
+
+class _OptionsUsed:
+    """``{method: {option: [the distinct values it took, in the order met]}}`` of batches' ``"options"``
+    (``score_all``'s ``used``)."""
+
+    def init(self) -> dict:
+        return {}
+
+    def update(self, state: dict, batch: dict) -> dict:
+        for name, values in batch["options"].items():
+            for key, value in values.items():
+                if value not in (seen := state.setdefault(name, {}).setdefault(key, [])):
+                    seen.append(value)
+        return state
+
+    def merge(self, a: dict, b: dict) -> dict:
+        merged = {name: {key: list(seen) for key, seen in values.items()} for name, values in a.items()}
+        for name, values in b.items():
+            for key, seen in values.items():
+                into = merged.setdefault(name, {}).setdefault(key, [])
+                into.extend(value for value in seen if value not in into)
+        return merged
+
+    def finalize(self, state: dict) -> dict:
+        return state
 
 
 def _check_both_classes(counted: list[tuple]) -> None:
@@ -264,15 +347,16 @@ def _frame_pixel_metrics(score, label, fpr_convention: str, ap_convention: str) 
     return anomaly_metrics(score, label, fpr_convention=fpr_convention, ap_convention=ap_convention)
 
 
-def _component_pass(folder: Path, components: Components, frames: list[dict]):
-    """``(pooled, per_frame)``: the ``components`` evaluator of the method's spilled maps, one frame at a time."""
-    name, pooled, per_frame = components.method, components.init(), []
-    for index, frame in enumerate(frames):
-        one = {"scores": {name: np.load(folder / f"{name}_{index}.npy")[None]},
+def _component_pass(folder: Path, components: Components, names: list[str], pixels: list[dict | None]):
+    """``(pooled, per_frame)``: the ``components`` evaluator of the method's maps spilled into
+    ``folder``, one frame at a time; each frame's entry holds its ``name`` and its ``pixels`` metrics."""
+    method, pooled, per_frame = components.method, components.init(), []
+    for index, (name, frame_pixels) in enumerate(zip(names, pixels)):
+        one = {"scores": {method: np.load(folder / f"{method}_{index}.npy")[None]},
                "label": np.load(folder / f"label_{index}.npy")[None]}
         state = components.update(components.init(), one)
         pooled = components.merge(pooled, state)
-        per_frame.append({"name": frame["name"], **(frame["pixels"][name] or {"ap": None}),
+        per_frame.append({"name": name, **(frame_pixels or {"ap": None}),
                           "components": _jsonable_components(components.finalize(state))})
     return ({"threshold": components.threshold, "track": components.track,
              **_jsonable_components(components.finalize(pooled))}, per_frame)

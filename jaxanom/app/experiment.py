@@ -23,7 +23,7 @@ from jaxanom.io import write_json_atomic
 from jaxanom.losses import CrossEntropy
 from jaxanom.models import attention as attention_modules
 from jaxanom.objectives import Objective
-from jaxanom.train.loop import TrainConfig
+from jaxanom.train.segmenter import TrainConfig
 from jaxanom.train.optim import poly_schedule, schedule_depends_on_steps
 
 # The training data ``Experiment.data`` names, and the classes of its labels (0 .. n - 1, 255 void).
@@ -293,7 +293,7 @@ def run_training(experiment: Experiment, run_dir: str | os.PathLike, *, progress
     """
     from jaxanom.data.pipeline import evaluation_batches, training_batches
     from jaxanom.data.transforms import Augment
-    from jaxanom.train.loop import train
+    from jaxanom.train.segmenter import train
 
     run_dir = Path(run_dir)
     check_objective(experiment)
@@ -335,7 +335,7 @@ def check_same_run(stored: Experiment, experiment: Experiment, run_dir: str | os
                          "(pass none that change them), or train this experiment in another folder",
                          mentions=("resume",))
     old, new = stored.train.steps, experiment.train.steps
-    trained = _trained_steps(Path(run_dir))
+    trained = trained_steps(Path(run_dir))
     if new != old and trained and schedule_depends_on_steps(experiment.train.optim):
         raise InputError(
             "train.steps", f": the run in {os.fspath(run_dir)} has {old} steps and its learning rate decays to "
@@ -370,7 +370,7 @@ def _differences(a: Any, b: Any, prefix: str = "") -> list[tuple[str, Any, Any]]
     return [] if a == b else [(prefix, a, b)]
 
 
-def _trained_steps(run_dir: Path) -> int:
+def trained_steps(run_dir: Path) -> int:
     """The newest checkpoint's step in ``run_dir`` (0 without one); reads nothing but the folder names."""
     from jaxanom.train.checkpoint import Checkpointer
 

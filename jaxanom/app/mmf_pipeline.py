@@ -55,7 +55,7 @@ from jaxanom.models.patch_discriminator import MultiscaleDiscriminator
 from jaxanom.models.resnet import RESNETS, ResNet
 from jaxanom.models.rgbd import RGBDNet, depth_input
 from jaxanom.models.spade_generator import SPADEGenerator
-from jaxanom.train.loop import TrainConfig, train
+from jaxanom.train.segmenter import TrainConfig, train
 from jaxanom.train.restore import trained_variables
 from jaxanom.train.optim import OptimConfig
 

@@ -48,7 +48,7 @@ def read_colour_label(path: Path) -> np.ndarray:
     return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
 
 
-class _ColourFrames(FrameReader):
+class ColourFrames(FrameReader):
     """FrameReader whose label files are colour images."""
 
     def __init__(self, frames, colours: dict, tolerance: int):
@@ -66,7 +66,7 @@ class _ColourFrames(FrameReader):
         return {"image": image, "label": label, "name": name}
 
 
-class DeepScene(_ColourFrames):
+class DeepScene(ColourFrames):
     """``DeepScene(root, "train" | "test")[i]`` -> image, label (0..4, 255 void), name (the stem)."""
 
     def __init__(self, root: str | Path, split: str = "train", *, tolerance: int = 40):

@@ -12,7 +12,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from jaxanom.data.deepscene import _ColourFrames
+from jaxanom.data.deepscene import ColourFrames
 from jaxanom.data.image_io import require_dir
 
 
@@ -36,7 +36,7 @@ def read_colormap(path: Path) -> tuple[tuple[str, ...], dict]:
     return tuple(names.get(i, "") for i in range(max(names) + 1)), colours
 
 
-class RUGD(_ColourFrames):
+class RUGD(ColourFrames):
     """``RUGD(root, sequence)[i]`` -> image, label (colour-map ids, 255 void), name; in video order."""
 
     def __init__(self, root: str | Path, sequence: str, *, tolerance: int = 0):

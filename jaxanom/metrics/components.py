@@ -3,7 +3,8 @@
 Follows the SegmentMeIfYouCan definitions (Chan et al., 2021) and their benchmark code:
 
 - anomaly mask = score >= threshold (default: the pixel threshold of best F1 over all images,
-  the point of the exact PR curve), minus void pixels; 8-connected components (OpenCV);
+  the point of the exact PR curve: ``metrics.pooled.component_metrics``), minus void pixels;
+  8-connected components (OpenCV);
 - predicted components under ``min_predicted`` pixels are dropped and ground-truth components
   (label 1) under ``min_ground_truth`` pixels become void: 500 / 100 ("anomaly" track),
   50 / 10 ("obstacle" track); then only non-void pixels count;
@@ -31,37 +32,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from jaxanom.metrics.accumulator import AnomalyMetricAccumulator
-
 TRACKS = {"anomaly": (500, 100), "obstacle": (50, 10)}  # (min_predicted, min_ground_truth) pixels
 SIOU_THRESHOLDS = np.linspace(0.25, 0.75, 11)
-
-
-def component_metrics(scores_per_image, labels_per_image, *, track: str = "anomaly",
-                      threshold: float | None = None) -> dict:
-    """SMIYC component metrics of a dataset, pooled over its images.
-
-    scores_per_image: sequence of float (H, W) maps; labels_per_image: the matching uint8
-    (H, W) labels in {0, 1, 255}. Returns ``component_summary`` of all components (``siou``
-    per ground-truth component, ``ppv`` per predicted component, as float64 arrays, ``tp``,
-    ``fn``, ``fp``, ``f1`` (11,), ``f1_mean``, ...) plus ``threshold`` and ``track``.
-    """
-    _check_track(track)
-    scores_per_image, labels_per_image = list(scores_per_image), list(labels_per_image)
-    if len(scores_per_image) != len(labels_per_image) or not scores_per_image:
-        raise ValueError(f"labels_per_image: expected one label map per score map (at least one), got "
-                         f"{len(labels_per_image)} for {len(scores_per_image)}")
-    pixels = AnomalyMetricAccumulator()
-    for scores, labels in zip(scores_per_image, labels_per_image):
-        if np.ndim(scores) != 2:
-            raise ValueError(f"scores_per_image: expected (H, W) maps, got shape {np.shape(scores)}")
-        pixels.update(scores, labels)  # validates labels / NaN / shapes
-    if threshold is None:
-        threshold = pixels.compute()["best_f1_threshold"]
-    per_image = [frame_components(s, l, threshold, track=track) for s, l in zip(scores_per_image, labels_per_image)]
-    siou = np.concatenate([s for s, _ in per_image])
-    ppv = np.concatenate([p for _, p in per_image])
-    return {"threshold": float(threshold), "track": track, **component_summary(siou, ppv)}
 
 
 def frame_components(scores, labels, threshold: float, *, track: str = "anomaly") -> tuple[np.ndarray, np.ndarray]:
@@ -69,9 +41,9 @@ def frame_components(scores, labels, threshold: float, *, track: str = "anomaly"
     of the mask ``scores >= threshold`` under the track's size rules (module docstring).
 
     scores: float (H, W); labels: (H, W) in {0, 1, 255}; threshold: a finite score (use the
-    dataset's, e.g. ``component_metrics``' or the pooled best-F1 pixel threshold).
+    dataset's, e.g. the pooled best-F1 pixel threshold of ``metrics.pooled.component_metrics``).
     """
-    _check_track(track)
+    check_track(track)
     scores, labels = np.asarray(scores), np.asarray(labels)
     if scores.ndim != 2 or labels.shape != scores.shape:
         raise ValueError(f"labels: expected (H, W) maps of one shape, got scores {scores.shape}, labels {labels.shape}")
@@ -79,6 +51,8 @@ def frame_components(scores, labels, threshold: float, *, track: str = "anomaly"
         raise ValueError(f"labels: expected values in {{0, 1, 255}}, got {np.setdiff1d(labels, (0, 1, 255))[:5].tolist()}")
     if not np.isfinite(threshold):
         raise ValueError(f"threshold: expected a finite score, got {threshold}")
+    if nan := int(np.isnan(scores[labels != 255]).sum()):
+        raise ValueError(f"scores: {nan} NaN values on non-void pixels")
     return image_components(scores >= threshold, labels, *TRACKS[track])
 
 
@@ -99,7 +73,8 @@ def component_summary(siou, ppv) -> dict:
             "num_truth": int(siou.size), "num_predicted": int(ppv.size)}
 
 
-def _check_track(track: str) -> None:
+def check_track(track: str) -> None:
+    """ValueError naming ``track`` unless it is a key of ``TRACKS``."""
     if track not in TRACKS:
         raise ValueError(f"track: expected one of {tuple(TRACKS)}, got {track!r}")
 

@@ -10,7 +10,8 @@ one frame is what a bootstrap over frames resamples, and parts evaluated apart c
 Batches are dicts with ``"label"`` (B, H, W). The anomaly evaluators read
 ``batch["scores"][method]`` (B, H, W) floats (higher = more anomalous) against labels 0 normal,
 1 anomaly, 255 void (restrict them to a region of interest before: ``restrict_to_roi``); the
-segmentation evaluator reads ``batch["logits"]`` (B, H, W, C) (its argmax) against class labels.
+segmentation evaluator reads ``batch["logits"]`` (B, H, W, C) (its argmax) against class labels;
+``ConfusionSum`` reads ``batch["confusion"]``, a (K, K) confusion matrix computed where the network ran.
 ``update`` may change the state in place (host accumulators do): use the state it returns.
 ``merge`` leaves its inputs as they were.
 
@@ -27,6 +28,7 @@ import dataclasses
 import sys
 from typing import Any, Callable, Iterable, Mapping, Protocol
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -51,11 +53,13 @@ class Evaluator(Protocol):
 
 
 def run_evaluators(evaluators: Mapping[str, Evaluator], batches: Iterable[dict]) -> dict[str, dict]:
-    """``{name: finalized metrics}`` of every evaluator fed every batch once."""
+    """``{name: finalized metrics}`` of every evaluator fed every batch once, finalized in order
+    (an evaluator that raises in ``finalize`` stops the ones after it)."""
     states = {name: evaluator.init() for name, evaluator in evaluators.items()}
     for batch in batches:
         states = {name: evaluator.update(states[name], batch) for name, evaluator in evaluators.items()}
-    return {name: evaluator.finalize(states[name]) for name, evaluator in evaluators.items()}
+    # each state is freed once finalized: the exact accumulators hold every distinct score
+    return {name: evaluator.finalize(states.pop(name)) for name, evaluator in evaluators.items()}
 
 
 def update_keyed(evaluated: dict, key, make: Callable[[], Evaluator], batch: dict) -> None:
@@ -222,6 +226,29 @@ class Segmentation:
 
     def finalize(self, state: np.ndarray) -> dict:
         return confusion_scores(state, self.scored)
+
+
+@dataclasses.dataclass(frozen=True)
+class ConfusionSum:
+    """``Segmentation``'s metrics of the (K, K) confusion matrices the batches carry as
+    ``batch["confusion"]`` (e.g. a jitted eval step's, on the device), summed where they are and
+    read back once, in ``finalize``. The state is None before the first batch, then the sum."""
+
+    scored: int | None = None
+
+    def init(self) -> None:
+        return None
+
+    def update(self, state, batch: dict):
+        return batch["confusion"] if state is None else state + batch["confusion"]
+
+    def merge(self, a, b):
+        return b if a is None else a if b is None else a + b
+
+    def finalize(self, state) -> dict:
+        if state is None:
+            raise ValueError("batches: expected at least one batch, got none")
+        return confusion_scores(np.asarray(jax.device_get(state)), self.scored)
 
 
 register(NamedEvaluator("pixel", PixelAnomaly, "pooled pixel AP, AUROC, FPR95 and best F1, exact "

@@ -38,7 +38,7 @@ from typing import Iterable
 
 import numpy as np
 
-from jaxanom.metrics.components import TRACKS, _check_track, component_summary, image_components
+from jaxanom.metrics.components import TRACKS, check_track, image_components
 
 NUM_BINS = 768  # the kit's PixBinaryClass: 384 quantiles per class and frame
 FLOAT16_MAX = float(np.finfo(np.float16).max)
@@ -165,16 +165,6 @@ def binned_metrics(frames: Iterable[FrameBins]) -> dict:
     }
 
 
-def smiyc_pixel_metrics(scores_per_frame, labels_per_frame) -> dict:
-    """The kit's pixel metrics of a dataset: ``binned_metrics`` of every frame's ``frame_bins``.
-
-    scores_per_frame: sequence of float (H, W) maps; labels_per_frame: the matching (H, W)
-    labels in {0, 1, 255}. Frames may differ in size; a frame without non-void pixels adds nothing.
-    """
-    pairs = _pairs(scores_per_frame, labels_per_frame)
-    return binned_metrics(frame_bins(s, l) for s, l in pairs)
-
-
 def above_threshold(scores, threshold: float) -> np.ndarray:
     """The kit's anomaly mask: bool ``float16(scores) > float16(threshold)`` (step 5)."""
     return np.asarray(scores).astype(np.float16) > np.float16(threshold)
@@ -184,32 +174,9 @@ def smiyc_frame_components(scores, labels, threshold: float, *,
                            track: str = "anomaly") -> tuple[np.ndarray, np.ndarray]:
     """One frame's (sIoU per ground-truth component, PPV per predicted component) of the kit's
     mask ``above_threshold(scores, threshold)`` under the track's size rules."""
-    _check_track(track)
+    check_track(track)
     _frame_pixels(scores, labels)  # validates
     return image_components(above_threshold(scores, threshold), np.asarray(labels), *TRACKS[track])
-
-
-def smiyc_component_metrics(scores_per_frame, labels_per_frame, *, track: str = "anomaly",
-                            threshold: float | None = None) -> dict:
-    """The kit's component metrics of a dataset (``SegEval-AnomalyTrack`` / ``-ObstacleTrack``):
-    ``component_summary`` (``mean_siou``, ``mean_ppv``, ``f1``, ``f1_mean``, ...) of the masks
-    ``above_threshold`` at ``threshold`` (default: the kit's best-F1 threshold,
-    ``smiyc_pixel_metrics``), plus ``threshold`` and ``track``."""
-    _check_track(track)
-    pairs = _pairs(scores_per_frame, labels_per_frame)
-    if threshold is None:
-        threshold = binned_metrics(frame_bins(s, l) for s, l in pairs)["best_f1_threshold"]
-    per_frame = [smiyc_frame_components(s, l, threshold, track=track) for s, l in pairs]
-    summary = component_summary(np.concatenate([s for s, _ in per_frame]), np.concatenate([p for _, p in per_frame]))
-    return {"threshold": float(threshold), "track": track, **summary}
-
-
-def _pairs(scores_per_frame, labels_per_frame) -> list[tuple]:
-    scores_per_frame, labels_per_frame = list(scores_per_frame), list(labels_per_frame)
-    if len(scores_per_frame) != len(labels_per_frame) or not scores_per_frame:
-        raise ValueError(f"labels_per_frame: expected one label map per score map (at least one), got "
-                         f"{len(labels_per_frame)} for {len(scores_per_frame)}")
-    return list(zip(scores_per_frame, labels_per_frame))
 
 
 def to_unit_interval(scores, center: float = 0.0, scale: float = 1.0):

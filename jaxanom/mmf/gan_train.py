@@ -31,7 +31,7 @@ import optax
 
 from jaxanom.mmf.gan import FEATURE_WEIGHT, L1_WEIGHT, generator_loss, hinge_discriminator_loss
 from jaxanom.models.spade_generator import UNKNOWN
-from jaxanom.train.loop import check_batch
+from jaxanom.train.segmenter import check_batch
 from jaxanom.train.restore import restore_run
 from jaxanom.train.run_loop import Checkpoints, progress_bar, run_loop
 from jaxanom.train.runlog import RunLog

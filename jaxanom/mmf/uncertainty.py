@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxanom._validate import check_finite, check_rank
-from jaxanom.scores import _entropy, _softmax_distance
+from jaxanom import scores
 
 NORMALIZATIONS = ("max", "minmax")
 
@@ -33,8 +33,8 @@ def minmax(x: jax.Array) -> jax.Array:
 
 def _maps(logits: jax.Array, road: int, normalize: str) -> dict:
     logits = logits.astype(jnp.float32)
-    bits = _entropy(logits) / jnp.log(2.0)  # Eq. 1 in bits
-    distance = _softmax_distance(logits)
+    bits = scores.entropy(logits) / jnp.log(2.0)  # Eq. 1 in bits (the checks skip traced logits)
+    distance = scores.softmax_distance(logits)
     if normalize == "max":
         entropy = jnp.clip(bits / jnp.log2(float(logits.shape[-1])), 0.0, 1.0)  # float32 rounding
     else:

@@ -26,7 +26,7 @@ Eq. 11, CoAH = alpha_sc ScAH + alpha_sp SpAH + alpha_c CAH. ``best_rectangle`` i
 
 Registered as the attention module ``"msaam"`` (``jaxanom.models.attention``): it sits at the
 end of a segmenter's encoder (DeepLabV3+'s ``"encoder"`` position, before ASPP; ERFNet's and
-ESPNet's ``"deep"`` one, before the decoder) and adds the outputs listed under ``MSAAM``.
+ESPNet's ``"deep"`` one, before the decoder) and adds the outputs listed under ``MSAAMAttention``.
 """
 from __future__ import annotations
 
@@ -53,7 +53,7 @@ def adaptive_pool_matrix(size: int, bins: int) -> np.ndarray:
     return matrix
 
 
-class MSAAM(nn.Module):
+class MSAAMAttention(nn.Module):
     """MSAAM block; see the module docstring for the equations.
 
     Attributes:
@@ -184,5 +184,5 @@ def best_rectangle(highlight: jax.Array, height: int, width: int) -> tuple[jax.A
     return corner, sums.reshape(-1)[flat] / (height * width)
 
 
-register(AttentionModule("msaam", MSAAM, lambda module, features, taps: module(features), positions=("encoder", "deep"),
+register(AttentionModule("msaam", MSAAMAttention, lambda module, features, taps: module(features), positions=("encoder", "deep"),
                          objective="msaam"))

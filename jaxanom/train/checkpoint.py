@@ -21,6 +21,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from jaxanom._validate import in_host_memory
+from jaxanom.errors import first_line
 
 
 class DamagedCheckpointError(ValueError):
@@ -154,7 +155,7 @@ class Checkpointer:
             restored = self._manager.restore(step, args=args)
         except Exception as error:  # orbax raises many types for damaged files; name the step instead
             raise DamagedCheckpointError(self._damaged(step, f"cannot be read ({type(error).__name__}: "
-                                                 f"{_first_line(error)})")) from error
+                                                 f"{first_line(error)})")) from error
         leaves = [(path, leaf) for path, leaf in jax.tree_util.tree_leaves_with_path(restored["state"])
                   if jnp.issubdtype(leaf.dtype, jnp.inexact)]
         bad = [jax.tree_util.keystr(path) for (path, _), ok in zip(leaves, _finite([leaf for _, leaf in leaves]))
@@ -204,9 +205,3 @@ def restore_checkpoint(directory: str | os.PathLike, template: Any, step: int | 
         raise ValueError(f"checkpoint directory: expected an existing folder, got {os.fspath(directory)!r}")
     with Checkpointer(directory, read_only=True) as checkpointer:
         return checkpointer.restore_part(template, step) if part else checkpointer.restore(template, step)
-
-
-def _first_line(error: Exception, limit: int = 300) -> str:
-    """The first line of an error's message, at most ``limit`` characters (TensorStore's run to 60 lines)."""
-    lines = str(error).strip().splitlines() or [""]
-    return lines[0][:limit] + (" ..." if len(lines) > 1 or len(lines[0]) > limit else "")

@@ -7,7 +7,7 @@ import jax
 import numpy as np
 
 from jaxanom.train.checkpoint import restore_checkpoint
-from jaxanom.train.loop import TrainConfig, init_inputs
+from jaxanom.train.segmenter import TrainConfig, init_inputs
 
 
 def trained_variables(config: TrainConfig, model, example: dict, step: int | None = None,

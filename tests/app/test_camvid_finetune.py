@@ -54,7 +54,7 @@ def test_train_on_camvid_from_a_converted_run_starts_with_a_new_head(tiny_run, c
         started.update(model=model, batch=next(iter(batches)), val=val, variables=variables)
         return types.SimpleNamespace(variables=variables)
 
-    monkeypatch.setattr("jaxanom.train.loop.train", train)
+    monkeypatch.setattr("jaxanom.train.segmenter.train", train)
     assert _train(camvid, tiny_run, tmp_path / "run") == 0
     experiment = load_experiment(tmp_path / "run")
     assert (experiment.model, experiment.num_classes, experiment.data) == ("deeplabv3plus_tiny", 11, "camvid")
@@ -81,7 +81,7 @@ def test_a_bad_camvid_list_is_one_line_naming_the_data_root(camvid, tmp_path, ca
 
 
 def test_the_data_gives_the_classes_unless_the_run_has_them(camvid, tmp_path, monkeypatch):
-    monkeypatch.setattr("jaxanom.train.loop.train", lambda config, model, batches, val, variables=None:
+    monkeypatch.setattr("jaxanom.train.segmenter.train", lambda config, model, batches, val, variables=None:
                         types.SimpleNamespace(variables=variables))
     assert main(["train", "--data", "camvid", "--data-root", str(camvid), "--steps", "1", "--batch-size", "4",
                  "--set", "crop=16,32", "--out", str(tmp_path / "fresh"), "--no-progress"]) == 0

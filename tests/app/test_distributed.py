@@ -20,7 +20,7 @@ from conftest import OPT_FLAG
 
 CONFIG = """
 from jaxanom.app.experiment import Experiment
-from jaxanom.train.loop import TrainConfig
+from jaxanom.train.segmenter import TrainConfig
 experiment = Experiment(train_frames=8, height=32, width=64, crop=(32, 64), batch_size=4,
                         train=TrainConfig(run_dir="", steps=3, save_every=2, eval_every=100))
 """

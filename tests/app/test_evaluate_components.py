@@ -99,3 +99,26 @@ def test_evaluate_smiyc_needs_its_track(tiny_run, obstacle_subset, tmp_path, cap
     error = capsys.readouterr().err.strip()
     assert code == 2 and "--track" in error and len(error.splitlines()) == 1
     assert not (tmp_path / "o").exists()
+
+
+def test_the_evaluators_of_anomaly_results_merge_parts_as_one_pass():
+    from jaxanom.app.evaluate import _Curves, _FramePixels, _Frames, _OptionsUsed
+
+    rng = np.random.default_rng(0)
+    options = [{"s": {"k": 1}}, {"s": {"k": 2}, "t": {"j": 1}}, {"s": {"k": 1}, "t": {"j": 3}}]
+    batches = [{"scores": {"s": rng.random((2, 5, 6))}, "label": (rng.random((2, 5, 6)) < 0.3).astype(np.uint8),
+                "name": [f"a{b}", None], "options": used} for b, used in enumerate(options)]
+
+    def fold(evaluator, part):
+        state = evaluator.init()
+        for batch in part:
+            state = evaluator.update(state, batch)
+        return state
+
+    for evaluator in (_Frames(), _OptionsUsed(), _Curves("s"), _FramePixels("s", "first", "step")):
+        one_pass = evaluator.finalize(fold(evaluator, batches))
+        first, second = fold(evaluator, batches[:1]), fold(evaluator, batches[1:])
+        np.testing.assert_equal(evaluator.finalize(evaluator.merge(first, second)), one_pass)
+        np.testing.assert_equal(evaluator.finalize(first), evaluator.finalize(fold(evaluator, batches[:1])))
+    assert _OptionsUsed().finalize(fold(_OptionsUsed(), batches)) == {"s": {"k": [1, 2]}, "t": {"j": [1, 3]}}
+    assert _Frames().finalize(fold(_Frames(), batches))["names"] == ["a0", "1", "a1", "3", "a2", "5"]

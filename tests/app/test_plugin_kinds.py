@@ -175,7 +175,7 @@ def test_a_python_config_defining_its_objective_is_refused_before_any_work(tmp_p
         from jaxanom.app.experiment import Experiment
         from jaxanom.losses import CrossEntropy
         from jaxanom.objectives import register
-        from jaxanom.train.loop import TrainConfig
+        from jaxanom.train.segmenter import TrainConfig
 
         @register
         @dataclasses.dataclass(frozen=True)

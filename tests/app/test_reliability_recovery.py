@@ -191,9 +191,9 @@ def test_convert_weights_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path,
 
 def test_a_diverging_run_is_one_line_naming_the_last_good_step_and_what_to_change(tmp_path, capsys, monkeypatch):
     import jaxanom.app.experiment
-    from jaxanom.train.loop import NonFiniteLossError
+    from jaxanom.train.segmenter import NonFiniteLossError
 
-    def diverging(experiment, run_dir, **kwargs):  # what the loop raises (tests/train/test_train_loop.py)
+    def diverging(experiment, run_dir, **kwargs):  # what the loop raises (tests/train/test_train_segmenter.py)
         jaxanom.app.experiment.write_json_atomic(Path(run_dir) / "experiment.json", jaxanom.app.experiment.jsonable(experiment))
         raise NonFiniteLossError("loss nan, gradient norm nan at step 2: training stopped; last good checkpoint: "
                                  f"step 1 in {run_dir}/checkpoints")

@@ -16,7 +16,7 @@ from jaxanom.cudam.objective import CuDAM
 from jaxanom.losses import CrossEntropy
 from jaxanom.msaam.objective import MSAAM
 from jaxanom.train.checkpoint import Checkpointer
-from jaxanom.train.loop import TrainConfig
+from jaxanom.train.segmenter import TrainConfig
 from jaxanom.train.optim import OptimConfig
 
 # experiment.json of Experiment() as the version with one LossConfig wrote it (attention "cudam"
@@ -52,9 +52,9 @@ def test_the_default_experiment_is_a_plain_network_with_cross_entropy_and_every_
 ])
 def test_a_network_and_objective_that_disagree_are_refused_in_one_line_naming_both(tmp_path, monkeypatch, attention,
                                                                                 objective, fragments):
-    import jaxanom.train.loop
+    import jaxanom.train.segmenter
 
-    monkeypatch.setattr(jaxanom.train.loop, "train", lambda *_, **__: pytest.fail("training started"))
+    monkeypatch.setattr(jaxanom.train.segmenter, "train", lambda *_, **__: pytest.fail("training started"))
     experiment = with_objective(Experiment(attention=attention), objective)
     with pytest.raises(ValueError) as error:
         run_training(experiment, tmp_path / "run")
@@ -86,7 +86,7 @@ def test_a_config_file_that_disagrees_is_one_line_and_attention_flag_brings_its_
     handed = []
     monkeypatch.setattr(app, "run_training", lambda experiment, out, **_: handed.append(experiment))
     config = tmp_path / "exp.py"
-    config.write_text("from jaxanom.app.experiment import Experiment\nfrom jaxanom.train.loop import TrainConfig\n"
+    config.write_text("from jaxanom.app.experiment import Experiment\nfrom jaxanom.train.segmenter import TrainConfig\n"
                       "from jaxanom.cudam.objective import CuDAM\n"
                       "experiment = Experiment(train=TrainConfig(run_dir='', objective=CuDAM(beta=0.25)))\n")
     assert main(["train", "--config", str(config), "--out", str(tmp_path / "a"), "--no-progress"]) == 2

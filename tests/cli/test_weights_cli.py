@@ -72,7 +72,7 @@ def test_train_init_from_takes_the_backbone_and_initialises_the_rest(tmp_path, c
         started.update(model=model, variables=variables)
         return types.SimpleNamespace(variables=variables)
 
-    monkeypatch.setattr("jaxanom.train.loop.train", train)
+    monkeypatch.setattr("jaxanom.train.segmenter.train", train)
     run = tmp_path / "run"
     assert main(["train", "--init-from", str(tmp_path / "source"), "--init-modules", "backbone", "--attention",
                  "cudam", "--steps", "1", "--batch-size", "4", "--out", str(run), "--no-progress"]) == 0

@@ -131,7 +131,7 @@ class _FakePipe:
 def test_score_routes_each_row_to_its_net_with_auroc_and_mean_f1():
     from sklearn.metrics import roc_auc_score
 
-    from jaxanom.metrics.components import component_metrics
+    from jaxanom.metrics import component_metrics
 
     rng = np.random.default_rng(0)
     labels = rng.choice([0, 1], size=(3, 24, 40), p=[0.8, 0.2]).astype(np.uint8)

@@ -8,7 +8,7 @@ import pytest
 
 from camvid_tree import write_camvid
 from experiments import real_training_common as rtc
-from jaxanom.app.experiment import _trained_steps, build_network, load_variables
+from jaxanom.app.experiment import trained_steps, build_network, load_variables
 from jaxanom.app.runs import write_run
 from jaxanom.models.erfnet import ERFNet, normalize_erfnet
 
@@ -71,7 +71,7 @@ def test_the_written_run_is_the_frozen_encoder_and_the_decoder(tiny, tmp_path):
     write_run(tmp_path / "run", "erfnet", ERFNet(num_classes=11), whole, 7, data="camvid", data_root="x", crop=(H, W))
     experiment, stored = load_variables(tmp_path / "run")
     assert (experiment.data, experiment.num_classes) == ("camvid", 11)
-    assert _trained_steps(tmp_path / "run") == 7  # a trained network: fit-stats reads its training frames
+    assert trained_steps(tmp_path / "run") == 7  # a trained network: fit-stats reads its training frames
     images = np.random.default_rng(1).integers(0, 256, (2, H, W, 3), np.uint8)
     logits = build_network(experiment).apply(stored, normalize_erfnet(images))["logits"]
     encoded = rtc.encoder_module().apply(rtc.encoder_variables(), normalize_erfnet(images))

@@ -124,6 +124,9 @@ def test_bad_input_raises():
         component_metrics([scores[None]], [labels[None]])
     with pytest.raises(ValueError, match="labels: expected values"):
         component_metrics([scores], [labels + 2])
+    nan = np.where(labels == 1, np.nan, scores)  # refused with a threshold given too
+    with pytest.raises(ValueError, match="NaN values on non-void pixels"):
+        component_metrics([nan], [labels], threshold=0.5)
 
 
 def test_hand_worked_two_objects_under_one_prediction():

@@ -6,8 +6,8 @@ import pytest
 from sklearn.metrics import average_precision_score, confusion_matrix as sk_confusion, jaccard_score, roc_auc_score
 
 from jaxanom.metrics import component_metrics, confusion_scores, smiyc_component_metrics, smiyc_pixel_metrics
-from jaxanom.metrics.evaluator import (Components, PixelAnomaly, Segmentation, SmiycPixels, run_evaluators,
-                                       update_keyed)
+from jaxanom.metrics.evaluator import (Components, ConfusionSum, PixelAnomaly, Segmentation, SmiycPixels,
+                                       run_evaluators, update_keyed)
 
 SHAPE = (2, 23, 29)  # odd sizes
 C = 9  # over 8 classes, so that a mean's summation order could matter
@@ -42,6 +42,18 @@ def segmentation_batches(seed, count=3):
     return batches
 
 
+def confusion_batches(seed, count=3):
+    """``segmentation_batches`` with the confusion matrix of each (scikit-learn's) as a device array."""
+    import jax.numpy as jnp
+
+    batches = segmentation_batches(seed, count)
+    for batch in batches:
+        keep = batch["label"] != 255
+        batch["confusion"] = jnp.asarray(sk_confusion(batch["label"][keep], np.argmax(batch["logits"], -1)[keep],
+                                                      labels=range(C)), jnp.int32)
+    return batches
+
+
 def fold(evaluator, batches):
     state = evaluator.init()
     for batch in batches:
@@ -67,6 +79,7 @@ EVALUATORS = [
     (Components("s", 0.55, "obstacle", convention="smiyc"), anomaly_batches),
     (Segmentation(C), segmentation_batches),
     (Segmentation(C, scored=C - 1), segmentation_batches),
+    (ConfusionSum(), confusion_batches),
 ]
 
 
@@ -175,3 +188,11 @@ def test_bad_input_names_the_argument():
         confusion_scores(np.zeros((3, 4)))
     with pytest.raises(ValueError, match="num_classes: expected 1 to 4"):
         confusion_scores(np.zeros((4, 4)), 5)
+
+
+def test_confusion_sum_of_device_matrices_equals_segmentation_of_the_logits():
+    batches = confusion_batches(3)
+    got = run_evaluators({"sum": ConfusionSum(scored=C - 1), "logits": Segmentation(C, scored=C - 1)}, batches)
+    np.testing.assert_equal(got["sum"], got["logits"])
+    with pytest.raises(ValueError, match="batches: expected at least one batch"):
+        run_evaluators({"sum": ConfusionSum()}, [])

@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 
 from conftest import REALDATA
-from jaxanom.metrics.smiyc import (_numpy_quantiles, above_threshold, binned_metrics, frame_bins,
-                                   smiyc_component_metrics, smiyc_pixel_metrics, to_unit_interval)
+from jaxanom.metrics import smiyc_component_metrics, smiyc_pixel_metrics
+from jaxanom.metrics.smiyc import _numpy_quantiles, above_threshold, binned_metrics, frame_bins, to_unit_interval
 
 
 def synthetic_frames():

@@ -237,7 +237,7 @@ def test_demo_flag_selects_the_synthesizer(monkeypatch, tmp_path):
 
 
 def test_non_finite_loss_stops_training(tmp_path):
-    from jaxanom.train.loop import NonFiniteLossError
+    from jaxanom.train.segmenter import NonFiniteLossError
 
     batch = _batch()
     batch["image"] = np.where(batch["label"][..., None] == 255, np.nan, batch["image"] / 255.0).astype(np.float32)

@@ -4,7 +4,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxanom.msaam.attention import MSAAM, adaptive_pool_matrix, best_rectangle
+from jaxanom.msaam.attention import MSAAMAttention, adaptive_pool_matrix, best_rectangle
 from attention_reference import as_np, conv_same, resize, sigmoid, softmax
 
 RNG = np.random.default_rng(0)
@@ -84,7 +84,7 @@ def test_adaptive_pool_matrix_matches_cellwise_pooling(size):
 def test_msaam_matches_numpy_reference():
     # h = 5 < 6 bins: the finest pyramid level has overlapping cells
     f = RNG.normal(size=(2, 5, 7, 16)).astype(np.float32)
-    module = MSAAM(reduction=8, channel_reduction=4, gru_features=8, gru_steps=2)
+    module = MSAAMAttention(reduction=8, channel_reduction=4, gru_features=8, gru_steps=2)
     params = jax.jit(module.init)(KEY, f)["params"]
     # sharpen the scale scores and the branch logits so maps and weights are far from uniform
     params["scale_convs"] = {**params["scale_convs"], "kernel": params["scale_convs"]["kernel"] * 4}

@@ -85,7 +85,7 @@ def test_rgbdnet_shapes_depth_matters_and_compiles_once():
 
 
 def test_rgbdnet_trains_through_the_train_loop_and_fits_one_batch(tmp_path):
-    from jaxanom.train.loop import TrainConfig, train
+    from jaxanom.train.segmenter import TrainConfig, train
     from jaxanom.train.optim import OptimConfig
     from jaxanom.train.step import model_input
 
@@ -97,7 +97,7 @@ def test_rgbdnet_trains_through_the_train_loop_and_fits_one_batch(tmp_path):
     config = TrainConfig(str(tmp_path), steps=40, save_every=1000, progress=False,
                          optim=OptimConfig(name="adamw", lr=3e-3, weight_decay=0.0))
     model = _tiny(2)
-    # NumPy-drawn start (an init compiles for seconds; the train loop's own init is tested in test_train_loop.py)
+    # NumPy-drawn start (an init compiles for seconds; the train loop's own init is tested in test_train_segmenter.py)
     variables = random_variables(0, model.init, model_input(batch["image"]), depth=depth)
     state = train(config, model, iter([batch] * 40), variables=variables)
     logits = jax.jit(model.apply)(state.variables, model_input(batch["image"]), depth=depth)["logits"]  # one compile, not one per op

@@ -85,7 +85,7 @@ def test_dissimilarity_net_shapes_inputs_and_compiles_once():
 
 
 def test_dissimilarity_net_fits_one_batch_through_the_train_loop(tmp_path):
-    from jaxanom.train.loop import TrainConfig, train
+    from jaxanom.train.segmenter import TrainConfig, train
     from jaxanom.train.optim import OptimConfig
 
     rng = np.random.default_rng(1)
@@ -102,7 +102,7 @@ def test_dissimilarity_net_fits_one_batch_through_the_train_loop(tmp_path):
     config = TrainConfig(str(tmp_path), steps=40, save_every=1000, progress=False,
                          optim=OptimConfig(name="adamw", lr=3e-3, weight_decay=0.0))
     kw = {k: batch[k] for k in model.extra_inputs}
-    # NumPy-drawn start (an init compiles for seconds; the train loop's own init is tested in test_train_loop.py)
+    # NumPy-drawn start (an init compiles for seconds; the train loop's own init is tested in test_train_segmenter.py)
     state = train(config, model, iter([batch] * 40), variables=random_variables(1, model.init, batch["image"], **kw))
     # jitted: one compile of the forward instead of one per primitive
     prob = np.asarray(anomaly_probability(jax.jit(model.apply)(state.variables, batch["image"], **kw)["logits"]))

@@ -16,7 +16,7 @@ sys.meta_path.insert(0, Block())
 """
 
 MODULES = ["jaxanom", "jaxanom.scores", "jaxanom.sml", "jaxanom.metrics", "jaxanom.models", "jaxanom.nn",
-           "jaxanom.losses", "jaxanom.train.step", "jaxanom.train.loop", "jaxanom.method_registry", "jaxanom.app.scoring", "jaxanom.cli",
+           "jaxanom.losses", "jaxanom.train.step", "jaxanom.train.segmenter", "jaxanom.method_registry", "jaxanom.app.scoring", "jaxanom.cli",
            "benchmarks.__main__", "benchmarks.bench_data", "benchmarks.bench_losses", "benchmarks.bench_metrics",
            "benchmarks.bench_models", "benchmarks.bench_scaling", "benchmarks.bench_sml", "benchmarks.bench_espnet"]
 

@@ -6,7 +6,7 @@ import pytest
 
 from jaxanom.cudam.objective import CuDAM
 from jaxanom.train.checkpoint import Checkpointer, DamagedCheckpointError
-from jaxanom.train.loop import TrainConfig
+from jaxanom.train.segmenter import TrainConfig
 from jaxanom.train.restore import trained_variables
 from jaxanom.train.state import TrainState
 from tiny_models import TinySegNet, init_variables, make_batch

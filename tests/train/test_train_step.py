@@ -18,7 +18,7 @@ from jaxanom.msaam.objective import MSAAM
 from jaxanom.config_codec import decode
 from jaxanom.objectives import Objective, objective_names, register
 from jaxanom.train import step as step_lib
-from jaxanom.train.loop import TrainConfig
+from jaxanom.train.segmenter import TrainConfig
 from jaxanom.train.optim import OptimConfig, make_optimizer
 from jaxanom.train.sharding import global_batch, make_mesh, replicated
 from jaxanom.train.state import TrainState

@@ -9,7 +9,7 @@ import tempfile
 from pathlib import Path
 
 from jaxanom.app.outputs import out_folder
-from jaxanom.errors import InputError, reading
+from jaxanom.errors import InputError, first_line, reading
 from jaxanom.weights import KINDS
 
 __all__ = ["DEEPLAB_CLASSES", "KINDS", "convert_weights"]
@@ -68,8 +68,6 @@ def _staged(out: Path):
     """A hidden temporary folder in ``out`` (``.convert.*.tmp``: a stale claim's clean-up finds it),
     removed however the block ends; a failure to write there (a full disk) is one line, and the
     writer's background threads log nothing meanwhile."""
-    from jaxanom.train.checkpoint import _first_line
-
     staging = Path(tempfile.mkdtemp(dir=out, prefix=".convert.", suffix=".tmp"))
     loggers = [logging.getLogger(name) for name in ("absl", "asyncio")]
     levels = [logger.level for logger in loggers]
@@ -79,7 +77,7 @@ def _staged(out: Path):
         yield staging
     except Exception as error:
         raise InputError("out", f"{out}: could not write the converted weights ({type(error).__name__}: "
-                         f"{_first_line(error)}); nothing was left behind") from None
+                         f"{first_line(error)}); nothing was left behind") from None
     finally:
         shutil.rmtree(staging, ignore_errors=True)
         for logger, level in zip(loggers, levels):

@@ -29,7 +29,7 @@ def fit_stats(*, run: str, out: str, frames: int = 200, cityscapes: str | None =
     from jaxanom import sml
     from jaxanom.app.commands.inputs import fitted_on as described, load_plugins
     from jaxanom.app.evaluate import class_statistics, predictor
-    from jaxanom.app.experiment import _trained_steps, build_network, load_variables
+    from jaxanom.app.experiment import trained_steps, build_network, load_variables
     from jaxanom.app.experiment import frames as run_frames, frames_record as run_frames_record
     from jaxanom.app.predict import size_check
     from jaxanom.data import Cityscapes
@@ -59,7 +59,7 @@ def fit_stats(*, run: str, out: str, frames: int = 200, cityscapes: str | None =
         experiment, variables = load_variables(run)
     channels = {"protocol": protocol_.name, "network_outputs": experiment.num_classes,
                 "void_dropped": protocol_.classes(experiment.num_classes) < experiment.num_classes}
-    if not cityscapes and _trained_steps(Path(run)) == 0:
+    if not cityscapes and trained_steps(Path(run)) == 0:
         raise InputError("cityscapes", f"{{cityscapes}} DIR needed: the network in {run} was not trained by jaxanom "
                          "(its only checkpoint is step 0: a convert-weights run), so the run has no training frames "
                          "of its own to fit the statistics on")

@@ -1,8 +1,9 @@
 """``jaxanom score``: scores and metrics from logits saved by another framework.
 
 Streams: the logits (and labels) are read one image at a time (``jaxanom.app.streamed_array``),
-each image is scored and added to the exact metric accumulators, and its score maps are appended
-to ``scores/<method>.npy`` files that appear only once complete. Memory: one image's logits and
+each image is scored, fed to one exact ``PixelAnomaly`` evaluator per method
+(``jaxanom.metrics.evaluator``), and its score maps are appended to ``scores/<method>.npy`` files
+that appear only once complete. Memory: one image's logits and
 scores, plus the accumulators' ~6 bytes per distinct score (see ``jaxanom.metrics.accumulator``).
 """
 from __future__ import annotations
@@ -36,8 +37,7 @@ def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = Fal
     from jaxanom.app.reports import results_table
     from jaxanom.io import NpyWriter, write_json_atomic
     from jaxanom.method_registry import check_finite
-    from jaxanom.metrics import AnomalyMetricAccumulator
-    from jaxanom.metrics.evaluator import get_evaluator
+    from jaxanom.metrics.evaluator import PixelAnomaly, get_evaluator, run_evaluators
 
     load_plugins(plugins)
     extra = evaluator_names(evaluators)
@@ -74,46 +74,56 @@ def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = Fal
                          "methods.METHOD.OPTION=VALUE")
     options = method_options(names, overrides)
     out_dir = out_folder(out, overwrite)
-    accumulators = {name: AnomalyMetricAccumulator() for name in names}
-    evaluated = {(name, kind): (evaluator, evaluator.init()) for name in names for kind in extra
-                 for evaluator in [get_evaluator(kind).make(name)]}
-    label_images = iter(label_array if label_array is not None else ())
-    with contextlib.ExitStack() as files:
-        writers = {name: files.enter_context(NpyWriter(within(out_dir, out_dir / "scores" / f"{name}.npy"), shape,
-                                                       np.float32)) for name in names}
-        for index, image in enumerate(streamed):
-            image = np.moveaxis(image, 0, -1) if channels_first else image
-            label = None if label_array is None else next(label_images)
-            try:
-                scores, used = scoring.score_all(names, scoring.inputs_of({"logits": image[None]}, mean_std), options)
+    used: dict = {}  # the options each method used (resolved for the images' one size)
+    current = [None]  # the index of the image being scored (None once all are), named when a value is refused
+
+    def scored():
+        """Each image's scores (appended to ``scores/<method>.npy``) with its label, in order."""
+        label_images = iter(label_array if label_array is not None else ())
+        with contextlib.ExitStack() as files:
+            writers = {name: files.enter_context(NpyWriter(within(out_dir, out_dir / "scores" / f"{name}.npy"),
+                                                           shape, np.float32)) for name in names}
+            for index, image in enumerate(streamed):
+                current[0] = index
+                image = np.moveaxis(image, 0, -1) if channels_first else image
+                label = None if label_array is None else next(label_images)
+                scores, options_used = scoring.score_all(names, scoring.inputs_of({"logits": image[None]}, mean_std),
+                                                         options)
                 scores = {name: np.asarray(value)[0] for name, value in scores.items()}
                 for name, value in scores.items():
                     check_finite(name, value, label, where=f" of image {index}")
-                    if label is not None:
-                        accumulators[name].update(value, label)
-            except InputError:  # a method's output refused, naming it
-                raise
-            except ValueError as error:  # the library's checks of this image's values (finite logits, labels)
-                raise InputError("image", f"{index}: {error}") from None
-            if extra:  # each evaluator fed this image (a batch of one) of its method's scores
-                batch = {"scores": {name: value[None] for name, value in scores.items()}, "label": label[None]}
-                for key, (evaluator, state) in evaluated.items():
-                    evaluated[key] = evaluator, evaluator.update(state, batch)
-            for name, value in scores.items():
-                writers[name].write(value)
-    print(f"score maps of {len(streamed)} images -> {out_dir / 'scores'}/<method>.npy")
+                yield {"scores": {name: value[None] for name, value in scores.items()},  # a batch of one
+                       "label": None if label is None else label[None]}  # the evaluators check the labels
+                used.update(options_used)
+                for name, value in scores.items():
+                    writers[name].write(value)
+        current[0] = None
+        print(f"score maps of {len(streamed)} images -> {out_dir / 'scores'}/<method>.npy")
+
+    evaluators = {} if label_array is None else {
+        name: PixelAnomaly(name, fpr_convention=fpr_convention or "first", ap_convention=ap_convention)
+        for name in names}
+    evaluators.update({(name, kind): get_evaluator(kind).make(name) for name in names for kind in extra})
+    try:
+        with contextlib.closing(scored()) as images:  # closed on an error: no partial scores/<method>.npy
+            metrics = run_evaluators(evaluators, images)
+    except InputError:  # a method's output refused, naming it
+        raise
+    except ValueError as error:  # the library's checks of one image's values (finite logits, labels)
+        if current[0] is None:
+            raise
+        raise InputError("image", f"{current[0]}: {error}") from None
     if label_array is None:
         return None
-    metrics = {name: accumulators.pop(name).compute(fpr_convention=fpr_convention or "first",  # freed in turn
-                                                    ap_convention=ap_convention) for name in names}
-    for name in names:  # the options used (resolved for the images' one size)
+    for name in names:
         if used.get(name):
             metrics[name]["options"] = used[name]
-    for (name, kind), (evaluator, state) in evaluated.items():
-        metrics[name].setdefault("evaluators", {})[kind] = _jsonable(evaluator.finalize(state))
+    named = [key for key in metrics if isinstance(key, tuple)]
+    for name, kind in named:
+        metrics[name].setdefault("evaluators", {})[kind] = _jsonable(metrics.pop((name, kind)))
     write_json_atomic(within(out_dir, out_dir / "metrics.json"), {"metrics": metrics})
     print(results_table(metrics))
-    for (name, kind) in evaluated:
+    for name, kind in named:
         print(f"{name} {kind}: {metrics[name]['evaluators'][kind]}")
     return metrics
 

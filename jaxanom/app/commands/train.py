@@ -32,7 +32,7 @@ def train(*, out: str, config: str | None = None, resume: bool = False, model: s
     from jaxanom.app.experiment import (Experiment, attention_settings, check_data, check_objective,
                                         check_schedule, load_experiment, output_shapes, run_training, with_plugins)
     from jaxanom.train.checkpoint import DamagedCheckpointError
-    from jaxanom.train.loop import NonFiniteLossError
+    from jaxanom.train.segmenter import NonFiniteLossError
 
     if distributed:  # before any JAX work: loading the data or the model may touch devices
         from jaxanom.train.sharding import initialize_distributed

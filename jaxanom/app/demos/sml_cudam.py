@@ -22,7 +22,7 @@ from jaxanom.config_codec import encode
 from jaxanom.app.experiment import Experiment, build_network, frames, frames_record, run_training
 from jaxanom.app.reports import results_table, write_pictures
 from jaxanom.io import write_json_atomic
-from jaxanom.train.loop import TrainConfig
+from jaxanom.train.segmenter import TrainConfig
 from jaxanom.train.optim import OptimConfig
 
 DEMO_METHODS = ("msp", "max_logit", "entropy", "energy", "sml", "sml_post", "cudam")

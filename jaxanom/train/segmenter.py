@@ -9,7 +9,7 @@ already holds checkpoints is resumed from the newest one; a damaged newest check
 run with a ValueError (nothing is silently restarted).
 
 On CPU a run that is killed and resumed ends with parameters bitwise equal to an uninterrupted
-run (tests/train/test_train_loop.py); on GPUs this holds as far as their kernels are deterministic.
+run (tests/train/test_train_segmenter.py); on GPUs this holds as far as their kernels are deterministic.
 
 The metrics are read from the device on logging steps only (every ``log_every`` steps, every step
 that evaluates or saves, and the last), checked for NaN/Inf (before anything is saved) and
@@ -26,7 +26,7 @@ import jax
 import numpy as np
 
 from jaxanom._validate import check_count
-from jaxanom.metrics.segmentation import confusion_scores
+from jaxanom.metrics.evaluator import ConfusionSum, run_evaluators
 from jaxanom.train.optim import OptimConfig, make_optimizer
 from jaxanom.train.run_loop import NonFiniteLossError  # noqa: F401  (part of this module's API: train raises it)
 from jaxanom.train.run_loop import Checkpoints, progress_bar, run_loop
@@ -95,15 +95,16 @@ def step_inputs(batch: dict, model=None) -> dict:
 
 
 def evaluate(eval_step, variables, batches: Iterable[dict], mesh, ignore: int, model=None) -> dict[str, float]:
-    """mIoU and pixel accuracy of ``variables`` over ``batches`` (summed confusion matrix)."""
-    total = None
-    for batch in batches:
-        batch = global_batch(pad_batch(step_inputs(batch, model), len(mesh.local_devices), ignore), mesh)
-        confusion = eval_step(variables, batch)
-        total = confusion if total is None else total + confusion
-    if total is None:
-        raise ValueError("val_data: expected at least one batch, got none")
-    scores = confusion_scores(np.asarray(jax.device_get(total)))
+    """mIoU and pixel accuracy of ``variables`` over ``batches``: the eval step's confusion
+    matrices, summed on the device and read once (``metrics.evaluator.ConfusionSum``)."""
+    confusions = ({"confusion": eval_step(variables, global_batch(
+        pad_batch(step_inputs(batch, model), len(mesh.local_devices), ignore), mesh))} for batch in batches)
+    try:
+        scores = run_evaluators({"val": ConfusionSum()}, confusions)["val"]
+    except ValueError as error:
+        if str(error).startswith("batches:"):  # no batch at all
+            raise ValueError("val_data: expected at least one batch, got none") from None
+        raise
     return {"val/miou": scores["miou"], "val/pixel_accuracy": scores["pixel_accuracy"]}
 
 

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from jaxanom.cudam.objective import CuDAM
-from jaxanom.train import loop as loop_lib
+from jaxanom.train import segmenter as segmenter_lib
 from jaxanom.train.checkpoint import Checkpointer, restore_checkpoint
-from jaxanom.train.loop import NonFiniteLossError, TrainConfig, train
+from jaxanom.train.segmenter import NonFiniteLossError, TrainConfig, train
 from jaxanom.train.optim import OptimConfig
 from jaxanom.train.restore import trained_variables
 from compiles import compiled_during
@@ -206,7 +206,7 @@ def host_reads(monkeypatch):
     with how many train steps had been dispatched when it happened."""
     dispatched = [0]
     reads = count_host_reads(monkeypatch, lambda: dispatched[0])
-    make_steps = loop_lib.make_steps
+    make_steps = segmenter_lib.make_steps
 
     def counting_make_steps(*args, **kwargs):
         train_step, eval_step = make_steps(*args, **kwargs)
@@ -217,7 +217,7 @@ def host_reads(monkeypatch):
 
         return step, eval_step
 
-    monkeypatch.setattr(loop_lib, "make_steps", counting_make_steps)
+    monkeypatch.setattr(segmenter_lib, "make_steps", counting_make_steps)
     return reads
 
 
@@ -265,3 +265,23 @@ def test_a_finished_run_is_extended_bitwise_and_never_shortened(tmp_path):
     with pytest.raises(ValueError, match=r"steps: expected at least the 6 steps the run in .*run has trained, got 5"):
         train(config(tmp_path / "run", optim=flat, steps=5, save_every=2), TinySegNet(), batches(6))
     assert steps_on_disk(tmp_path / "run" / "checkpoints") == [4, 6]
+
+
+def test_validation_metrics_equal_numpy_from_the_networks_argmax():
+    from jaxanom.train.step import model_input
+
+    model, variables, run = TinySegNet(), init_variables(), config("")  # the steps the other tests compiled
+    mesh, *_, eval_step = segmenter_lib._compiled(model, run.objective, run.optim, run.steps, run.compute_dtype,
+                                                  run.ignore, tuple(jax.devices()))
+    val = [make_batch(50 + i, void_fraction=0.3) for i in range(3)]
+    with jax.set_mesh(mesh):
+        got = segmenter_lib.evaluate(eval_step, variables, val, mesh, 255, model)
+        with pytest.raises(ValueError, match="val_data: expected at least one batch"):
+            segmenter_lib.evaluate(eval_step, variables, [], mesh, 255, model)
+    prediction = np.concatenate([np.argmax(model.apply(variables, model_input(b["image"], model))["logits"], -1)
+                                 for b in val]).ravel()
+    label = np.concatenate([b["label"] for b in val]).ravel()
+    prediction, label = prediction[label != 255], label[label != 255]
+    iou = [np.sum((prediction == k) & (label == k)) / np.sum((prediction == k) | (label == k)) for k in range(3)]
+    assert got["val/miou"] == pytest.approx(np.mean(iou), rel=1e-12)
+    assert got["val/pixel_accuracy"] == pytest.approx(np.mean(prediction == label), rel=1e-12)
