@@ -87,6 +87,20 @@ def write_json_atomic(path: str | os.PathLike, obj: Any, *, allow_nan: bool = Tr
     return write_bytes_atomic(path, (json.dumps(obj, indent=2, sort_keys=True, allow_nan=allow_nan) + "\n").encode())
 
 
+def jsonable(value):
+    """``value`` (e.g. an evaluator's finalized metrics) as JSON values: NumPy scalars and arrays as
+    numbers and lists, in dicts (keys as strings), lists and tuples; other values as they are."""
+    import numpy as np
+
+    if isinstance(value, (np.ndarray, np.generic)):
+        return value.tolist()
+    if isinstance(value, dict):
+        return {str(key): jsonable(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(item) for item in value]
+    return value
+
+
 def write_png_atomic(path: str | os.PathLike, rgb) -> Path:
     """Write an RGB (H, W, 3) or grey (H, W) uint8 array as PNG, atomically."""
     return write_bytes_atomic(path, png_bytes(rgb))

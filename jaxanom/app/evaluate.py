@@ -19,7 +19,9 @@ from jaxanom.app.scoring import inputs_of, score_all
 from jaxanom.cudam.score import upsample_attention
 from jaxanom.method_registry import check_finite
 from jaxanom.metrics import anomaly_metrics, pr_curve, restrict_to_roi, roc_curve
-from jaxanom.metrics.evaluator import Components, PixelAnomaly, Segmentation, SmiycPixels, run_evaluators
+from jaxanom.io import jsonable
+from jaxanom.metrics.evaluator import (Components, PixelAnomaly, Segmentation, SmiycPixels, get_evaluator,
+                                       run_evaluators)
 from jaxanom.train.step import model_input
 from jaxanom.errors import InputError
 
@@ -112,7 +114,7 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
                     mode: str = "exact", fpr_convention: str = "first", ap_convention: str = "step",
                     keep_curves: bool = False, track: str | None = None,
                     spill_dir: str | Path | None = None, convention: str = "exact",
-                    drop_void: bool = False) -> tuple[dict, dict]:
+                    drop_void: bool = False, evaluators: tuple[str, ...] = ()) -> tuple[dict, dict]:
     """Pooled metrics per method over batches ``{"logits", "label", "image"?, "name"?,
     "attention_up"?, "attention_positions"?, "roi"?, "mmf_maps"?}``.
 
@@ -140,7 +142,10 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
     ``"maps": {name: (B, H, W)}`` instead of ``"logits"`` (``saved_map_batches``). ``drop_void``:
     the methods but ``void`` score the logits without a void channel (``app.scoring.score_all``).
     A method's scores that are not finite on non-void pixels are refused naming it
-    (``method_registry.check_finite``, one count per map).
+    (``method_registry.check_finite``, one count per map). ``evaluators``: names of registered
+    evaluators (``metrics.evaluator.get_evaluator``, a plug-in's included) also fed each method's
+    scores in the same pass, their metrics as JSON values in ``metrics[name]["evaluators"][evaluator]``
+    (the other numbers are the same with or without them).
     InputError naming ``path`` when the frames pool no anomaly or no normal pixel (each frame's
     reason said), and naming ``methods`` when ``convention="smiyc"`` meets a score outside float16.
     """
@@ -149,6 +154,7 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
 
     if convention not in CONVENTIONS:
         raise ValueError(f"convention: expected one of {CONVENTIONS}, got {convention!r}")
+    named = {kind: get_evaluator(kind) for kind in evaluators}  # an unknown name refused before any frame
     spill = (tempfile.TemporaryDirectory(prefix=".jaxanom-maps-", suffix=".tmp", dir=spill_dir)
              if track is not None else None)
     try:
@@ -156,16 +162,18 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
                                   None if spill is None else Path(spill.name))
         first = list(itertools.islice(batches, 1))  # its methods name the evaluators
         methods = list(first[0]["scores"]) if first else []
-        evaluators = {"frames": _Frames(), "options": _OptionsUsed()}  # first: no class, no metric computed
+        folds = {"frames": _Frames(), "options": _OptionsUsed()}  # first: no class, no metric computed
         for name in methods:
-            evaluators["pixels", name] = PixelAnomaly(name, mode, fpr_convention, ap_convention, conventions=True)
+            folds["pixels", name] = PixelAnomaly(name, mode, fpr_convention, ap_convention, conventions=True)
             if convention == "smiyc":
-                evaluators["kit", name] = SmiycPixels(name)
+                folds["kit", name] = SmiycPixels(name)
             if keep_curves:
-                evaluators["curves", name] = _Curves(name)
+                folds["curves", name] = _Curves(name)
             if spill is not None:
-                evaluators["frame_pixels", name] = _FramePixels(name, fpr_convention, ap_convention)
-        results = run_evaluators(evaluators, itertools.chain(first, batches))
+                folds["frame_pixels", name] = _FramePixels(name, fpr_convention, ap_convention)
+            for kind, evaluator in named.items():
+                folds["named", name, kind] = evaluator.make(name)
+        results = run_evaluators(folds, itertools.chain(first, batches))
     except BaseException:  # a refused frame mid-way leaves no spilled maps in --out
         if spill is not None:
             spill.cleanup()
@@ -178,6 +186,9 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
         for name, values in metrics.items():  # move with the conventions that made them
             values["exact"] = {key: values.pop(key) for key in EXACT_KEYS}
             values.update(results["kit", name])
+    for name, values in metrics.items():
+        for kind in named:
+            values.setdefault("evaluators", {})[kind] = jsonable(results["named", name, kind])
     if spill is not None:
         with spill:
             for name, values in metrics.items():

@@ -27,6 +27,13 @@ def results_table(metrics: dict, segmentation: dict | None = None) -> str:
     return "\n".join(lines)
 
 
+def evaluators_lines(metrics: dict) -> str:
+    """One line ``METHOD NAME: {its metrics}`` per named evaluator of each method
+    (``metrics[method]["evaluators"][name]``), in order."""
+    return "\n".join(f"{method} {name}: {values}" for method, m in metrics.items()
+                     for name, values in m.get("evaluators", {}).items())
+
+
 def conventions_table(metrics: dict) -> str:
     """A markdown table of AP and FPR@95 (percent) per method under every convention the library
     has on the exact curve (``metrics[name]["ap_conventions"]`` / ``["fpr_conventions"]``, in

@@ -119,6 +119,18 @@ def add_protocol(parser, help: str) -> None:
                         "MODULE, or the jaxanom.protocols entry points) (default: %(default)s)")
 
 
+def add_evaluators(parser, need: str = "") -> None:
+    """``--evaluators NAMES`` (the app function's ``evaluators``): registered evaluators of a
+    method's scores, a plug-in's included, looked up when the command runs; ``need``: what they
+    need besides (e.g. " (with --labels)"), then jaxanom's own evaluators."""
+    from jaxanom.app.commands.inputs import own_entries
+
+    parser.add_argument("--evaluators", metavar="NAMES",
+                        help=f"comma-separated evaluators also fed each method's scores{need}, their metrics in "
+                        "metrics.json under the method's \"evaluators\": " + own_entries("evaluators").replace("%", "%%")
+                        + "; or a plug-in's (--plugin MODULE, or the jaxanom.evaluators entry points)")
+
+
 def add_scoring(parser) -> None:
     """Flags of the commands that score anomalies: statistics, methods, plug-ins, metric conventions, --out."""
     from jaxanom.app.commands.score import AP_CONVENTIONS

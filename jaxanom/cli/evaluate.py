@@ -2,8 +2,8 @@
 segmentation dataset."""
 from __future__ import annotations
 
-from jaxanom.cli.common import (METHOD_OPTIONS, add_common, add_config, add_protocol, add_scoring, nonnegative_int,
-                                positive_int)
+from jaxanom.cli.common import (METHOD_OPTIONS, add_common, add_config, add_evaluators, add_protocol, add_scoring,
+                                nonnegative_int, positive_int)
 
 DATASETS = {
     "synthetic": "synthetic anomaly split (PATH = split name: anomaly, anomaly_small, anomaly_large)",
@@ -57,6 +57,7 @@ def add_parser(commands) -> None:
     parser.add_argument("--all-conventions", action="store_true",
                         help="also print AP (step, trapz, envelope) and FPR@95 (first, interp, nearest, strict) side "
                         "by side (metrics.json always holds them)")
+    add_evaluators(parser, " (anomaly datasets)")
     parser.add_argument("--pictures", type=nonnegative_int, default=0, help="frames to draw (default: %(default)s)")
     add_config(parser, set_help=f"{METHOD_OPTIONS}, applied after --cudam-sigma; the options each method used are in "
                "metrics.json")
@@ -71,5 +72,5 @@ def run(args) -> None:
              base=args.base, depth=args.depth, frames=args.frames, stats=args.stats, methods=args.methods,
              plugins=args.plugin, fpr_convention=args.fpr_convention, ap_convention=args.ap_convention,
              cudam_sigma=args.cudam_sigma, track=args.track, convention=args.convention, protocol=args.protocol,
-             pictures=args.pictures, all_conventions=args.all_conventions, overrides=args.set, split=args.split,
-             overwrite=args.overwrite)
+             pictures=args.pictures, all_conventions=args.all_conventions, evaluators=args.evaluators,
+             overrides=args.set, split=args.split, overwrite=args.overwrite)

@@ -1,12 +1,10 @@
 """``jaxanom score``: scores and metrics from logits saved by another framework (``jaxanom.app.commands.score``)."""
 from __future__ import annotations
 
-from jaxanom.cli.common import METHOD_OPTIONS, add_common, add_config, add_scoring
+from jaxanom.cli.common import METHOD_OPTIONS, add_common, add_config, add_evaluators, add_scoring
 
 
 def add_parser(commands) -> None:
-    from jaxanom.app.commands.inputs import own_entries
-
     parser = commands.add_parser("score", help="scores and metrics from logits saved by another framework",
                                  description="Read logits (.npy, or .npz with array `logits`) of shape (N, C, H, W) "
                                  "or (N, H, W, C), and optional labels (N, H, W) in {0, 1, 255}; write score maps "
@@ -19,11 +17,7 @@ def add_parser(commands) -> None:
                         "wrong --layout)")
     parser.add_argument("--labels", help=".npy or .npz file (array `labels`) of anomaly labels")
     add_scoring(parser)
-    own = own_entries("evaluators").replace("%", "%%")
-    parser.add_argument("--evaluators", metavar="NAMES",
-                        help="comma-separated evaluators also fed each method's scores (with --labels), their metrics "
-                        f"in metrics.json under the method's \"evaluators\": {own}; or a plug-in's (--plugin MODULE, "
-                        "or the jaxanom.evaluators entry points)")
+    add_evaluators(parser, " (with --labels)")
     add_config(parser, set_help=f"{METHOD_OPTIONS}; the options each method used are in metrics.json")
     add_common(parser, progress=False)
     parser.set_defaults(handler=run, aliases={"plugins": "plugin", "overrides": "set"})

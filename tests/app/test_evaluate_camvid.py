@@ -57,6 +57,7 @@ def test_camvid_miou_against_a_numpy_confusion_matrix(camvid_and_run, tmp_path, 
 @pytest.mark.parametrize("args, flag", [
     (["--dataset", "camvid", "--stats", "x.npz"], "--stats"),
     (["--dataset", "camvid", "--protocol", "erfnet-community"], "--protocol"),
+    (["--dataset", "camvid", "--evaluators", "pixel"], "--evaluators"),
     (["--dataset", "smiyc", "--track", "anomaly", "--split", "test"], "--split"),
 ])
 def test_options_of_the_other_kind_of_dataset_are_refused(camvid_and_run, tmp_path, capsys, args, flag):

@@ -122,10 +122,65 @@ def test_an_outside_evaluator_runs_by_name_in_score(tmp_path, capsys, measures):
     assert error.endswith("--evaluators: the evaluators compare scores with labels; give --labels"), error
 
 
+def anomaly_track_and_maps(tmp_path, methods=("a", "b")):
+    """A SegmentMeIfYouCan RoadAnomaly21 folder of three 12x16 frames (labels 0 / 1 / 255) and, in
+    ``tmp_path / "pred"``, random float16 maps of ``methods`` as ``predict --format smiyc`` writes
+    them (ties included); returns the folder, the labels and ``{method: maps}``."""
+    import h5py
+
+    rng = np.random.default_rng(3)
+    root = tmp_path / "track"
+    for folder in ("images", "labels_masks"):
+        (root / folder).mkdir(parents=True)
+    labels = rng.choice(np.array([0, 1, 255], np.uint8), size=(3, 12, 16), p=[0.6, 0.3, 0.1])
+    maps = {method: rng.normal(size=labels.shape).round(1).astype(np.float16) for method in methods}
+    for index, label in enumerate(labels):
+        cv2.imwrite(str(root / "images" / f"f{index}.png"), np.zeros((*label.shape, 3), np.uint8))
+        cv2.imwrite(str(root / "labels_masks" / f"f{index}_labels_semantic.png"), label)
+        for method, values in maps.items():
+            folder = tmp_path / "pred" / "anomaly_p" / method / "AnomalyTrack-all"
+            folder.mkdir(parents=True, exist_ok=True)
+            with h5py.File(folder / f"f{index}.hdf5", "w") as f:
+                f.create_dataset("value", data=values[index])
+    return root, labels, maps
+
+
+def test_an_outside_evaluator_runs_by_name_in_evaluate(tmp_path, capsys, measures):
+    """``evaluate --evaluators``: the module's evaluator against NumPy on the same float16 maps and
+    labels, ``pixel`` by name equal to the default metrics, and every other number of metrics.json
+    as without ``--evaluators``."""
+    root, labels, maps = anomaly_track_and_maps(tmp_path)
+    argv = ("evaluate", "--maps", tmp_path / "pred", "--dataset", "smiyc", "--track", "anomaly", "--path", root)
+    error = one_line_error(capsys, *argv, "--evaluators", "score_gap,pixel", "--out", tmp_path / "no")
+    assert error.startswith("jaxanom evaluate: error: --evaluators: expected names from pixel, smiyc_pixels, got "
+                            "'score_gap' (a plug-in's evaluator: load its module, e.g. with --plugin MODULE)"), error
+    assert not (tmp_path / "no").exists()
+
+    code, text = command(capsys, *argv, "--evaluators", "score_gap,pixel", "--plugin", MODULE,
+                         "--out", tmp_path / "named")
+    assert code == 0, text
+    named = json.loads((tmp_path / "named" / "metrics.json").read_text())
+    for method, values in maps.items():
+        scores = values.astype(np.float64)
+        evaluated = named["metrics"][method].pop("evaluators")
+        assert set(evaluated) == {"score_gap", "pixel"}
+        assert evaluated["score_gap"]["gap"] == pytest.approx(scores[labels == 1].mean() - scores[labels == 0].mean(),
+                                                              rel=1e-12)
+        assert evaluated["score_gap"]["pixels"] == [int((labels == 1).sum()), int((labels == 0).sum())]
+        for key in ("ap", "auroc", "fpr_at_tpr", "best_f1", "best_f1_threshold"):  # the default conventions
+            assert evaluated["pixel"][key] == named["metrics"][method][key], (method, key)
+        assert f"{method} score_gap: {{'gap': " in text
+
+    code, text = command(capsys, *argv, "--out", tmp_path / "plain")
+    assert code == 0, text
+    assert json.loads((tmp_path / "plain" / "metrics.json").read_text()) == named  # less "evaluators": the same
+
+
 def test_an_outside_protocol_runs_by_name_in_evaluate(tmp_path, capsys, measures, tiny_run,  # noqa: F811
                                                      road_anomaly):  # noqa: F811
     """The module's protocol resizes the frame to 32x64 and interpolates FPR95: the same numbers as
-    the native protocol on the frame resized by PIL beforehand with the interpolated FPR95."""
+    the native protocol on the frame resized by PIL beforehand with the interpolated FPR95; the
+    network's scores also through ``--evaluators pixel`` (its own FPR95 convention, first)."""
     argv = ("evaluate", "--run", tiny_run, "--dataset", "road-anomaly", "--methods", "msp,max_logit")
     error = one_line_error(capsys, *argv, "--path", road_anomaly, "--protocol", "small", "--out", tmp_path / "no")
     assert error == ("jaxanom evaluate: error: --protocol: expected one of native, erfnet-community, got 'small' (a "
@@ -136,7 +191,7 @@ def test_an_outside_protocol_runs_by_name_in_evaluate(tmp_path, capsys, measures
                             "'small'"), error
 
     code, text = command(capsys, *argv, "--path", road_anomaly, "--protocol", "small", "--plugin", MODULE,
-                         "--out", tmp_path / "small")
+                         "--evaluators", "pixel", "--out", tmp_path / "small")
     assert code == 0, text
     small = json.loads((tmp_path / "small" / "metrics.json").read_text())
     assert small["protocol"] == "small"
@@ -155,6 +210,9 @@ def test_an_outside_protocol_runs_by_name_in_evaluate(tmp_path, capsys, measures
     for method in ("msp", "max_logit"):
         for key in ("ap", "auroc", "fpr_at_tpr"):
             assert small["metrics"][method][key] == native["metrics"][method][key], (method, key)
+        pixel = small["metrics"][method]["evaluators"]["pixel"]
+        assert (pixel["ap"], pixel["auroc"]) == (native["metrics"][method]["ap"], native["metrics"][method]["auroc"])
+        assert pixel["fpr_at_tpr"] == native["metrics"][method]["fpr_conventions"]["first"]
 
 
 @pytest.fixture

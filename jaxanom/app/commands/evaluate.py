@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from jaxanom.app.commands.inputs import (DEFAULT_METHODS, check_stats_classes, load_plugins, method_names,
-                                         method_options, read_stats, split_overrides)
+from jaxanom.app.commands.inputs import (DEFAULT_METHODS, check_stats_classes, evaluator_names, load_plugins,
+                                         method_names, method_options, read_stats, split_overrides)
 from jaxanom.app.outputs import check_out_outside, out_folder, within
 from jaxanom.errors import InputError, reading
 
@@ -25,14 +25,16 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
              stats: str | None = None, methods: str | None = None, plugins=(), fpr_convention: str | None = None,
              ap_convention: str = "step", cudam_sigma: float | None = None, track: str | None = None,
              convention: str = "exact", protocol: str = "native", pictures: int = 0,
-             all_conventions: bool = False, overrides=(), split: str | None = None,
+             all_conventions: bool = False, evaluators: str | None = None, overrides=(), split: str | None = None,
              overwrite: bool = False) -> dict:
     """Score ``dataset`` (its folder ``path``) with one of ``run`` (a network), ``mmf`` (a folder
     of ``jaxanom demo mmf``) or ``maps`` (saved score maps) and write ``out/metrics.json``, which
     is returned; prints the results table. ``track`` picks SegmentMeIfYouCan's component rules
     (default: the dataset's), ``protocol`` how frames become counted pixels (with ``run``; a
     ``jaxanom.protocols`` name, a plug-in's included);
-    ``all_conventions`` also prints every AP and FPR convention side by side. ``overrides``:
+    ``all_conventions`` also prints every AP and FPR convention side by side. ``evaluators``:
+    comma-separated names of evaluators (``jaxanom.metrics.evaluator``, a plug-in's included) also
+    fed each method's scores, their metrics in ``metrics[method]["evaluators"][name]``. ``overrides``:
     ``"methods.METHOD.OPTION=VALUE"`` options of the methods (``cudam_sigma`` is the same as
     ``"methods.cudam.cudam_sigma=..."``); ``metrics[name]["options"]`` records each option's values
     as resolved."""
@@ -42,7 +44,7 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
     from jaxanom.app.experiment import build_network, load_experiment, load_variables
     from jaxanom.app.mmf_experiment import mmf_scored_batches
     from jaxanom.app.predict import size_check
-    from jaxanom.app.reports import conventions_table, results_table
+    from jaxanom.app.reports import conventions_table, evaluators_lines, results_table
     from jaxanom.io import write_json_atomic
     from jaxanom.protocols import get_protocol
 
@@ -53,7 +55,8 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
     if dataset in SEGMENTATION:
         given = {"mmf": mmf, "maps": maps, "stats": stats, "methods": methods, "track": track,
                  "cudam_sigma": cudam_sigma, "base": base, "depth": depth, "pictures": pictures or None,
-                 "protocol": None if protocol == "native" else protocol, "overrides": list(overrides) or None}
+                 "protocol": None if protocol == "native" else protocol, "overrides": list(overrides) or None,
+                 "evaluators": evaluators}
         refused = [name for name, value in given.items() if value is not None]
         if refused:
             raise InputError(refused[0], f": scores anomalies; the {dataset} dataset is scored for segmentation "
@@ -67,8 +70,9 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
         raise InputError("track", ": the smiyc dataset holds either track; pass {track} anomaly (RoadAnomaly21) or "
                          "{track} obstacle (RoadObstacle21)")
     check_out_outside(out, {"run": run, "mmf": mmf, "maps": maps})
-    load_plugins(plugins)  # before the protocol and the methods are looked up: a plug-in may name either
+    load_plugins(plugins)  # before the protocol, methods and evaluators are looked up: a plug-in may name any
     protocol_ = get_protocol(protocol)
+    extra = evaluator_names(evaluators)
     if protocol_.name != "native" and not run:
         raise InputError("protocol", f" {protocol_.name}: resizes the frames the network sees, so it needs {{run}}",
                          mentions=("run",))
@@ -126,7 +130,8 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
         metrics, _ = anomaly_results(batches, names, stats=mean_std, options=options,
                                      fpr_convention=fpr_convention or protocol_.fpr_convention,
                                      ap_convention=ap_convention, track=None if track == "none" else track,
-                                     spill_dir=out_dir, convention=convention, drop_void=protocol_.drop_void)
+                                     spill_dir=out_dir, convention=convention, drop_void=protocol_.drop_void,
+                                     evaluators=extra)
     except InputError as error:  # no frame, or no class, left to score: say which frames the protocol skipped
         if error.argument != "path" or not skipped:
             raise
@@ -162,6 +167,8 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
         print("The official SegmentMeIfYouCan kit's numbers (binned; the exact ones, AP "
               f"{ap_convention} and FPR@95 {fpr_convention or protocol_.fpr_convention}: metrics.json, \"exact\"):")
     print(results_table(metrics))
+    if extra:
+        print(evaluators_lines(metrics))
     if all_conventions:
         print("\n" + conventions_table(metrics))
     return record

@@ -34,8 +34,8 @@ def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = Fal
     import numpy as np
 
     from jaxanom.app import scoring
-    from jaxanom.app.reports import results_table
-    from jaxanom.io import NpyWriter, write_json_atomic
+    from jaxanom.app.reports import evaluators_lines, results_table
+    from jaxanom.io import NpyWriter, jsonable, write_json_atomic
     from jaxanom.method_registry import check_finite
     from jaxanom.metrics.evaluator import PixelAnomaly, get_evaluator, run_evaluators
 
@@ -120,23 +120,10 @@ def score(*, logits: str, out: str, layout: str = "NCHW", any_layout: bool = Fal
             metrics[name]["options"] = used[name]
     named = [key for key in metrics if isinstance(key, tuple)]
     for name, kind in named:
-        metrics[name].setdefault("evaluators", {})[kind] = _jsonable(metrics.pop((name, kind)))
+        metrics[name].setdefault("evaluators", {})[kind] = jsonable(metrics.pop((name, kind)))
     write_json_atomic(within(out_dir, out_dir / "metrics.json"), {"metrics": metrics})
     print(results_table(metrics))
-    for name, kind in named:
-        print(f"{name} {kind}: {metrics[name]['evaluators'][kind]}")
+    if named:
+        print(evaluators_lines(metrics))
     return metrics
 
-
-def _jsonable(value):
-    """An evaluator's finalized metrics as JSON values: NumPy scalars and arrays as numbers and
-    lists, in dicts, lists and tuples; other values as they are."""
-    import numpy as np
-
-    if isinstance(value, (np.ndarray, np.generic)):
-        return value.tolist()
-    if isinstance(value, dict):
-        return {str(key): _jsonable(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(item) for item in value]
-    return value
