@@ -20,7 +20,7 @@ Evaluators of one method's scores are plug-ins by name like scoring methods (``E
 jaxanom's (``pixel``, ``smiyc_pixels``) are registered here (this module is in
 ``jaxanom.builtins``), a module of one's own registers its own with ``register``, loaded by
 ``--plugin MODULE`` or an installed package's entry-point group ``jaxanom.evaluators``, and
-``jaxanom score --evaluators NAME`` runs them by name.
+``jaxanom score --evaluators NAME`` and ``jaxanom evaluate --evaluators NAME`` run them by name.
 """
 from __future__ import annotations
 

@@ -1,10 +1,10 @@
 """docs/extending.md runs as written (``tests/doc_examples.py``): its package ``myext`` is written
 into an empty folder, its method scores a tiny logits file through ``jaxanom score --plugin`` (an
 option set by ``--set methods.NAME.OPTION=``), its objective trains a tiny network two steps through
-``train --plugin``, its evaluator runs through ``run_evaluators`` and ``score --evaluators``, its
-protocol through ``evaluate --protocol``, its attention module attaches to two segmenters and
-trains a step through ``train --plugin``. In a process of its own, so what the page registers
-stays there."""
+``train --plugin``, its evaluator runs through ``run_evaluators``, ``score --evaluators`` and
+``evaluate --evaluators``, its protocol through ``evaluate --protocol``, its attention module
+attaches to two segmenters and trains a step through ``train --plugin``. In a process of its own,
+so what the page registers stays there."""
 import json
 import os
 import subprocess
@@ -32,7 +32,10 @@ def test_the_extension_authors_page_runs_as_written(tmp_path):
         "options"] == {"temperature": 2.0}
     gaps = json.loads((tmp_path / "gaps" / "metrics.json").read_text())["metrics"]["temperature_msp"]["evaluators"]
     assert set(gaps) == {"score_gap", "pixel"}
-    assert json.loads((tmp_path / "small_eval" / "metrics.json").read_text())["protocol"] == "small"
+    small = json.loads((tmp_path / "small_eval" / "metrics.json").read_text())
+    assert small["protocol"] == "small"
+    assert {name: set(m.get("evaluators", ())) for name, m in small["metrics"].items()} == {
+        "msp": {"score_gap"}, "temperature_msp": {"score_gap"}}
     # the attention module, on ERFNet's encoder output (16 channels in erfnet_tiny) and DeepLabV3+'s (64)
     assert "erfnet_tiny (1, 32, 64, 19) (1, 16) ['expand', 'reduce']" in result.stdout
     assert "deeplabv3plus_tiny (1, 32, 64, 19) (1, 64) ['expand', 'reduce']" in result.stdout
