@@ -6,6 +6,7 @@ benchmarks do (docs/papers/anomaly-metrics.md#pooling). ``segmentation_results``
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
@@ -145,7 +146,8 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
     (``method_registry.check_finite``, one count per map). ``evaluators``: names of registered
     evaluators (``metrics.evaluator.get_evaluator``, a plug-in's included) also fed each method's
     scores in the same pass, their metrics as JSON values in ``metrics[name]["evaluators"][evaluator]``
-    (the other numbers are the same with or without them).
+    (the other numbers are the same with or without them); a value one refuses (ValueError) is an
+    InputError naming ``evaluators``, the evaluator and the method.
     InputError naming ``path`` when the frames pool no anomaly or no normal pixel (each frame's
     reason said), and naming ``methods`` when ``convention="smiyc"`` meets a score outside float16.
     """
@@ -172,7 +174,7 @@ def anomaly_results(outputs: Iterable[dict], method_names, *, stats=None, option
             if spill is not None:
                 folds["frame_pixels", name] = _FramePixels(name, fpr_convention, ap_convention)
             for kind, evaluator in named.items():
-                folds["named", name, kind] = evaluator.make(name)
+                folds["named", name, kind] = _Named(kind, name, evaluator.make(name))
         results = run_evaluators(folds, itertools.chain(first, batches))
     except BaseException:  # a refused frame mid-way leaves no spilled maps in --out
         if spill is not None:
@@ -286,6 +288,38 @@ class _FramePixels(_Framewise):
 
     def finalize(self, state: tuple) -> list:
         return list(state)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Named:
+    """The evaluator ``kind`` of ``method``'s scores (``evaluator``), whose ValueError (a value it
+    refuses, e.g. ``smiyc_pixels``' score beyond float16) is an InputError naming ``evaluators``,
+    ``kind``, ``method`` and, in ``update``, the batch's frames."""
+
+    kind: str
+    method: str
+    evaluator: object
+
+    @contextlib.contextmanager
+    def _refusals(self, where: str = ""):
+        try:
+            yield
+        except ValueError as error:
+            raise InputError("evaluators", f": {self.kind} refused {self.method}'s scores{where}: {error}") from None
+
+    def init(self):
+        return self.evaluator.init()
+
+    def update(self, state, batch: dict):
+        with self._refusals(f" of frame {', '.join(map(str, batch['name']))}"):
+            return self.evaluator.update(state, batch)
+
+    def merge(self, a, b):
+        return self.evaluator.merge(a, b)
+
+    def finalize(self, state):
+        with self._refusals():
+            return self.evaluator.finalize(state)
 
 
 class _OptionsUsed:

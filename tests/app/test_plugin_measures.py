@@ -267,3 +267,17 @@ def test_evaluators_and_protocols_follow_the_registry_rules(measures):
     with pytest.raises(ValueError, match=r"^evaluator name: expected letters, digits, '_', '-', '.' \(not '.' or "
                                          r"'..'\), got '../gap'$"):
         register(NamedEvaluator("../gap", PixelAnomaly, "a path"))
+
+
+def test_a_value_a_named_evaluator_refuses_is_an_input_error_naming_it():
+    """``smiyc_pixels`` by name, under the exact convention (whose checks let it through), meets a
+    score beyond float16: one InputError naming the flag, the evaluator, the method and the frame."""
+    from jaxanom.app.evaluate import anomaly_results
+    from jaxanom.errors import InputError
+
+    label = np.zeros((1, 4, 5), np.uint8)
+    label[0, :2] = 1
+    maps = np.linspace(0, 1e5, 20, dtype=np.float32).reshape(1, 4, 5)
+    with pytest.raises(InputError, match=r"^evaluators: smiyc_pixels refused m's scores of frame f0: scores: expected "
+                                         r"finite values within float16's range"):
+        anomaly_results([{"maps": {"m": maps}, "label": label, "name": ["f0"]}], ["m"], evaluators=("smiyc_pixels",))
