@@ -82,7 +82,6 @@ def evaluate(*, dataset: str, path: str, out: str, run: str | None = None, mmf: 
     if maps and overrides:  # nor would the methods' options
         raise InputError("overrides", f" {overrides[0]}: {{maps}} reads finished score maps, which no method option "
                          "changes; leave it out", mentions=("maps",))
-    load_plugins(plugins)
     mean_std = read_stats(stats)
     if cudam_sigma is not None:
         check_number("cudam_sigma", cudam_sigma, 0.0, open_low=True)
