@@ -29,6 +29,7 @@ scaled training logits) must beat max logit.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -42,7 +43,7 @@ from experiments.real_common import HERE, anomaly_tracks, resized
 from experiments.real_training_baseline import COMPETENT
 from experiments.real_training_common import (CACHE, CACHE_VERSION, Settings, cache_features, cache_taps,
                                               cityscapes_erfnet, decoder_outputs, encoder_module,
-                                              encoder_variables, settings_key, train_decoder)
+                                              encoder_variables, run_folder, settings_key, train_decoder)
 
 NAME = "real_training_claims"
 EVALUATION_VERSION = 1  # bump when what an evaluation holds changes
@@ -230,20 +231,59 @@ def exact(scores: list[np.ndarray], labels: list[np.ndarray]) -> dict[str, float
     return {"ap": 100 * m["ap"], "auroc": 100 * m["auroc"], "fpr95": 100 * m["fpr_at_tpr"]}
 
 
-def track_values(track: str, evaluations: dict[str, list[dict]], rows) -> dict:
-    """The rows of one track over the seeds: ``aggregate`` of each seed's exact metrics and test mIoU,
-    with the paired hierarchical bootstrap's replicates."""
+def evaluation_path(network: str, seed: int) -> Path:
+    return run_folder(settings(network, seed)) / f"claims-{EVALUATION_VERSION}.npz"
+
+
+def row_scores(network: str) -> tuple[str, ...]:
+    """The scores of ``network`` that rows of ``ROWS`` read."""
+    return tuple(dict.fromkeys(score for _, n, score in ROWS if n == network))
+
+
+def summary(network: str, seed: int, log=print) -> dict:
+    """What the tables read of one evaluation, per track and row score: ``<track>/<score>/exact`` (percent
+    AP, AUROC, FPR95, exactly), ``.../binned`` (the same of all frames' histograms) and ``.../histograms``
+    (per-frame, ``score_histograms``); with ``confusion`` and ``miou``. Cached beside the evaluation:
+    the exact metrics of 19M pooled pixels take tens of seconds each."""
+    path = evaluation_path(network, seed).with_name(f"claims-{EVALUATION_VERSION}-summary.npz")
+    if not path.exists():
+        start = time.perf_counter()
+        e = evaluate(network, seed, log=log)
+        out = {"confusion": e["confusion"], "miou": e["miou"]}
+        for track in anomaly_tracks():
+            labels = per_frame(e, track, "labels")
+            for score in row_scores(network):
+                scores = per_frame(e, track, score)
+                metrics = exact(scores, labels)
+                out[f"{track}/{score}/histograms"], binned = score_histograms(scores, labels)
+                out[f"{track}/{score}/exact"] = np.array([metrics[k] for k in METRICS])
+                out[f"{track}/{score}/binned"] = np.array([binned[k] for k in METRICS])
+        partial = path.with_name(path.name.replace(".npz", ".partial.npz"))
+        np.savez(partial, **out)
+        partial.replace(path)
+        log(f"{network} seed {seed}: summarised in {time.perf_counter() - start:.0f} s")
+    with np.load(path) as stored:
+        return {k: stored[k] for k in stored.files}
+
+
+METRICS = ("ap", "auroc", "fpr95")
+
+
+def track_values(track: str, summaries: dict[str, list[dict]], rows) -> dict:
+    """The rows of one track over the seeds (``summaries[network][i]``: seed i's ``summary``):
+    ``aggregate`` of each seed's exact metrics and test mIoU, with the paired hierarchical
+    bootstrap's replicates."""
     per_seed, per_seed_frames = [], []
-    for s in range(len(next(iter(evaluations.values())))):
+    for s in range(len(summaries["plain"])):
         values, frames = {}, {}
         for label, network, score in rows:
-            e = evaluations[network][s]
-            scores, labels = per_frame(e, track, score), per_frame(e, track, "labels")
-            histograms, binned = score_histograms(scores, labels)
-            values[label] = {**exact(scores, labels), "miou": 100 * float(e["miou"]), "network": network,
-                             "score": score, "competent_miou": COMPETENT}
-            values[label]["binning"] = max(abs(binned[k] - values[label][k]) for k in ("ap", "auroc", "fpr95"))
-            frames[label] = {"histograms": histograms, "confusion": e["confusion"]}
+            e = summaries[network][s]
+            exact_values = dict(zip(METRICS, e[f"{track}/{score}/exact"].tolist()))
+            binned = dict(zip(METRICS, e[f"{track}/{score}/binned"].tolist()))
+            values[label] = {**exact_values, "miou": 100 * float(e["miou"]), "network": network, "score": score,
+                             "competent_miou": COMPETENT,
+                             "binning": max(abs(binned[k] - exact_values[k]) for k in METRICS)}
+            frames[label] = {"histograms": e[f"{track}/{score}/histograms"], "confusion": e["confusion"]}
         per_seed.append(values)
         per_seed_frames.append(frames)
     values = aggregate(per_seed)
@@ -311,51 +351,81 @@ def finding_lines(found: list[Finding]) -> list[str]:
     return lines
 
 
-def report(results: dict, seeds: list[int], networks: list[str], missing: list[str]) -> str:
+# the tables: each compares the baseline with the networks of one paper, on the seeds all of them have
+GROUPS = {"CuDAM": ("cudam", "cudam_attention_only", "cudam_reward"), "MSAAM": ("msaam",)}
+
+
+def group_tables(seeds: list[int], log=print) -> dict:
+    """``{group: {"seeds", "networks", "not_trained", "tracks": {track: values}}}`` from the evaluations
+    that exist (nothing is trained): a group's seeds are those where the baseline and its first network
+    are evaluated; its other networks join where evaluated for all of them."""
+    tables = {}
+    for group, networks in GROUPS.items():
+        have = [s for s in seeds if all(evaluation_path(n, s).exists() for n in ("plain", networks[0]))]
+        if not have:
+            continue
+        present = ["plain", *[n for n in networks if all(evaluation_path(n, s).exists() for s in have)]]
+        summaries = {n: [summary(n, s, log) for s in have] for n in present}
+        rows = [row for row in ROWS if row[1] in present]
+        tables[group] = {"seeds": have, "networks": present, "not_trained": [n for n in networks if n not in present],
+                         "tracks": {track: track_values(track, summaries, rows) for track in anomaly_tracks()}}
+    return tables
+
+
+def report(tables: dict) -> str:
     lines = ["# Training claims on real frames: CuDAM and MSAAM on the CamVid regime", "",
              f"Written by `python -m experiments.{NAME}` (the method: its docstring and docs/decisions/camvid.md). "
-             f"Networks: {', '.join(f'`{n}`' for n in networks)}, seeds {', '.join(map(str, seeds))}; each 1000 "
-             "decoder steps (batch 8, 24x32 feature cells) on the frozen Cityscapes ERFNet encoder. "
-             f"Not trained (rows and findings left out): {', '.join(f'`{n}`' for n in missing) or 'none'}. "
-             "Values are means ± sample std over seeds; the evidence gives the paired difference and its 95% "
-             "interval (hierarchical bootstrap, 1000 replicates, over seeds and, inside each, frames). A finding "
-             f"is tested only where every network of its rows reaches {COMPETENT:g}% CamVid test mIoU. Anomaly "
-             "metrics pooled over each track's non-void pixels at the labels' size; intervals from per-frame "
+             "Every network: 1000 decoder steps (batch 8, 24x32 feature cells) on the frozen Cityscapes ERFNet "
+             "encoder, the baseline's settings plus one attention module with its paper's objective. Values are "
+             "means ± sample std over seeds; the evidence gives the paired difference and its 95% interval "
+             "(hierarchical bootstrap, 1000 replicates, over seeds and, inside each, frames). A finding is tested "
+             f"only where every network of its rows reaches {COMPETENT:g}% CamVid test mIoU. Anomaly metrics are "
+             "pooled over each track's non-void pixels at the labels' size (exact); intervals from per-frame "
              f"histograms over {common.TABLE_BINS} bins.", ""]
-    for track, v in results.items():
-        binning = max(row["binning"] for row in v.values())
-        lines += [f"## {track}", "", markdown([{"label": k, **row} for k, row in v.items()]), "",
-                  f"CamVid test mIoU: {mious(v)}. Binned metrics within {binning:.2f} points of the exact ones.", ""]
-        for table, found in findings(v).items():
-            if found:
-                lines += [f"### {table}", "", *finding_lines(found), ""]
-        lines += ["Positive controls (built so that the mechanism must help; a failing one points at a bug):", "",
-                  *finding_lines(controls(v)), ""]
+    for group, table in tables.items():
+        lines += [f"## {group}: networks {', '.join(f'`{n}`' for n in table['networks'])}; seeds "
+                  f"{', '.join(map(str, table['seeds']))}", "",
+                  "Not trained yet (rows and findings left out): "
+                  f"{', '.join(f'`{n}`' for n in table['not_trained']) or 'none'}.", ""]
+        for track, v in table["tracks"].items():
+            binning = max(row["binning"] for row in v.values())
+            lines += [f"### {track}", "", markdown([{"label": k, **row} for k, row in v.items()]), "",
+                      f"CamVid test mIoU: {mious(v)}. Binned metrics within {binning:.2f} points of the exact ones.",
+                      ""]
+            for name, found in findings(v).items():
+                if found:
+                    lines += [f"{name}:", "", *finding_lines(found), ""]
+            lines += ["Positive controls (built so that the mechanism must help; a failing one points at a bug):",
+                      "", *finding_lines(controls(v)), ""]
     return "\n".join(lines)
 
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--networks", nargs="+", default=list(NETWORKS), choices=list(NETWORKS))
+    parser.add_argument("--networks", nargs="+", default=list(NETWORKS), choices=list(NETWORKS),
+                        help="the networks to train and evaluate where missing (default: all)")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    parser.add_argument("--train-only", action="store_true", help="train and evaluate; write no tables")
+    parser.add_argument("--train-only", action="store_true", help="train, evaluate and summarise; write no tables")
+    parser.add_argument("--tables-only", action="store_true",
+                        help="train nothing: the tables of the networks already evaluated")
     args = parser.parse_args(argv)
-    networks = ["plain", *[n for n in args.networks if n != "plain"]]
-    evaluations = {}
-    for network in networks:
-        evaluations[network] = [evaluate(network, seed) for seed in args.seeds]
+    if not args.tables_only:
+        for network in ["plain", *[n for n in args.networks if n != "plain"]]:
+            for seed in args.seeds:
+                summary(network, seed)
     if args.train_only:
         return
-    rows = [row for row in ROWS if row[1] in evaluations]
-    results = {track: track_values(track, evaluations, rows) for track in anomaly_tracks()}
-    missing = [n for n in NETWORKS if n not in evaluations]
-    out = {"seeds": args.seeds, "networks": networks, "not_trained": missing, "competent_miou": COMPETENT,
-           "tracks": {track: {"table": [common._row_json(k, row) for k, row in v.items()],
-                              "findings": {t: [f.__dict__ for f in found] for t, found in findings(v).items()},
-                              "controls": [f.__dict__ for f in controls(v)]}
-                      for track, v in results.items()}}
-    (HERE / f"{NAME}.json").write_text(json.dumps(out, indent=1, default=float) + "\n")
-    (HERE / f"{NAME}.md").write_text(report(results, args.seeds, networks, missing) + "\n")
+    tables = group_tables(args.seeds)
+    out = {"competent_miou": COMPETENT,
+           "groups": {group: {**{k: table[k] for k in ("seeds", "networks", "not_trained")},
+                              "tracks": {track: {"table": [common._row_json(k, row) for k, row in v.items()],
+                                                 "findings": {t: [dataclasses.asdict(f) for f in found]
+                                                              for t, found in findings(v).items()},
+                                                 "controls": [dataclasses.asdict(f) for f in controls(v)]}
+                                         for track, v in table["tracks"].items()}}
+                      for group, table in tables.items()}}
+    (HERE / f"{NAME}.json").write_text(json.dumps(out, indent=1) + "\n")
+    (HERE / f"{NAME}.md").write_text(report(tables) + "\n")
     print((HERE / f"{NAME}.md").read_text())
 
 
