@@ -108,9 +108,9 @@ def markdown(rows: list[dict]) -> str:
               "What differs from the papers: ERFNet, not DeepLabV3+ R101; CamVid (11 classes, 367 training frames), "
               "not Cityscapes; the encoder is the Cityscapes one, frozen, and only the decoder is trained (not "
               "training from ImageNet); no scale or colour augmentation.", "",
-              "The training claims themselves (CuDAM Table II and the Table III ablation, MSAAM Table 6 on this "
-              "regime, anomaly metrics on RoadAnomaly21 and RoadObstacle21) have not been run yet: "
-              "docs/decisions/camvid.md, 'Next', gives the plan and its cost."]
+              "The training claims on this regime (CuDAM Table II and the Table III ablation, MSAAM Table 6, "
+              "anomaly metrics on RoadAnomaly21 and RoadObstacle21) are the next section "
+              "(`experiments/real_training_claims.py`)."]
     return "\n".join(lines) + "\n"
 
 
