@@ -21,9 +21,14 @@ def tiny(tmp_path, monkeypatch):
     write_camvid(tmp_path / "CamVid", H, W)
     model = ERFNet(num_classes=20)
     variables = jax.device_get(model.init(jax.random.key(1), np.zeros((1, H, W, 3), np.float32)))
-    rng = np.random.default_rng(0)  # BN statistics that are not the identity
-    variables["batch_stats"] = jax.tree.map(lambda x: (rng.random(x.shape) + 0.5).astype(np.float32),
-                                            variables["batch_stats"])
+    rng = np.random.default_rng(0)  # BN statistics that are not the identity, and leave features alive after ReLU
+
+    def statistic(path, x):
+        name = path[-1].key
+        values = rng.normal(0, 0.1, x.shape) if name == "mean" else rng.random(x.shape) + 0.5
+        return values.astype(np.float32)
+
+    variables["batch_stats"] = jax.tree_util.tree_map_with_path(statistic, variables["batch_stats"])
     monkeypatch.setattr(rtc, "CAMVID", tmp_path / "CamVid")
     monkeypatch.setattr(rtc, "CACHE", tmp_path / "cache")
     monkeypatch.setattr(rtc, "cityscapes_erfnet", lambda: (model, variables, "digest"))
